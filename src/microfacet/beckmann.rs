@@ -1,0 +1,115 @@
+//! Beckmann specifics: Λ through erfc (no 1 + erf cancellation) and visible
+//! slope sampling for incident directions on the whole sphere, inverting the
+//! marginal CDF in log space below the horizon (DESIGN.md §5).
+
+use super::special::{erfc, erfcx, norm_inv, INV_SQRT_PI, SQRT_PI};
+use glam::DVec3;
+
+/// Λ for an upward direction with (α tan θ)² = `alpha_tan2`; a = 1/(α tan θ):
+/// Λ = (e^{−a²}/(a√π) − erfc(a))/2.
+#[inline]
+pub fn lambda_up(alpha_tan2: f64) -> f64 {
+    if alpha_tan2 <= 0.0 {
+        return 0.0;
+    }
+    if !alpha_tan2.is_finite() {
+        return f64::INFINITY;
+    }
+    let a = 1.0 / alpha_tan2.sqrt();
+    if a > 26.0 {
+        return 0.0;
+    }
+    let v = 0.5 * ((-a * a).exp() * INV_SQRT_PI / a - erfc(a));
+    v.max(0.0)
+}
+
+/// Visible normal (unnormalised) for the stretched unit direction `w`.
+#[inline]
+pub fn sample_visible_std(w: DVec3, u1: f64, u2: f64) -> Option<DVec3> {
+    let sin_theta = (w.x * w.x + w.y * w.y).sqrt();
+    let cos_theta = w.z;
+    let (cos_phi, sin_phi) = if sin_theta > 0.0 { (w.x / sin_theta, w.y / sin_theta) } else { (1.0, 0.0) };
+    let sx = sample_slope_x(cos_theta, sin_theta, u1)?;
+    // The y slope is independent: Gaussian with variance 1/2.
+    let sy = norm_inv(u2.clamp(1e-300, 1.0 - 1e-16)) * std::f64::consts::FRAC_1_SQRT_2;
+    // Rotate back to the azimuth of w.
+    let slope_x = cos_phi * sx - sin_phi * sy;
+    let slope_y = sin_phi * sx + cos_phi * sy;
+    let m = DVec3::new(-slope_x, -slope_y, 1.0);
+    if m.is_finite() {
+        Some(m)
+    } else {
+        None
+    }
+}
+
+/// Samples the visible slope x (α = 1, direction at polar angle θ in the
+/// xz-plane): density ∝ (cos θ − x sin θ)·e^{−x²} on x < cot θ.
+fn sample_slope_x(cos_theta: f64, sin_theta: f64, u: f64) -> Option<f64> {
+    let u = u.clamp(1e-12, 1.0 - 1e-12);
+    if sin_theta < 1e-7 {
+        if cos_theta > 0.0 {
+            // Looking straight down at the surface: all normals visible.
+            return Some(norm_inv(u) * std::f64::consts::FRAC_1_SQRT_2);
+        }
+        return None;
+    }
+    let t = cos_theta / sin_theta;
+    if cos_theta >= 0.0 {
+        // G(x) = cos θ·erfc(−x)/2 + sin θ·e^{−x²}/(2√π): all terms positive.
+        let g = |x: f64| 0.5 * cos_theta * erfc(-x) + 0.5 * INV_SQRT_PI * sin_theta * (-x * x).exp();
+        let dg = |x: f64| (cos_theta - x * sin_theta) * (-x * x).exp() * INV_SQRT_PI;
+        let hi = t.min(40.0);
+        let target = u * g(hi);
+        solve_monotone(|x| g(x) - target, dg, hi, target.max(1e-300))
+    } else {
+        // Below the horizon, x ≤ t < 0. In log space:
+        // ln G(x) = const − x² + ln(1 + t√π·erfcx(−x)).
+        let b = |x: f64| (1.0 + t * SQRT_PI * erfcx(-x)).max(1e-300);
+        let lg = |x: f64| -x * x + b(x).ln();
+        let dlg = |x: f64| 2.0 * (t - x) / b(x);
+        let target = lg(t) + u.ln();
+        solve_monotone(|x| lg(x) - target, dlg, t, 1.0)
+    }
+}
+
+/// Solves f(x) = 0 for increasing f on (−∞, hi] (f(hi) ≥ 0) by Newton's method
+/// safeguarded with bisection. `scale` sets the convergence tolerance of f.
+fn solve_monotone(f: impl Fn(f64) -> f64, df: impl Fn(f64) -> f64, hi: f64, scale: f64) -> Option<f64> {
+    let mut hi = hi;
+    let mut lo = hi - 1.0;
+    let mut steps = 0;
+    while f(lo) > 0.0 {
+        lo = hi - 2.0 * (hi - lo);
+        steps += 1;
+        if steps > 60 {
+            return None;
+        }
+    }
+    let mut x = 0.5 * (lo + hi);
+    for _ in 0..100 {
+        let fx = f(x);
+        if fx.abs() <= 1e-13 * scale {
+            break;
+        }
+        if fx > 0.0 {
+            hi = x;
+        } else {
+            lo = x;
+        }
+        let d = df(x);
+        let mut next = x - fx / d;
+        if !(next > lo && next < hi) || !next.is_finite() {
+            next = 0.5 * (lo + hi);
+        }
+        if (hi - lo) <= 1e-15 * (1.0 + x.abs()) {
+            break;
+        }
+        x = next;
+    }
+    if x.is_finite() {
+        Some(x)
+    } else {
+        None
+    }
+}

@@ -1,0 +1,184 @@
+//! Position-free multiple scattering, Wang et al. 2022 (conductors), with the
+//! corrected readings of DESIGN.md §5.
+//!
+//! A path is d_0 = −ω_i, b_0, d_1, …, b_{k−1}, d_k = ω_o (eq. 1): vertex terms
+//! v_j = F·D(h)/(4|cos d_j|) (eq. 2) and segment terms s_j = e_j·p_j.
+//! Writing L_j = |Λ(d_j)| (so that p_j = G1_dist(−d_j) = 1/L_j), the pair
+//! "p_j · e_{j+1}" of the segment model reads
+//!
+//! | pair p_j·e_{j+1}            | uncorrelated (eqs. 7, 8, 11) | correlated (eqs. 17, 18, 22, 23) |
+//! |-----------------------------|------------------------------|----------------------------------|
+//! | middle, d_{j+1} upward      | (1/L_j)·Λ/(1+Λ)              | 1/L_j − 1/(L_j+Λ)                |
+//! | middle, d_{j+1} downward    | 1/L_j                        | 1/L_j                            |
+//! | last (ω_o upward)           | (1/L_j)·1/(1+Λ_o)            | 1/(L_j + Λ_o)  (eq. 17 read with |Λ|) |
+//!
+//! with Λ = Λ(d_{j+1}). For j = 0, L_0 = |Λ(−ω_i)| = 1 + Λ(ω_i), so the first
+//! order is Walter 2007 with G1·G1 (uncorrelated) or G2 = 1/(1+Λ_i+Λ_o)
+//! (correlated). Sampling d_{j+1} from the visible normals of −d_j has density
+//! v_j·p_j/F, so f/pdf of a path prefix is Π F_j·L_j·(p_j e_{j+1}), i.e. a
+//! product of Fresnel terms and the "continue" factors of the table times L_j.
+
+use super::ConductorFresnel;
+use crate::microfacet::{reflect, Microfacet};
+use crate::rng::Sampler;
+use crate::spectrum::Spectrum;
+use glam::DVec3;
+
+/// Height-uncorrelated (§3.3) or height-correlated (§3.4) segment terms.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Segments {
+    Uncorrelated,
+    Correlated,
+}
+
+impl Segments {
+    /// L_j·(p_j e_{j+1}) for a middle segment going upward with Λ = Λ(d_{j+1}):
+    /// the probability that the walk continues (hits the surface again).
+    #[inline]
+    pub fn continue_up(self, l: f64, lambda: f64) -> f64 {
+        if !lambda.is_finite() {
+            return 1.0;
+        }
+        match self {
+            Segments::Uncorrelated => lambda / (1.0 + lambda),
+            Segments::Correlated => lambda / (l + lambda),
+        }
+    }
+
+    /// p_j·e_k for the last segment towards ω_o (upward), Λ_o = Λ(ω_o).
+    #[inline]
+    pub fn last(self, l: f64, lambda_o: f64) -> f64 {
+        match self {
+            Segments::Uncorrelated => 1.0 / (l * (1.0 + lambda_o)),
+            Segments::Correlated => 1.0 / (l + lambda_o),
+        }
+    }
+}
+
+/// Options of one evaluation.
+#[derive(Clone, Copy, Debug)]
+pub struct WalkOptions {
+    pub segments: Segments,
+    /// Maximum number of scattering events (vertices).
+    pub max_bounces: u32,
+    /// Scattering orders counted, 1-based inclusive (k = 1 is single scattering).
+    pub orders: (u32, u32),
+}
+
+/// First vertex from which Russian roulette may end a path.
+const RR_START: u32 = 3;
+
+/// PT estimator with next-event estimation towards ω_o at every vertex
+/// (Wang eqs. 24–26). Returns one sample of f(ω_i, ω_o)·cos θ_o: Wang's vertex
+/// term carries 1/(4|cos θ_i|) only, so the path integral ρ is already cosine-weighted.
+pub fn eval_pt(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
+    if wi.z <= 0.0 || wo.z <= 0.0 {
+        return Spectrum::ZERO;
+    }
+    let lambda_o = mf.lambda(wo);
+    let mut w = wi; // −d_j: the direction light arrives from, seen from the vertex
+    let mut l = 1.0 + mf.lambda(wi); // L_j = |Λ(d_j)|
+    let mut throughput = Spectrum::ONE;
+    let mut result = Spectrum::ZERO;
+    for j in 0..opts.max_bounces {
+        let order = j + 1;
+        // Next-event estimation: close the path towards ω_o at this vertex.
+        if order >= opts.orders.0 && order <= opts.orders.1 {
+            let h = w + wo;
+            let len = h.length();
+            if len > 0.0 {
+                let h = h / len;
+                let cos_wh = w.dot(h);
+                if cos_wh > 0.0 && wo.dot(h) > 0.0 {
+                    let value = mf.d(h) * opts.segments.last(l, lambda_o) / (4.0 * w.z.abs());
+                    result += throughput * fresnel.eval(cos_wh) * value;
+                }
+            }
+        }
+        if order >= opts.orders.1 {
+            break;
+        }
+        // Sample the next direction from the visible normals of w.
+        let (u1, u2) = rng.next2();
+        let Some(m) = mf.sample_visible(w, u1, u2) else { break };
+        let cos_wm = w.dot(m);
+        if cos_wm <= 0.0 {
+            break;
+        }
+        let d_next = reflect(w, m);
+        throughput *= fresnel.eval(cos_wm);
+        if d_next.z > 0.0 {
+            let lambda = mf.lambda(d_next);
+            throughput *= opts.segments.continue_up(l, lambda);
+            l = lambda;
+            if !(l > 0.0) || !(throughput.max_value() > 0.0) {
+                // Λ = 0: the walk leaves for sure (and p_j = 1/L_j would divide by zero).
+                break;
+            }
+        } else {
+            l = mf.abs_lambda(d_next);
+        }
+        w = -d_next;
+        // Russian roulette.
+        if j + 1 >= RR_START {
+            let q = throughput.max_value().min(1.0);
+            if !(q > 0.0) {
+                break;
+            }
+            if q < 1.0 {
+                if rng.next() >= q {
+                    break;
+                }
+                throughput *= 1.0 / q;
+            }
+        }
+    }
+    result
+}
+
+/// Random-walk sampler (Wang §4.3 with the exit probabilities of DESIGN.md §5):
+/// at each upward direction the walk leaves with probability 1 − continue_up,
+/// so that the weight is the product of the Fresnel terms. The first vertex
+/// uses the caller's (u_exit, u1, u2). Returns (ω_o, weight, order) or None.
+pub fn sample_walk(
+    mf: &Microfacet,
+    fresnel: &ConductorFresnel,
+    wi: DVec3,
+    first: (f64, f64, f64),
+    opts: &WalkOptions,
+    rng: &mut Sampler,
+) -> Option<(DVec3, Spectrum, u32)> {
+    if wi.z <= 0.0 {
+        return None;
+    }
+    let mut w = wi;
+    let mut l = 1.0 + mf.lambda(wi);
+    let mut weight = Spectrum::ONE;
+    for j in 0..opts.max_bounces {
+        let (u_exit, u1, u2) = if j == 0 {
+            first
+        } else {
+            let (a, b) = rng.next2();
+            (rng.next(), a, b)
+        };
+        let m = mf.sample_visible(w, u1, u2)?;
+        let cos_wm = w.dot(m);
+        if cos_wm <= 0.0 {
+            return None;
+        }
+        let d_next = reflect(w, m);
+        weight *= fresnel.eval(cos_wm);
+        if d_next.z > 0.0 {
+            let lambda = mf.lambda(d_next);
+            let p_continue = opts.segments.continue_up(l, lambda);
+            if u_exit >= p_continue {
+                return Some((d_next, weight, j + 1));
+            }
+            l = lambda;
+        } else {
+            l = mf.abs_lambda(d_next);
+        }
+        w = -d_next;
+    }
+    None
+}

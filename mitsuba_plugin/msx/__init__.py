@@ -1,0 +1,55 @@
+"""msx — multiple-scattering microfacet BSDFs for Mitsuba 3.
+
+Usage::
+
+    import mitsuba as mi
+    mi.set_variant("scalar_rgb")
+    import msx
+    msx.register()            # registers the BSDF "msx_posfree" for this variant
+
+The math lives in a Rust library linked into the cffi extension
+``msx._native``; this package only parses parameters, evaluates textures at
+the hit and forwards each BSDF call to the C ABI (``include/msx.h``).
+"""
+
+__version__ = "0.1.0"
+
+__all__ = ["register", "registered_variants", "native_version", "__version__"]
+
+# Variants for which msx_posfree has been registered in this process.
+_REGISTERED = {}
+
+
+def native_version():
+    """Version string of the linked Rust core."""
+    from ._native import ffi, lib
+
+    return ffi.string(lib.msx_version()).decode()
+
+
+def registered_variants():
+    """Variants in which :func:`register` has registered ``msx_posfree``."""
+    return sorted(_REGISTERED)
+
+
+def register():
+    """Register the ``msx_posfree`` BSDF for the current Mitsuba variant.
+
+    Idempotent: a second call for the same variant does nothing. A Python
+    BSDF class binds to the variant active when its class statement runs, so
+    the class is created per variant. Returns the class.
+    """
+    import mitsuba as mi
+
+    variant = mi.variant()
+    if variant is None:
+        raise RuntimeError("msx.register(): set a Mitsuba variant first, e.g. mi.set_variant('scalar_rgb')")
+    cls = _REGISTERED.get(variant)
+    if cls is not None:
+        return cls
+    from ._plugin import make_bsdf_class
+
+    cls = make_bsdf_class(mi, variant)
+    mi.register_bsdf("msx_posfree", lambda props: cls(props))
+    _REGISTERED[variant] = cls
+    return cls

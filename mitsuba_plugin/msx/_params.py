@@ -1,0 +1,189 @@
+"""Parsing and validation of ``msx_posfree`` scene parameters (DESIGN.md §2).
+
+Everything here runs once per BSDF instance at scene load; errors name the
+parameter and the allowed values.
+"""
+
+import math
+
+from ._native import lib
+
+PLUGIN = "msx_posfree"
+
+SURFACES = {"conductor": lib.MSX_SURFACE_CONDUCTOR}
+SURFACES_PLANNED = ("dielectric", "diffuse")
+
+DISTRIBUTIONS = {"beckmann": lib.MSX_DISTRIBUTION_BECKMANN, "ggx": lib.MSX_DISTRIBUTION_GGX}
+
+MODELS = {
+    "single": lib.MSX_MODEL_SINGLE,
+    "uncorrelated": lib.MSX_MODEL_UNCORRELATED,
+    "correlated": lib.MSX_MODEL_CORRELATED,
+}
+MODELS_PLANNED = ("invariance", "heitz", "fastmsx", "compensated", "auto")
+
+ESTIMATORS = {"pt": lib.MSX_ESTIMATOR_PT}
+ESTIMATORS_PLANNED = ("bdpt",)
+
+# Parameters of other surfaces that must not appear on a conductor.
+NOT_FOR_CONDUCTOR = ("int_ior", "ext_ior", "specular_transmittance", "reflectance")
+
+MAX_BOUNCES_LIMIT = lib.MSX_MAX_BOUNCES_LIMIT
+SEED_LIMIT = 2**64
+
+
+class MsxParameterError(ValueError):
+    """A scene parameter of ``msx_posfree`` is invalid."""
+
+
+def _fmt(values):
+    return ", ".join("'%s'" % v for v in values)
+
+
+def _choice(props, name, default, allowed, planned=()):
+    """A string parameter restricted to ``allowed`` (dict or sequence)."""
+    if not (name in props):
+        return default
+    value = props.get(name)
+    if not isinstance(value, str):
+        raise MsxParameterError(
+            "%s: parameter '%s' must be a string, one of %s (got %r)" % (PLUGIN, name, _fmt(allowed), value)
+        )
+    if value in allowed:
+        return value
+    if value in planned:
+        raise MsxParameterError(
+            "%s: parameter '%s' = '%s' is not implemented yet; allowed values: %s"
+            % (PLUGIN, name, value, _fmt(allowed))
+        )
+    known = list(allowed) + [p + " (not implemented yet)" for p in planned]
+    raise MsxParameterError(
+        "%s: unknown value '%s' for parameter '%s'; allowed values: %s"
+        % (PLUGIN, value, name, ", ".join(known))
+    )
+
+
+def _int(props, name, default, lo, hi):
+    if not (name in props):
+        return default
+    value = props.get(name)
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int) or not (lo <= value <= hi):
+        raise MsxParameterError(
+            "%s: parameter '%s' must be an integer in [%d, %d] (got %r)" % (PLUGIN, name, lo, hi, value)
+        )
+    return value
+
+
+def _check_alpha(mi, name, tex):
+    """Rejects a constant roughness that is ≤ 0 or not finite."""
+    if tex.is_spatially_varying():
+        return
+    value = float(tex.eval_1(mi.SurfaceInteraction3f()))
+    if not (math.isfinite(value) and value > 0.0):
+        raise MsxParameterError(
+            "%s: parameter '%s' must be a finite roughness > 0 (got %r)" % (PLUGIN, name, value)
+        )
+
+
+class _Collect:
+    """Factory of a TraversalCallback that records every parameter object."""
+
+    @staticmethod
+    def make(mi):
+        class Collect(mi.TraversalCallback):
+            def __init__(self):
+                super().__init__()
+                self.items = {}
+
+            def put(self, name, value, flags):
+                self.items[name] = value
+
+        return Collect()
+
+
+def conductor_ior(mi, material):
+    """(eta, k) textures of one of Mitsuba's conductor presets.
+
+    Loads a built-in ``roughconductor`` with that material and collects its
+    textures through ``traverse``, so the values are exactly Mitsuba's (per
+    wavelength in spectral variants, its RGB values in RGB variants).
+    """
+    try:
+        ref = mi.load_dict({"type": "roughconductor", "material": material})
+    except Exception as e:  # unknown preset: Mitsuba cannot find data/ior/<name>.eta.spd
+        raise MsxParameterError(
+            "%s: unknown conductor for parameter 'material': '%s' (use one of Mitsuba's names such as "
+            "'Cu', 'Au', 'Ag', 'Al', 'Cr', 'W', 'Ni', or 'none' for a perfect mirror; Mitsuba said: %s)"
+            % (PLUGIN, material, str(e).splitlines()[-1] if str(e) else e)
+        ) from None
+    cb = _Collect.make(mi)
+    ref.traverse(cb)
+    return cb.items["eta"], cb.items["k"]
+
+
+class Config:
+    """Parsed parameters of one msx_posfree instance."""
+
+    def __init__(self, mi, props):
+        self.surface = _choice(props, "surface", "conductor", SURFACES, SURFACES_PLANNED)
+        for name in NOT_FOR_CONDUCTOR:
+            if (name in props):
+                raise MsxParameterError(
+                    "%s: parameter '%s' does not apply to surface='%s' (it is used by dielectric/diffuse "
+                    "surfaces); conductor parameters: distribution, alpha, alpha_u, alpha_v, material, eta, k, "
+                    "specular_reflectance, model, estimator, max_bounces, seed" % (PLUGIN, name, self.surface)
+                )
+        self.distribution = _choice(props, "distribution", "beckmann", DISTRIBUTIONS)
+
+        if ("alpha" in props):
+            for name in ("alpha_u", "alpha_v"):
+                if (name in props):
+                    raise MsxParameterError(
+                        "%s: give either 'alpha' (isotropic) or 'alpha_u'/'alpha_v' (anisotropic), not both "
+                        "(got 'alpha' and '%s')" % (PLUGIN, name)
+                    )
+            self.alpha_u = props.get_texture("alpha", 0.1)
+            self.alpha_v = self.alpha_u
+            _check_alpha(mi, "alpha", self.alpha_u)
+            self.isotropic = True
+        else:
+            self.alpha_u = props.get_texture("alpha_u", 0.1)
+            self.alpha_v = props.get_texture("alpha_v", 0.1)
+            _check_alpha(mi, "alpha_u", self.alpha_u)
+            _check_alpha(mi, "alpha_v", self.alpha_v)
+            self.isotropic = False
+
+        material = props.get("material", "none") if ("material" in props) else "none"
+        if not isinstance(material, str):
+            raise MsxParameterError("%s: parameter 'material' must be a string (got %r)" % (PLUGIN, material))
+        self.material = material
+        if material == "none":
+            self.eta = props.get_unbounded_texture("eta", 0.0)
+            self.k = props.get_unbounded_texture("k", 1.0)
+        else:
+            for name in ("eta", "k"):
+                if (name in props):
+                    raise MsxParameterError(
+                        "%s: parameter '%s' cannot be combined with material='%s': specify either "
+                        "(eta, k) or 'material', not both" % (PLUGIN, name, material)
+                    )
+            self.eta, self.k = conductor_ior(mi, material)
+        self.specular_reflectance = props.get_texture("specular_reflectance", 1.0)
+
+        self.model = _choice(props, "model", "correlated", MODELS, MODELS_PLANNED)
+        self.estimator = _choice(props, "estimator", "pt", ESTIMATORS, ESTIMATORS_PLANNED)
+        self.max_bounces = _int(props, "max_bounces", 0, 1, MAX_BOUNCES_LIMIT)
+        self.seed = _int(props, "seed", 0, 0, SEED_LIMIT - 1)
+
+    def native_params(self, channels):
+        return {
+            "surface": SURFACES[self.surface],
+            "distribution": DISTRIBUTIONS[self.distribution],
+            "model": MODELS[self.model],
+            "estimator": ESTIMATORS[self.estimator],
+            "max_bounces": self.max_bounces,
+            "channels": channels,
+            "seed": self.seed,
+        }

@@ -1,0 +1,274 @@
+"""The ``msx_posfree`` BSDF class for Mitsuba's scalar variants.
+
+Every BSDF call crosses into the Rust core exactly once through the cffi
+API-mode extension ``msx._native`` (small C helpers there take the
+directions as plain floats and return the ABI's result structs by value).
+Per-hit material values are packed into an ``MsxMaterial``; when no texture
+varies (over the surface, or with wavelength in spectral variants) that
+struct is computed once and reused.
+"""
+
+from ._native import ffi, lib
+from ._params import PLUGIN, Config, MsxParameterError
+
+_ERR_LEN = 512
+
+
+def _channels(mi, variant):
+    if not variant.startswith("scalar_"):
+        raise NotImplementedError(
+            "%s: variant '%s' is not supported yet; use a scalar variant (scalar_rgb, scalar_spectral, "
+            "scalar_mono)" % (PLUGIN, variant)
+        )
+    if mi.is_polarized:
+        raise NotImplementedError("%s: polarized variants ('%s') are not supported" % (PLUGIN, variant))
+    if mi.is_spectral:
+        return 4
+    if mi.is_rgb:
+        return 3
+    return 1
+
+
+def make_bsdf_class(mi, variant):
+    """Defines the BSDF class for the current variant (``variant``)."""
+    nch = _channels(mi, variant)
+    if nch > lib.MSX_MAX_CHANNELS:
+        raise NotImplementedError("%s: %d channels exceed the core's limit" % (PLUGIN, nch))
+
+    BSDFFlags = mi.BSDFFlags
+    GLOSSY_REFLECTION = BSDFFlags.GlossyReflection
+    GLOSSY_BIT = int(GLOSSY_REFLECTION)
+    # BSDFContext.component: -1 (all components, as uint32) or our only one, 0.
+    COMPONENTS = frozenset((0, 0xFFFFFFFF))
+    Spectrum = mi.Spectrum
+    Vector3f = mi.Vector3f
+    BSDFSample3f = mi.BSDFSample3f
+    SurfaceInteraction3f = mi.SurfaceInteraction3f
+    ZERO = Spectrum(0.0)
+    # Copying a prepared sample record is cheaper than setting eta,
+    # sampled_type and sampled_component on a fresh one per call (as in
+    # Mitsuba's roughconductor these are set whether or not the sample is valid).
+    SAMPLE_TEMPLATE = BSDFSample3f()
+    SAMPLE_TEMPLATE.eta = 1.0
+    SAMPLE_TEMPLATE.sampled_type = int(GLOSSY_REFLECTION)
+    SAMPLE_TEMPLATE.sampled_component = 0
+    DIFF = mi.ParamFlags.Differentiable
+    DISC = mi.ParamFlags.Discontinuous
+    spectral = bool(mi.is_spectral)
+
+    c_eval, c_eval_m = lib.msxpy_eval, lib.msxpy_eval_m
+    c_eval_pdf, c_eval_pdf_m = lib.msxpy_eval_pdf, lib.msxpy_eval_pdf_m
+    c_pdf, c_pdf_m = lib.msxpy_pdf, lib.msxpy_pdf_m
+    c_sample, c_sample_m = lib.msxpy_sample, lib.msxpy_sample_m
+    new = ffi.new
+
+    # Result structs are flat (v0..v3 / w0..w3): one attribute access each.
+    if nch == 3:
+        def value_of(r):
+            return Spectrum(r.v0, r.v1, r.v2)
+
+        def weight_of(r):
+            return Spectrum(r.w0, r.w1, r.w2)
+    elif nch == 4:
+        def value_of(r):
+            return Spectrum(r.v0, r.v1, r.v2, r.v3)
+
+        def weight_of(r):
+            return Spectrum(r.w0, r.w1, r.w2, r.w3)
+    else:
+        def value_of(r):
+            return Spectrum(r.v0)
+
+        def weight_of(r):
+            return Spectrum(r.w0)
+
+    def is_constant(tex):
+        """True if the texture's value depends neither on the position nor,
+        in spectral variants, on the wavelengths."""
+        if tex.is_spatially_varying():
+            return False
+        return (not spectral) or tex.class_name() == "UniformSpectrum"
+
+    def channel_values(value):
+        if nch == 1:
+            return [float(value[0]) if hasattr(value, "__getitem__") else float(value)]
+        return [float(value[i]) for i in range(nch)]
+
+    class MsxPosfree(mi.BSDF):
+        """Multiple-scattering microfacet conductor (DESIGN.md §2)."""
+
+        def __init__(self, props):
+            mi.BSDF.__init__(self, props)
+            cfg = Config(mi, props)
+            self._cfg = cfg
+            self._alpha_u = cfg.alpha_u
+            self._alpha_v = cfg.alpha_v
+            self._eta = cfg.eta
+            self._k = cfg.k
+            self._specular_reflectance = cfg.specular_reflectance
+
+            params = new("MsxParams *", cfg.native_params(nch))
+            out = new("MsxBsdf **")
+            err = new("char[]", _ERR_LEN)
+            rc = lib.msx_bsdf_new(params, out, err, _ERR_LEN)
+            if rc != lib.MSX_OK:
+                raise MsxParameterError("%s: %s" % (PLUGIN, ffi.string(err).decode(errors="replace")))
+            self._h = ffi.gc(out[0], lib.msx_bsdf_free)
+            # Handle + cached material + the per-instance call counter that is
+            # passed as the `key` of msx_eval* (incremented in C per call: it
+            # decorrelates the stochastic estimates of successive calls).
+            self._inst = new("MsxpyInst *")
+            self._inst.bsdf = self._h
+            self._inst.key = 0
+            self._refresh()
+
+        # ------------------------------------------------------------ state
+
+        def _refresh(self):
+            """(Re)computes cached constants from the current textures."""
+            isotropic = self._cfg.isotropic
+            if isotropic:
+                self._alpha_v = self._alpha_u
+            texs = [self._alpha_u, self._alpha_v, self._eta, self._k, self._specular_reflectance]
+            self._const = all(is_constant(t) for t in texs)
+            self._alpha_const = all(not t.is_spatially_varying() for t in texs[:2])
+
+            mat = new("MsxMaterial *")
+            si = SurfaceInteraction3f()
+            if not spectral or self._const:
+                self._fill(mat, si)
+            elif self._alpha_const:
+                mat.alpha_u = self._alpha_u.eval_1(si)
+                mat.alpha_v = self._alpha_v.eval_1(si)
+            self._mat = mat
+            # Textures that vary in RGB are spatially varying: evaluated per call.
+            self._inst.mat = mat[0]
+
+            flags = GLOSSY_REFLECTION | BSDFFlags.FrontSide
+            anisotropic = not isotropic and (
+                not self._alpha_const or mat.alpha_u != mat.alpha_v
+            )
+            if anisotropic:
+                flags = flags | BSDFFlags.Anisotropic
+            if not self._const and any(t.is_spatially_varying() for t in texs):
+                flags = flags | BSDFFlags.SpatiallyVarying
+            self.m_flags = flags
+            self.m_components = [flags]
+
+        def _fill(self, mat, si):
+            mat.alpha_u = self._alpha_u.eval_1(si)
+            mat.alpha_v = self._alpha_v.eval_1(si)
+            eta = channel_values(self._eta.eval(si))
+            k = channel_values(self._k.eval(si))
+            r = channel_values(self._specular_reflectance.eval(si))
+            for c in range(nch):
+                mat.eta[c] = eta[c]
+                mat.k[c] = k[c]
+                mat.specular_reflectance[c] = r[c]
+
+        def _material(self, si):
+            """Material values at the hit (textures evaluated there)."""
+            if self._const:
+                return self._mat
+            mat = new("MsxMaterial *")
+            if self._alpha_const:
+                mat.alpha_u = self._mat.alpha_u
+                mat.alpha_v = self._mat.alpha_v
+                eta = channel_values(self._eta.eval(si))
+                k = channel_values(self._k.eval(si))
+                r = channel_values(self._specular_reflectance.eval(si))
+                for c in range(nch):
+                    mat.eta[c] = eta[c]
+                    mat.k[c] = k[c]
+                    mat.specular_reflectance[c] = r[c]
+            else:
+                self._fill(mat, si)
+            return mat
+
+        # ------------------------------------------------------------ calls
+        # Hot paths: kept short on purpose (each Python operation costs
+        # ~0.02-0.1 µs and the path integrator calls these per bounce;
+        # indexing w[0] is measurably cheaper than tuple-unpacking a Vector3f).
+
+        def eval(self, ctx, si, wo, active=True):
+            if not (active and ctx.type_mask & GLOSSY_BIT) or ctx.component not in COMPONENTS:
+                return ZERO
+            w = si.wi
+            if self._const:
+                return value_of(c_eval(self._inst, w[0], w[1], w[2], wo[0], wo[1], wo[2]))
+            return value_of(c_eval_m(self._inst, self._material(si), w[0], w[1], w[2], wo[0], wo[1], wo[2]))
+
+        def pdf(self, ctx, si, wo, active=True):
+            if not (active and ctx.type_mask & GLOSSY_BIT) or ctx.component not in COMPONENTS:
+                return 0.0
+            w = si.wi
+            if self._const:
+                return c_pdf(self._inst, w[0], w[1], w[2], wo[0], wo[1], wo[2])
+            return c_pdf_m(self._inst, self._material(si), w[0], w[1], w[2], wo[0], wo[1], wo[2])
+
+        def eval_pdf(self, ctx, si, wo, active=True):
+            if not (active and ctx.type_mask & GLOSSY_BIT) or ctx.component not in COMPONENTS:
+                return ZERO, 0.0
+            w = si.wi
+            if self._const:
+                r = c_eval_pdf(self._inst, w[0], w[1], w[2], wo[0], wo[1], wo[2])
+            else:
+                r = c_eval_pdf_m(self._inst, self._material(si), w[0], w[1], w[2], wo[0], wo[1], wo[2])
+            return value_of(r), r.pdf
+
+        def sample(self, ctx, si, sample1, sample2, active=True):
+            if not (active and ctx.type_mask & GLOSSY_BIT) or ctx.component not in COMPONENTS:
+                return BSDFSample3f(), ZERO
+            w = si.wi
+            if self._const:
+                r = c_sample(self._inst, w[0], w[1], w[2], sample1, sample2[0], sample2[1])
+            else:
+                r = c_sample_m(self._inst, self._material(si), w[0], w[1], w[2], sample1, sample2[0], sample2[1])
+            bs = BSDFSample3f(SAMPLE_TEMPLATE)
+            if not r.valid:
+                return bs, ZERO  # pdf 0, zero weight
+            bs.wo = Vector3f(r.x, r.y, r.z)
+            bs.pdf = r.pdf
+            return bs, weight_of(r)
+
+        # ------------------------------------------------------ parameters
+
+        def traverse(self, cb):
+            if self._cfg.isotropic:
+                cb.put("alpha", self._alpha_u, DIFF | DISC)
+            else:
+                cb.put("alpha_u", self._alpha_u, DIFF | DISC)
+                cb.put("alpha_v", self._alpha_v, DIFF | DISC)
+            cb.put("eta", self._eta, DIFF | DISC)
+            cb.put("k", self._k, DIFF | DISC)
+            cb.put("specular_reflectance", self._specular_reflectance, DIFF)
+
+        def parameters_changed(self, keys=[]):
+            self._refresh()
+
+        def to_string(self):
+            cfg = self._cfg
+            if cfg.isotropic:
+                alpha = "  alpha = %s,\n" % _indent(self._alpha_u)
+            else:
+                alpha = "  alpha_u = %s,\n  alpha_v = %s,\n" % (_indent(self._alpha_u), _indent(self._alpha_v))
+            return (
+                "MsxPosfree[\n"
+                "  surface = \"%s\",\n  distribution = \"%s\",\n%s"
+                "  material = \"%s\",\n  eta = %s,\n  k = %s,\n  specular_reflectance = %s,\n"
+                "  model = \"%s\",\n  estimator = \"%s\",\n  max_bounces = %s,\n  seed = %d\n]"
+                % (
+                    cfg.surface, cfg.distribution, alpha, cfg.material,
+                    _indent(self._eta), _indent(self._k), _indent(self._specular_reflectance),
+                    cfg.model, cfg.estimator,
+                    cfg.max_bounces if cfg.max_bounces else "%d (library default)" % lib.MSX_DEFAULT_MAX_BOUNCES,
+                    cfg.seed,
+                )
+            )
+
+    MsxPosfree.__name__ = MsxPosfree.__qualname__ = "MsxPosfree"
+    return MsxPosfree
+
+
+def _indent(obj):
+    return str(obj).replace("\n", "\n  ")

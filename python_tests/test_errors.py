@@ -1,0 +1,157 @@
+"""Bad parameters fail at load with a message naming the parameter; bad call
+inputs give finite zeros, never NaN."""
+
+import math
+
+import pytest
+
+from conftest import set_variant
+
+
+def load_error(mi, **params):
+    with pytest.raises(Exception) as info:
+        mi.load_dict(dict(type="msx_posfree", **params))
+    return str(info.value)
+
+
+BAD = [
+    # (params, words that must appear in the message)
+    (dict(surface="dielectric"), ["surface", "not implemented", "conductor"]),
+    (dict(surface="diffuse"), ["surface", "not implemented", "conductor"]),
+    (dict(surface="plastic"), ["surface", "conductor"]),
+    (dict(distribution="phong"), ["distribution", "beckmann", "ggx"]),
+    (dict(alpha=0.0), ["alpha"]),
+    (dict(alpha=-0.2), ["alpha"]),
+    (dict(alpha=float("nan")), ["alpha"]),
+    (dict(alpha=float("inf")), ["alpha"]),
+    (dict(alpha_u=0.2, alpha_v=0.0), ["alpha_v"]),
+    (dict(alpha_u=-1.0, alpha_v=0.1), ["alpha_u"]),
+    (dict(alpha=0.2, alpha_u=0.3), ["alpha_u"]),
+    (dict(material="Unobtainium"), ["material"]),
+    (dict(material="Cu", eta=1.5), ["eta", "material"]),
+    (dict(material="Au", k=2.0), ["k", "material"]),
+    (dict(model="heitz"), ["model", "not implemented", "single", "uncorrelated", "correlated"]),
+    (dict(model="invariance"), ["model", "not implemented"]),
+    (dict(model="fastmsx"), ["model", "not implemented"]),
+    (dict(model="compensated"), ["model", "not implemented"]),
+    (dict(model="auto"), ["model", "not implemented"]),
+    (dict(model="Single"), ["model", "single"]),
+    (dict(estimator="bdpt"), ["estimator", "not implemented", "pt"]),
+    (dict(estimator="mlt"), ["estimator", "pt"]),
+    (dict(max_bounces=0), ["max_bounces", "1024"]),
+    (dict(max_bounces=2000), ["max_bounces", "1024"]),
+    (dict(max_bounces=-3), ["max_bounces"]),
+    (dict(seed=-1), ["seed"]),
+    (dict(int_ior=1.5), ["int_ior"]),
+    (dict(ext_ior="air"), ["ext_ior"]),
+    (dict(specular_transmittance=0.5), ["specular_transmittance"]),
+    (dict(reflectance=0.5), ["reflectance"]),
+    (dict(alpah=0.3), ["alpah"]),  # misspelled: Mitsuba's unreferenced-property check
+    (dict(materiel="Cu"), ["materiel"]),
+]
+
+
+@pytest.mark.parametrize("variant", ["scalar_rgb", "scalar_spectral"])
+@pytest.mark.parametrize("params,words", BAD, ids=[repr(p) for p, _ in BAD])
+def test_bad_parameter_raises_naming_it(variant, params, words):
+    mi = set_variant(variant)
+    msg = load_error(mi, **params)
+    for w in words:
+        assert w in msg, "message %r lacks %r" % (msg, w)
+
+
+def test_good_parameters_load(rgb):
+    mi = rgb
+    for params in [
+        {},
+        dict(distribution="ggx", alpha=0.5, material="Cu", model="single"),
+        dict(alpha_u=0.3, alpha_v=0.1, model="uncorrelated", estimator="pt", max_bounces=16, seed=7),
+        dict(eta=1.2, k=3.4, specular_reflectance=0.8),
+        dict(eta={"type": "rgb", "value": [0.2, 0.9, 1.1]}, k={"type": "rgb", "value": [3.9, 2.4, 2.1]}),
+        dict(material="none", max_bounces=1024),
+        dict(alpha={"type": "checkerboard", "color0": 0.1, "color1": 0.4}),
+    ]:
+        b = mi.load_dict(dict(type="msx_posfree", **params))
+        assert "MsxPosfree" in str(b)
+
+
+def finite_nonneg(values):
+    return all(math.isfinite(v) and v >= 0.0 for v in values)
+
+
+@pytest.mark.parametrize("model", ["single", "uncorrelated", "correlated"])
+@pytest.mark.parametrize("variant", ["scalar_rgb", "scalar_spectral"])
+def test_bad_call_inputs_give_finite_zero(variant, model):
+    mi = set_variant(variant)
+    b = mi.load_dict(dict(type="msx_posfree", model=model, material="Cu", distribution="ggx", alpha=0.5))
+    ctx = mi.BSDFContext()
+    nan = float("nan")
+    good = mi.Vector3f(0.0, 0.6, 0.8)
+    bad_dirs = [
+        mi.Vector3f(nan, 0.0, 1.0),
+        mi.Vector3f(nan, nan, nan),
+        mi.Vector3f(0.0, 0.0, 0.0),
+        mi.Vector3f(0.0, 0.6, -0.8),  # below the horizon
+        mi.Vector3f(float("inf"), 0.0, 1.0),
+    ]
+    for bad in bad_dirs:
+        for wi, wo in [(bad, good), (good, bad), (bad, bad)]:
+            si = mi.SurfaceInteraction3f()
+            si.wi = wi
+            if mi.is_spectral:
+                si.wavelengths = mi.Spectrum(450.0, 550.0, 600.0, 700.0)
+            v = [float(x) for x in b.eval(ctx, si, wo)]
+            p = float(b.pdf(ctx, si, wo))
+            ev, ep = b.eval_pdf(ctx, si, wo)
+            assert finite_nonneg(v + [p, float(ep)] + [float(x) for x in ev])
+            if wi is bad:
+                assert max(v) == 0.0 and p == 0.0
+            if wi is bad or wo is bad:
+                assert max(v) == 0.0 and max(float(x) for x in ev) == 0.0
+        si = mi.SurfaceInteraction3f()
+        si.wi = bad
+        for s1, s2 in [(0.5, (0.5, 0.5)), (nan, (nan, nan)), (0.0, (0.0, 0.0)), (0.999, (1.0, 1.0))]:
+            bs, w = b.sample(ctx, si, s1, mi.Point2f(*s2))
+            assert float(bs.pdf) == 0.0 and max(float(x) for x in w) == 0.0
+    # good wi with extreme sample values: finite
+    si = mi.SurfaceInteraction3f()
+    si.wi = good
+    for s1, s2 in [(nan, (nan, nan)), (0.0, (0.0, 0.0)), (1.0, (1.0, 1.0)), (0.5, (1e-30, 0.9999999))]:
+        bs, w = b.sample(ctx, si, s1, mi.Point2f(*s2))
+        assert finite_nonneg([float(bs.pdf)] + [float(x) for x in w] + [abs(float(x)) for x in bs.wo])
+
+
+def test_disabled_component_gives_zero(rgb):
+    mi = rgb
+    b = mi.load_dict(dict(type="msx_posfree", model="single", alpha=0.3))
+    si = mi.SurfaceInteraction3f()
+    si.wi = mi.Vector3f(0.0, 0.6, 0.8)
+    wo = mi.Vector3f(0.0, -0.6, 0.8)
+    ctx = mi.BSDFContext()
+    assert float(b.eval(ctx, si, wo)[0]) > 0
+    ctx.type_mask = int(mi.BSDFFlags.DiffuseReflection)
+    assert float(b.eval(ctx, si, wo)[0]) == 0.0 and float(b.pdf(ctx, si, wo)) == 0.0
+    bs, w = b.sample(ctx, si, 0.5, mi.Point2f(0.3, 0.3))
+    assert float(bs.pdf) == 0.0 and float(w[0]) == 0.0
+    ctx = mi.BSDFContext()
+    ctx.component = 1
+    assert float(b.eval(ctx, si, wo)[0]) == 0.0
+
+
+def test_register_requires_scalar_variant():
+    import mitsuba as mi
+    import msx
+
+    others = [v for v in mi.variants() if not v.startswith("scalar_")]
+    if not others:
+        pytest.skip("no non-scalar variant installed")
+    prev = mi.variant()
+    try:
+        mi.set_variant(others[0])
+        with pytest.raises(NotImplementedError):
+            msx.register()
+    except ImportError:
+        pytest.skip("variant %s cannot be loaded here" % others[0])
+    finally:
+        if prev:
+            mi.set_variant(prev)

@@ -65,8 +65,13 @@ pub struct WalkOptions {
     pub orders: (u32, u32),
 }
 
-/// First vertex from which Russian roulette may end a path.
-const RR_START: u32 = 3;
+/// First vertex after which Russian roulette may end a path. Roulette from the
+/// first continuation on: the continue factor is small for most directions at
+/// moderate roughness, and killing those walks early cut the GGX α = 0.5 eval
+/// time ≈ 3× for ≈ 1.3× the variance per call (measured off-specular), a net
+/// efficiency gain; starting at vertex 3 spent most of the time on walks that
+/// carried almost no weight.
+const RR_START: u32 = 1;
 
 /// PT estimator with next-event estimation towards ω_o at every vertex
 /// (Wang eqs. 24–26). Returns one sample of f(ω_i, ω_o)·cos θ_o: Wang's vertex

@@ -3,7 +3,8 @@
 //! [`Material`], since Mitsuba evaluates textures at the hit.
 
 use crate::microfacet::{Distribution, Microfacet};
-use crate::models::posfree::{self, Segments, WalkOptions};
+use crate::models::posfree::{self, Segments};
+use crate::models::WalkOptions;
 use crate::models::{single, ConductorFresnel};
 use crate::rng::{hash_words, Sampler};
 use crate::spectrum::{Spectrum, MAX_CHANNELS};

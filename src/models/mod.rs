@@ -6,6 +6,31 @@ pub mod single;
 use crate::microfacet::fresnel;
 use crate::spectrum::Spectrum;
 
+/// Options of one evaluation.
+#[derive(Clone, Copy, Debug)]
+pub struct WalkOptions {
+    pub segments: posfree::Segments,
+    /// Maximum number of scattering events (vertices).
+    pub max_bounces: u32,
+    /// Scattering orders counted, 1-based inclusive (k = 1 is single scattering).
+    pub orders: (u32, u32),
+}
+
+
+/// What a microfacet does to light (Heitz 2016 §3.2–3.4): the microsurface's
+/// material, shared by every multiple-scattering model.
+#[derive(Clone, Copy, Debug)]
+pub enum Microsurface {
+    /// Specular conductor facets, complex Fresnel per channel.
+    Conductor(ConductorFresnel),
+    /// Specular dielectric facets. `eta` = η_int/η_ext (> 0) of the interface;
+    /// directions with z < 0 are inside (Mitsuba's roughdielectric convention).
+    /// `radiance`: scale transmission by 1/η² as Mitsuba's Radiance mode does.
+    Dielectric { eta: f64, radiance: bool },
+    /// Lambertian facets with the given albedo (Heitz 2016 §3.3).
+    Diffuse { albedo: Spectrum },
+}
+
 /// Per-channel Fresnel factor of a conductor (F = 1 fast path for the
 /// perfect mirror, Mitsuba's `material="none"`).
 #[derive(Clone, Copy, Debug)]

@@ -18,7 +18,7 @@
 //! v_j·p_j/F, so f/pdf of a path prefix is Π F_j·L_j·(p_j e_{j+1}), i.e. a
 //! product of Fresnel terms and the "continue" factors of the table times L_j.
 
-use super::ConductorFresnel;
+use super::{ConductorFresnel, WalkOptions};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
@@ -53,16 +53,6 @@ impl Segments {
             Segments::Correlated => 1.0 / (l + lambda_o),
         }
     }
-}
-
-/// Options of one evaluation.
-#[derive(Clone, Copy, Debug)]
-pub struct WalkOptions {
-    pub segments: Segments,
-    /// Maximum number of scattering events (vertices).
-    pub max_bounces: u32,
-    /// Scattering orders counted, 1-based inclusive (k = 1 is single scattering).
-    pub orders: (u32, u32),
 }
 
 /// First vertex after which Russian roulette may end a path. Roulette from the

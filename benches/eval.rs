@@ -137,7 +137,7 @@ fn bench_ffi_eval(c: &mut Criterion, set: &Set) {
         Distribution::Beckmann => MSX_DISTRIBUTION_BECKMANN,
     };
     let a = alpha as f32;
-    let mat = MsxMaterial { alpha_u: a, alpha_v: a, eta: [0.0; 4], k: [1.0; 4], specular_reflectance: [1.0; 4] };
+    let mat = MsxMaterial { alpha_u: a, alpha_v: a, eta: [0.0; 4], k: [1.0; 4], specular_reflectance: [1.0; 4], ..Default::default() };
     let wi: Vec<MsxVec3> = set.wi.iter().map(|&v| f3(v)).collect();
     let wo: Vec<MsxVec3> = set.wo.iter().map(|&v| f3(v)).collect();
     let soa = |v: &[MsxVec3], f: fn(&MsxVec3) -> f32| v.iter().map(f).collect::<Vec<f32>>();
@@ -185,6 +185,7 @@ fn bench_ffi_eval(c: &mut Criterion, set: &Set) {
             k: [0, 1, 2, 3].map(|c| one(&mat.k[c])),
             specular_reflectance: [none; 4],
             key: 0,
+            ..Default::default()
         };
         let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0; N]);
         g.bench_function(BenchmarkId::from_parameter(format!("{name}-batch")), |bencher| {

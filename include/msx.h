@@ -16,6 +16,10 @@
 
 #define MSX_SURFACE_CONDUCTOR 0
 
+#define MSX_SURFACE_DIELECTRIC 1
+
+#define MSX_SURFACE_DIFFUSE 2
+
 #define MSX_DISTRIBUTION_BECKMANN 0
 
 #define MSX_DISTRIBUTION_GGX 1
@@ -26,7 +30,21 @@
 
 #define MSX_MODEL_CORRELATED 2
 
+#define MSX_MODEL_HEITZ 3
+
+#define MSX_MODEL_INVARIANCE 4
+
+#define MSX_MODEL_FASTMSX 5
+
+#define MSX_MODEL_COMPENSATED 6
+
 #define MSX_ESTIMATOR_PT 0
+
+#define MSX_ESTIMATOR_BDPT 1
+
+#define MSX_MODE_RADIANCE 0
+
+#define MSX_MODE_IMPORTANCE 1
 
 /*
  Bounce cap used when `MsxParams::max_bounces` is 0.
@@ -111,6 +129,22 @@ typedef struct MsxMaterial {
    */
   float k[4];
   float specular_reflectance[4];
+  /*
+   Dielectric relative IOR η_int/η_ext
+   */
+  float ior;
+  /*
+   Dielectric transmission tint, per channel
+   */
+  float specular_transmittance[4];
+  /*
+   Diffuse microsurface albedo, per channel
+   */
+  float reflectance[4];
+  /*
+   MSX_MODE_RADIANCE or MSX_MODE_IMPORTANCE (Mitsuba's TransportMode)
+   */
+  uint32_t mode;
 } MsxMaterial;
 
 typedef struct MsxVec3 {
@@ -169,6 +203,13 @@ typedef struct MsxBatchIn {
   struct MsxF32Array eta[4];
   struct MsxF32Array k[4];
   struct MsxF32Array specular_reflectance[4];
+  struct MsxF32Array ior;
+  struct MsxF32Array specular_transmittance[4];
+  struct MsxF32Array reflectance[4];
+  /*
+   MSX_MODE_RADIANCE or MSX_MODE_IMPORTANCE, for every lane
+   */
+  uint32_t mode;
   /*
    Lane i uses key + i (see `msx_eval`)
    */

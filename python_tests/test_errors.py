@@ -32,8 +32,8 @@ BAD = [
     (dict(material="Au", k=2.0), ["k", "material"]),
     (dict(model="heitz"), ["model", "not implemented", "single", "uncorrelated", "correlated"]),
     (dict(model="invariance"), ["model", "not implemented"]),
-    (dict(model="fastmsx"), ["model", "not implemented"]),
-    (dict(model="compensated"), ["model", "not implemented"]),
+    (dict(model="fastmsx"), ["distribution", "fastmsx", "ggx"]),  # default distribution is beckmann
+    (dict(model="fastmsx", distribution="beckmann"), ["distribution", "ggx"]),
     (dict(model="auto"), ["model", "not implemented"]),
     (dict(model="Single"), ["model", "single"]),
     (dict(estimator="bdpt"), ["estimator", "not implemented", "pt"]),

@@ -5,7 +5,7 @@
 use crate::microfacet::{Distribution, Microfacet};
 use crate::models::posfree::{self, Segments};
 use crate::models::WalkOptions;
-use crate::models::{single, ConductorFresnel};
+use crate::models::{compensated, fastmsx, single, ConductorFresnel};
 use crate::rng::{hash_words, Sampler};
 use crate::spectrum::{Spectrum, MAX_CHANNELS};
 use glam::DVec3;
@@ -15,6 +15,8 @@ use std::fmt;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Surface {
     Conductor,
+    Dielectric,
+    Diffuse,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -22,11 +24,57 @@ pub enum Model {
     Single,
     Uncorrelated,
     Correlated,
+    Heitz,
+    Invariance,
+    FastMsx,
+    Compensated,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Estimator {
     Pt,
+    Bdpt,
+}
+
+impl Surface {
+    pub fn name(self) -> &'static str {
+        match self {
+            Surface::Conductor => "conductor",
+            Surface::Dielectric => "dielectric",
+            Surface::Diffuse => "diffuse",
+        }
+    }
+}
+
+impl Model {
+    pub fn name(self) -> &'static str {
+        match self {
+            Model::Single => "single",
+            Model::Uncorrelated => "uncorrelated",
+            Model::Correlated => "correlated",
+            Model::Heitz => "heitz",
+            Model::Invariance => "invariance",
+            Model::FastMsx => "fastmsx",
+            Model::Compensated => "compensated",
+        }
+    }
+}
+
+/// Models implemented for a surface (DESIGN.md §2), in the order of the docs.
+pub fn models_for(surface: Surface) -> &'static [Model] {
+    match surface {
+        Surface::Conductor => &[Model::Single, Model::Uncorrelated, Model::Correlated, Model::FastMsx, Model::Compensated],
+        Surface::Dielectric => &[],
+        Surface::Diffuse => &[],
+    }
+}
+
+/// Models that accept `estimator="bdpt"`.
+pub fn bdpt_models(surface: Surface) -> &'static [Model] {
+    match surface {
+        Surface::Conductor => &[],
+        Surface::Dielectric | Surface::Diffuse => &[],
+    }
 }
 
 /// Bounce cap when the user gives none. Russian roulette ends most paths far
@@ -82,12 +130,29 @@ pub struct Material {
     pub eta: Spectrum,
     pub k: Spectrum,
     pub specular_reflectance: Spectrum,
+    /// Dielectric: relative IOR η_int/η_ext.
+    pub ior: f64,
+    pub specular_transmittance: Spectrum,
+    /// Diffuse microsurface albedo.
+    pub reflectance: Spectrum,
+    /// Mitsuba's TransportMode::Radiance (true) or Importance (false).
+    pub radiance: bool,
 }
 
 impl Material {
     /// A perfect mirror (η = 0, k = 1: F = 1) of roughness α.
     pub fn mirror(alpha: f64) -> Self {
-        Material { alpha_u: alpha, alpha_v: alpha, eta: Spectrum::ZERO, k: Spectrum::ONE, specular_reflectance: Spectrum::ONE }
+        Material {
+            alpha_u: alpha,
+            alpha_v: alpha,
+            eta: Spectrum::ZERO,
+            k: Spectrum::ONE,
+            specular_reflectance: Spectrum::ONE,
+            ior: 1.5046,
+            specular_transmittance: Spectrum::ONE,
+            reflectance: Spectrum::ONE,
+            radiance: true,
+        }
     }
 }
 
@@ -121,6 +186,36 @@ impl Bsdf {
         if cfg.channels == 0 || cfg.channels > MAX_CHANNELS {
             return Err(ParamError { parameter: "channels", message: format!("must be 1..={MAX_CHANNELS}, got {}", cfg.channels) });
         }
+        let names = |ms: &[Model]| ms.iter().map(|m| m.name()).collect::<Vec<_>>().join(", ");
+        let allowed = models_for(cfg.surface);
+        if !allowed.contains(&cfg.model) {
+            return Err(ParamError {
+                parameter: "model",
+                message: format!(
+                    "model '{}' is not available for surface '{}'; allowed: {}",
+                    cfg.model.name(),
+                    cfg.surface.name(),
+                    if allowed.is_empty() { "none yet (surface not implemented)".into() } else { names(allowed) }
+                ),
+            });
+        }
+        if cfg.model == Model::FastMsx && cfg.distribution != Distribution::Ggx {
+            return Err(ParamError {
+                parameter: "distribution",
+                message: "model 'fastmsx' (Rosales 2023) is defined for distribution 'ggx' only".into(),
+            });
+        }
+        if cfg.estimator == Estimator::Bdpt && !bdpt_models(cfg.surface).contains(&cfg.model) {
+            return Err(ParamError {
+                parameter: "estimator",
+                message: format!(
+                    "estimator 'bdpt' is not available for model '{}' on surface '{}'; bdpt models: {}",
+                    cfg.model.name(),
+                    cfg.surface.name(),
+                    names(bdpt_models(cfg.surface))
+                ),
+            });
+        }
         if cfg.max_bounces == 0 || cfg.max_bounces > MAX_BOUNCES_LIMIT {
             return Err(ParamError {
                 parameter: "max_bounces",
@@ -148,10 +243,17 @@ impl Bsdf {
 
     fn segments(&self) -> Option<Segments> {
         match self.cfg.model {
-            Model::Single => None,
             Model::Uncorrelated => Some(Segments::Uncorrelated),
             Model::Correlated => Some(Segments::Correlated),
+            _ => None,
         }
+    }
+
+    fn seeded(&self, words: &[u64]) -> Sampler {
+        let mut all = [0u64; 10];
+        all[0] = self.cfg.seed;
+        all[1..=words.len()].copy_from_slice(words);
+        Sampler::new(hash_words(&all[..=words.len()]))
     }
 
     /// f(ω_i, ω_o)·|cos θ_o| per channel. `key` decorrelates calls (the plugin
@@ -161,23 +263,25 @@ impl Bsdf {
     }
 
     /// `eval` restricted to scattering orders `orders.0 ..= orders.1` (1 = single).
+    /// Analytic models (single, fastmsx, compensated) have no orders beyond 1
+    /// in this sense: they return their whole value when order 1 is included.
     pub fn eval_orders(&self, mat: &Material, wi: DVec3, wo: DVec3, key: u64, orders: (u32, u32)) -> Spectrum {
         let (Some(wi), Some(wo)) = (finite_unit(wi), finite_unit(wo)) else { return Spectrum::ZERO };
+        if orders.0 > orders.1 {
+            return Spectrum::ZERO;
+        }
         let mf = self.microfacet(mat);
         let fresnel = self.fresnel(mat);
-        let value = match self.segments() {
-            None => {
-                if orders.0 <= 1 && orders.1 >= 1 {
-                    single::eval(&mf, &fresnel, wi, wo)
-                } else {
-                    Spectrum::ZERO
-                }
-            }
-            Some(segments) => {
-                let mut opts = self.walk_options(segments);
+        let first = orders.0 <= 1;
+        let value = match self.cfg.model {
+            Model::Single if first => single::eval(&mf, &fresnel, wi, wo),
+            Model::FastMsx if first => fastmsx::eval(&mf, &fresnel, wi, wo),
+            Model::Compensated if first => compensated::eval(&mf, &fresnel, wi, wo),
+            Model::Single | Model::FastMsx | Model::Compensated => Spectrum::ZERO,
+            Model::Uncorrelated | Model::Correlated | Model::Heitz | Model::Invariance => {
+                let mut opts = self.walk_options(self.segments().unwrap_or(Segments::Correlated));
                 opts.orders = (orders.0.max(1), orders.1.min(self.cfg.max_bounces));
-                let mut rng = Sampler::new(hash_words(&[
-                    self.cfg.seed,
+                let mut rng = self.seeded(&[
                     key,
                     wi.x.to_bits(),
                     wi.y.to_bits(),
@@ -185,22 +289,27 @@ impl Bsdf {
                     wo.x.to_bits(),
                     wo.y.to_bits(),
                     wo.z.to_bits(),
-                ]));
-                posfree::eval_pt(&mf, &fresnel, wi, wo, &opts, &mut rng)
+                ]);
+                match (self.cfg.model, self.cfg.estimator) {
+                    (_, Estimator::Pt) => posfree::eval_pt(&mf, &fresnel, wi, wo, &opts, &mut rng),
+                    (_, Estimator::Bdpt) => Spectrum::ZERO,
+                }
             }
         };
         (value * mat.specular_reflectance).sanitized()
     }
 
-    /// Density reported for MIS. Exact for `single`; for the multiple-scattering
-    /// models a mixture of the single-scattering visible-normal density and a
-    /// cosine lobe (Heitz 2016), weighted by [`diffuse_fraction`].
+    /// Density reported for MIS. Exact for `single`, `fastmsx` and
+    /// `compensated` (they sample with `single`'s sampler); for the
+    /// multiple-scattering models a mixture of the single-scattering
+    /// visible-normal density and a cosine lobe (Heitz 2016), weighted by
+    /// [`diffuse_fraction`].
     pub fn pdf(&self, mat: &Material, wi: DVec3, wo: DVec3) -> f64 {
         let (Some(wi), Some(wo)) = (finite_unit(wi), finite_unit(wo)) else { return 0.0 };
         let mf = self.microfacet(mat);
         let p = match self.cfg.model {
-            Model::Single => single::pdf(&mf, wi, wo),
-            _ => {
+            Model::Single | Model::FastMsx | Model::Compensated => single::pdf(&mf, wi, wo),
+            Model::Uncorrelated | Model::Correlated | Model::Heitz | Model::Invariance => {
                 if wi.z <= 0.0 || wo.z <= 0.0 {
                     0.0
                 } else {
@@ -220,19 +329,21 @@ impl Bsdf {
         (self.eval(mat, wi, wo, key), self.pdf(mat, wi, wo))
     }
 
-    /// Samples ω_o given Mitsuba's `sample1` and `sample2`; the random walk
-    /// draws its further numbers from a stream seeded by them and `seed`.
+    /// Samples ω_o given Mitsuba's `sample1` and `sample2`; the random walks
+    /// draw their further numbers from a stream seeded by them and `seed`.
     pub fn sample(&self, mat: &Material, wi: DVec3, sample1: f64, sample2: (f64, f64)) -> Option<BsdfSample> {
         let wi = finite_unit(wi)?;
         let clamp01 = |u: f64| if u.is_finite() { u.clamp(0.0, 1.0 - f64::EPSILON / 2.0) } else { 0.5 };
         let (s1, u1, u2) = (clamp01(sample1), clamp01(sample2.0), clamp01(sample2.1));
         let mf = self.microfacet(mat);
         let fresnel = self.fresnel(mat);
-        let (wo, pdf, weight) = match self.segments() {
-            None => single::sample(&mf, &fresnel, wi, u1, u2)?,
-            Some(segments) => {
-                let opts = self.walk_options(segments);
-                let mut rng = Sampler::new(hash_words(&[self.cfg.seed, s1.to_bits(), u1.to_bits(), u2.to_bits(), wi.x.to_bits(), wi.z.to_bits()]));
+        let (wo, pdf, weight) = match self.cfg.model {
+            Model::Single => single::sample(&mf, &fresnel, wi, u1, u2)?,
+            Model::FastMsx => fastmsx::sample(&mf, &fresnel, wi, u1, u2)?,
+            Model::Compensated => compensated::sample(&mf, &fresnel, wi, u1, u2)?,
+            Model::Uncorrelated | Model::Correlated | Model::Heitz | Model::Invariance => {
+                let opts = self.walk_options(self.segments().unwrap_or(Segments::Correlated));
+                let mut rng = self.seeded(&[s1.to_bits(), u1.to_bits(), u2.to_bits(), wi.x.to_bits(), wi.z.to_bits()]);
                 let (wo, weight, _order) = posfree::sample_walk(&mf, &fresnel, wi, (s1, u1, u2), &opts, &mut rng)?;
                 let pdf = self.pdf(mat, wi, wo);
                 (wo, pdf, weight)

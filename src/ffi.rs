@@ -18,6 +18,8 @@ pub const MSX_ERR_NULL_POINTER: i32 = 2;
 pub const MSX_ERR_PANIC: i32 = 3;
 
 pub const MSX_SURFACE_CONDUCTOR: u32 = 0;
+pub const MSX_SURFACE_DIELECTRIC: u32 = 1;
+pub const MSX_SURFACE_DIFFUSE: u32 = 2;
 
 pub const MSX_DISTRIBUTION_BECKMANN: u32 = 0;
 pub const MSX_DISTRIBUTION_GGX: u32 = 1;
@@ -25,8 +27,16 @@ pub const MSX_DISTRIBUTION_GGX: u32 = 1;
 pub const MSX_MODEL_SINGLE: u32 = 0;
 pub const MSX_MODEL_UNCORRELATED: u32 = 1;
 pub const MSX_MODEL_CORRELATED: u32 = 2;
+pub const MSX_MODEL_HEITZ: u32 = 3;
+pub const MSX_MODEL_INVARIANCE: u32 = 4;
+pub const MSX_MODEL_FASTMSX: u32 = 5;
+pub const MSX_MODEL_COMPENSATED: u32 = 6;
 
 pub const MSX_ESTIMATOR_PT: u32 = 0;
+pub const MSX_ESTIMATOR_BDPT: u32 = 1;
+
+pub const MSX_MODE_RADIANCE: u32 = 0;
+pub const MSX_MODE_IMPORTANCE: u32 = 1;
 
 /// Bounce cap used when `MsxParams::max_bounces` is 0.
 pub const MSX_DEFAULT_MAX_BOUNCES: u32 = 64;
@@ -75,6 +85,14 @@ pub struct MsxMaterial {
     /// Conductor complex IOR, imaginary part, per channel
     pub k: [f32; 4],
     pub specular_reflectance: [f32; 4],
+    /// Dielectric relative IOR η_int/η_ext
+    pub ior: f32,
+    /// Dielectric transmission tint, per channel
+    pub specular_transmittance: [f32; 4],
+    /// Diffuse microsurface albedo, per channel
+    pub reflectance: [f32; 4],
+    /// MSX_MODE_RADIANCE or MSX_MODE_IMPORTANCE (Mitsuba's TransportMode)
+    pub mode: u32,
 }
 
 #[repr(C)]
@@ -110,6 +128,23 @@ pub struct MsxSample {
     pub valid: u32,
 }
 
+impl Default for MsxMaterial {
+    /// α = 0.1, perfect mirror, bk7/air dielectric, unit tints, reflectance 0.5, Radiance mode.
+    fn default() -> Self {
+        MsxMaterial {
+            alpha_u: 0.1,
+            alpha_v: 0.1,
+            eta: [0.0; 4],
+            k: [1.0; 4],
+            specular_reflectance: [1.0; 4],
+            ior: 1.5046,
+            specular_transmittance: [1.0; 4],
+            reflectance: [0.5; 4],
+            mode: MSX_MODE_RADIANCE,
+        }
+    }
+}
+
 /// Opaque BSDF handle.
 pub struct MsxBsdf {
     bsdf: Bsdf,
@@ -141,8 +176,43 @@ pub struct MsxBatchIn {
     pub eta: [MsxF32Array; 4],
     pub k: [MsxF32Array; 4],
     pub specular_reflectance: [MsxF32Array; 4],
+    pub ior: MsxF32Array,
+    pub specular_transmittance: [MsxF32Array; 4],
+    pub reflectance: [MsxF32Array; 4],
+    /// MSX_MODE_RADIANCE or MSX_MODE_IMPORTANCE, for every lane
+    pub mode: u32,
     /// Lane i uses key + i (see `msx_eval`)
     pub key: u64,
+}
+
+impl Default for MsxF32Array {
+    fn default() -> Self {
+        MsxF32Array { ptr: std::ptr::null(), len: 0 }
+    }
+}
+
+impl Default for MsxBatchIn {
+    /// n = 0 and every array empty (defaults).
+    fn default() -> Self {
+        let e = MsxF32Array::default();
+        MsxBatchIn {
+            n: 0,
+            wi: [e; 3],
+            wo: [e; 3],
+            sample1: e,
+            sample2: [e; 2],
+            alpha_u: e,
+            alpha_v: e,
+            eta: [e; 4],
+            k: [e; 4],
+            specular_reflectance: [e; 4],
+            ior: e,
+            specular_transmittance: [e; 4],
+            reflectance: [e; 4],
+            mode: MSX_MODE_RADIANCE,
+            key: 0,
+        }
+    }
 }
 
 /// Outputs of the batched calls; each non-null pointer receives n floats.
@@ -173,7 +243,9 @@ fn write_error(buf: *mut c_char, len: usize, msg: &str) {
 fn config_from(p: &MsxParams) -> Result<Config, (&'static str, String)> {
     let surface = match p.surface {
         MSX_SURFACE_CONDUCTOR => Surface::Conductor,
-        v => return Err(("surface", format!("unknown value {v}; allowed: MSX_SURFACE_CONDUCTOR (0)"))),
+        MSX_SURFACE_DIELECTRIC => Surface::Dielectric,
+        MSX_SURFACE_DIFFUSE => Surface::Diffuse,
+        v => return Err(("surface", format!("unknown value {v}; allowed: conductor (0), dielectric (1), diffuse (2)"))),
     };
     let distribution = match p.distribution {
         MSX_DISTRIBUTION_BECKMANN => Distribution::Beckmann,
@@ -184,11 +256,21 @@ fn config_from(p: &MsxParams) -> Result<Config, (&'static str, String)> {
         MSX_MODEL_SINGLE => Model::Single,
         MSX_MODEL_UNCORRELATED => Model::Uncorrelated,
         MSX_MODEL_CORRELATED => Model::Correlated,
-        v => return Err(("model", format!("unknown value {v}; allowed: single (0), uncorrelated (1), correlated (2)"))),
+        MSX_MODEL_HEITZ => Model::Heitz,
+        MSX_MODEL_INVARIANCE => Model::Invariance,
+        MSX_MODEL_FASTMSX => Model::FastMsx,
+        MSX_MODEL_COMPENSATED => Model::Compensated,
+        v => {
+            return Err((
+                "model",
+                format!("unknown value {v}; allowed: single (0), uncorrelated (1), correlated (2), heitz (3), invariance (4), fastmsx (5), compensated (6)"),
+            ))
+        }
     };
     let estimator = match p.estimator {
         MSX_ESTIMATOR_PT => Estimator::Pt,
-        v => return Err(("estimator", format!("unknown value {v}; allowed: pt (0)"))),
+        MSX_ESTIMATOR_BDPT => Estimator::Bdpt,
+        v => return Err(("estimator", format!("unknown value {v}; allowed: pt (0), bdpt (1)"))),
     };
     let max_bounces = if p.max_bounces == 0 { DEFAULT_MAX_BOUNCES } else { p.max_bounces };
     Ok(Config { surface, distribution, model, estimator, max_bounces, channels: p.channels as usize, seed: p.seed })
@@ -265,6 +347,10 @@ fn material(m: &MsxMaterial) -> Material {
         eta: spectrum4(m.eta),
         k: spectrum4(m.k),
         specular_reflectance: spectrum4(m.specular_reflectance),
+        ior: m.ior as f64,
+        specular_transmittance: spectrum4(m.specular_transmittance),
+        reflectance: spectrum4(m.reflectance),
+        radiance: m.mode != MSX_MODE_IMPORTANCE,
     }
 }
 
@@ -407,6 +493,10 @@ struct Inputs {
     eta: [Reader; 4],
     k: [Reader; 4],
     spec: [Reader; 4],
+    ior: Reader,
+    spec_t: [Reader; 4],
+    refl: [Reader; 4],
+    radiance: bool,
 }
 
 fn inputs(b: &MsxBatchIn) -> Result<Inputs, String> {
@@ -429,6 +519,20 @@ fn inputs(b: &MsxBatchIn) -> Result<Inputs, String> {
             r(&b.specular_reflectance[2], 1.0, "specular_reflectance")?,
             r(&b.specular_reflectance[3], 1.0, "specular_reflectance")?,
         ],
+        ior: r(&b.ior, 1.5046, "ior")?,
+        spec_t: [
+            r(&b.specular_transmittance[0], 1.0, "specular_transmittance")?,
+            r(&b.specular_transmittance[1], 1.0, "specular_transmittance")?,
+            r(&b.specular_transmittance[2], 1.0, "specular_transmittance")?,
+            r(&b.specular_transmittance[3], 1.0, "specular_transmittance")?,
+        ],
+        refl: [
+            r(&b.reflectance[0], 0.5, "reflectance")?,
+            r(&b.reflectance[1], 0.5, "reflectance")?,
+            r(&b.reflectance[2], 0.5, "reflectance")?,
+            r(&b.reflectance[3], 0.5, "reflectance")?,
+        ],
+        radiance: b.mode != MSX_MODE_IMPORTANCE,
     })
 }
 
@@ -441,6 +545,10 @@ impl Inputs {
             eta: ch(&self.eta),
             k: ch(&self.k),
             specular_reflectance: ch(&self.spec),
+            ior: self.ior.get(i) as f64,
+            specular_transmittance: ch(&self.spec_t),
+            reflectance: ch(&self.refl),
+            radiance: self.radiance,
         }
     }
 

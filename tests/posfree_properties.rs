@@ -27,6 +27,7 @@ fn copper(ax: f64, ay: f64) -> Material {
         eta: Spectrum([0.200, 0.924, 1.102, 1.0]),
         k: Spectrum([3.912, 2.452, 2.142, 1.0]),
         specular_reflectance: Spectrum([0.9, 0.8, 0.7, 1.0]),
+        ..Material::mirror(ax)
     }
 }
 

@@ -19,8 +19,10 @@ MODELS = {
     "single": lib.MSX_MODEL_SINGLE,
     "uncorrelated": lib.MSX_MODEL_UNCORRELATED,
     "correlated": lib.MSX_MODEL_CORRELATED,
+    "fastmsx": lib.MSX_MODEL_FASTMSX,
+    "compensated": lib.MSX_MODEL_COMPENSATED,
 }
-MODELS_PLANNED = ("invariance", "heitz", "fastmsx", "compensated", "auto")
+MODELS_PLANNED = ("invariance", "heitz", "auto")
 
 ESTIMATORS = {"pt": lib.MSX_ESTIMATOR_PT}
 ESTIMATORS_PLANNED = ("bdpt",)

@@ -1,5 +1,7 @@
 //! The scattering models, each a small file to read beside its paper.
 
+pub mod compensated;
+pub mod fastmsx;
 pub mod posfree;
 pub mod single;
 

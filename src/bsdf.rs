@@ -5,7 +5,10 @@
 use crate::microfacet::{Distribution, Microfacet};
 use crate::models::posfree::{self, Segments};
 use crate::models::WalkOptions;
-use crate::models::{compensated, fastmsx, single, ConductorFresnel};
+use crate::models::{
+    compensated, fastmsx, heitz, invariance, posfree_bdpt, posfree_dielectric, posfree_diffuse, single, single_dielectric, ConductorFresnel,
+    Microsurface,
+};
 use crate::rng::{hash_words, Sampler};
 use crate::spectrum::{Spectrum, MAX_CHANNELS};
 use glam::DVec3;
@@ -63,16 +66,24 @@ impl Model {
 /// Models implemented for a surface (DESIGN.md §2), in the order of the docs.
 pub fn models_for(surface: Surface) -> &'static [Model] {
     match surface {
-        Surface::Conductor => &[Model::Single, Model::Uncorrelated, Model::Correlated, Model::FastMsx, Model::Compensated],
-        Surface::Dielectric => &[],
-        Surface::Diffuse => &[],
+        Surface::Conductor => &[
+            Model::Single,
+            Model::Uncorrelated,
+            Model::Correlated,
+            Model::Heitz,
+            Model::Invariance,
+            Model::FastMsx,
+            Model::Compensated,
+        ],
+        Surface::Dielectric => &[Model::Single, Model::Uncorrelated, Model::Correlated, Model::Heitz],
+        Surface::Diffuse => &[Model::Uncorrelated, Model::Correlated, Model::Heitz],
     }
 }
 
 /// Models that accept `estimator="bdpt"`.
 pub fn bdpt_models(surface: Surface) -> &'static [Model] {
     match surface {
-        Surface::Conductor => &[],
+        Surface::Conductor => &[Model::Uncorrelated, Model::Correlated],
         Surface::Dielectric | Surface::Diffuse => &[],
     }
 }
@@ -271,50 +282,96 @@ impl Bsdf {
             return Spectrum::ZERO;
         }
         let mf = self.microfacet(mat);
-        let fresnel = self.fresnel(mat);
         let first = orders.0 <= 1;
-        let value = match self.cfg.model {
-            Model::Single if first => single::eval(&mf, &fresnel, wi, wo),
-            Model::FastMsx if first => fastmsx::eval(&mf, &fresnel, wi, wo),
-            Model::Compensated if first => compensated::eval(&mf, &fresnel, wi, wo),
-            Model::Single | Model::FastMsx | Model::Compensated => Spectrum::ZERO,
-            Model::Uncorrelated | Model::Correlated | Model::Heitz | Model::Invariance => {
-                let mut opts = self.walk_options(self.segments().unwrap_or(Segments::Correlated));
-                opts.orders = (orders.0.max(1), orders.1.min(self.cfg.max_bounces));
-                let mut rng = self.seeded(&[
-                    key,
-                    wi.x.to_bits(),
-                    wi.y.to_bits(),
-                    wi.z.to_bits(),
-                    wo.x.to_bits(),
-                    wo.y.to_bits(),
-                    wo.z.to_bits(),
-                ]);
-                match (self.cfg.model, self.cfg.estimator) {
-                    (_, Estimator::Pt) => posfree::eval_pt(&mf, &fresnel, wi, wo, &opts, &mut rng),
-                    (_, Estimator::Bdpt) => Spectrum::ZERO,
-                }
+        let mut opts = self.walk_options(self.segments().unwrap_or(Segments::Correlated));
+        opts.orders = (orders.0.max(1), orders.1.min(self.cfg.max_bounces));
+        let rng = || self.seeded(&[key, wi.x.to_bits(), wi.y.to_bits(), wi.z.to_bits(), wo.x.to_bits(), wo.y.to_bits(), wo.z.to_bits()]);
+        let value = match self.cfg.surface {
+            Surface::Conductor => {
+                let fresnel = self.fresnel(mat);
+                let v = match self.cfg.model {
+                    Model::Single if first => single::eval(&mf, &fresnel, wi, wo),
+                    Model::FastMsx if first => fastmsx::eval(&mf, &fresnel, wi, wo),
+                    Model::Compensated if first => compensated::eval(&mf, &fresnel, wi, wo),
+                    Model::Single | Model::FastMsx | Model::Compensated => Spectrum::ZERO,
+                    Model::Uncorrelated | Model::Correlated => match self.cfg.estimator {
+                        Estimator::Pt => posfree::eval_pt(&mf, &fresnel, wi, wo, &opts, &mut rng()),
+                        Estimator::Bdpt => posfree_bdpt::eval_bdpt(&mf, &fresnel, wi, wo, &opts, &mut rng()),
+                    },
+                    Model::Heitz => heitz::eval(&mf, &Microsurface::Conductor(fresnel), wi, wo, &opts, &mut rng()),
+                    Model::Invariance => invariance::eval(&mf, &fresnel, wi, wo, &opts, &mut rng()),
+                };
+                v * mat.specular_reflectance
             }
+            Surface::Dielectric => {
+                let Some(eta) = valid_ior(mat.ior) else { return Spectrum::ZERO };
+                let v = match self.cfg.model {
+                    Model::Single if first => single_dielectric::eval(&mf, eta, wi, wo, mat.radiance).0,
+                    Model::Uncorrelated | Model::Correlated => {
+                        posfree_dielectric::eval_pt(&mf, eta, mat.radiance, wi, wo, &opts, &mut rng()).0
+                    }
+                    Model::Heitz => {
+                        let surf = Microsurface::Dielectric { eta, radiance: mat.radiance };
+                        heitz::eval(&mf, &surf, wi, wo, &opts, &mut rng()).0[0]
+                    }
+                    _ => 0.0,
+                };
+                self.dielectric_tint(mat, wi, wo) * v
+            }
+            Surface::Diffuse => match self.cfg.model {
+                Model::Uncorrelated | Model::Correlated => posfree_diffuse::eval_pt(&mf, mat.reflectance, wi, wo, &opts, &mut rng()),
+                Model::Heitz => heitz::eval(&mf, &Microsurface::Diffuse { albedo: mat.reflectance }, wi, wo, &opts, &mut rng()),
+                _ => Spectrum::ZERO,
+            },
         };
-        (value * mat.specular_reflectance).sanitized()
+        value.sanitized()
+    }
+
+    /// Mitsuba's tints: specular_reflectance on reflection, specular_transmittance on transmission.
+    fn dielectric_tint(&self, mat: &Material, wi: DVec3, wo: DVec3) -> Spectrum {
+        if wi.z * wo.z > 0.0 {
+            mat.specular_reflectance
+        } else {
+            mat.specular_transmittance
+        }
     }
 
     /// Density reported for MIS. Exact for `single`, `fastmsx` and
     /// `compensated` (they sample with `single`'s sampler); for the
-    /// multiple-scattering models a mixture of the single-scattering
-    /// visible-normal density and a cosine lobe (Heitz 2016), weighted by
-    /// [`diffuse_fraction`].
+    /// multiple-scattering models a mixture of the single-scattering density
+    /// and a cosine lobe (Heitz 2016), weighted by [`diffuse_fraction`]; a
+    /// cosine lobe for the diffuse microsurface.
     pub fn pdf(&self, mat: &Material, wi: DVec3, wo: DVec3) -> f64 {
         let (Some(wi), Some(wo)) = (finite_unit(wi), finite_unit(wo)) else { return 0.0 };
         let mf = self.microfacet(mat);
-        let p = match self.cfg.model {
-            Model::Single | Model::FastMsx | Model::Compensated => single::pdf(&mf, wi, wo),
-            Model::Uncorrelated | Model::Correlated | Model::Heitz | Model::Invariance => {
+        let p = match self.cfg.surface {
+            Surface::Conductor => match self.cfg.model {
+                Model::Single | Model::FastMsx | Model::Compensated => single::pdf(&mf, wi, wo),
+                _ => {
+                    if wi.z <= 0.0 || wo.z <= 0.0 {
+                        0.0
+                    } else {
+                        let k = diffuse_fraction(&mf);
+                        (1.0 - k) * mf.reflect_pdf(wi, wo) + k * wo.z * FRAC_1_PI
+                    }
+                }
+            },
+            Surface::Dielectric => {
+                let Some(eta) = valid_ior(mat.ior) else { return 0.0 };
+                let ss = single_dielectric::pdf(&mf, eta, wi, wo);
+                match self.cfg.model {
+                    Model::Single => ss,
+                    _ => {
+                        let k = diffuse_fraction(&mf);
+                        (1.0 - k) * ss + k * wo.z.abs() * 0.5 * FRAC_1_PI
+                    }
+                }
+            }
+            Surface::Diffuse => {
                 if wi.z <= 0.0 || wo.z <= 0.0 {
                     0.0
                 } else {
-                    let k = diffuse_fraction(&mf);
-                    (1.0 - k) * mf.reflect_pdf(wi, wo) + k * wo.z * FRAC_1_PI
+                    wo.z * FRAC_1_PI
                 }
             }
         };
@@ -336,25 +393,65 @@ impl Bsdf {
         let clamp01 = |u: f64| if u.is_finite() { u.clamp(0.0, 1.0 - f64::EPSILON / 2.0) } else { 0.5 };
         let (s1, u1, u2) = (clamp01(sample1), clamp01(sample2.0), clamp01(sample2.1));
         let mf = self.microfacet(mat);
-        let fresnel = self.fresnel(mat);
-        let (wo, pdf, weight) = match self.cfg.model {
-            Model::Single => single::sample(&mf, &fresnel, wi, u1, u2)?,
-            Model::FastMsx => fastmsx::sample(&mf, &fresnel, wi, u1, u2)?,
-            Model::Compensated => compensated::sample(&mf, &fresnel, wi, u1, u2)?,
-            Model::Uncorrelated | Model::Correlated | Model::Heitz | Model::Invariance => {
-                let opts = self.walk_options(self.segments().unwrap_or(Segments::Correlated));
-                let mut rng = self.seeded(&[s1.to_bits(), u1.to_bits(), u2.to_bits(), wi.x.to_bits(), wi.z.to_bits()]);
-                let (wo, weight, _order) = posfree::sample_walk(&mf, &fresnel, wi, (s1, u1, u2), &opts, &mut rng)?;
-                let pdf = self.pdf(mat, wi, wo);
-                (wo, pdf, weight)
+        let opts = self.walk_options(self.segments().unwrap_or(Segments::Correlated));
+        let rng = || self.seeded(&[s1.to_bits(), u1.to_bits(), u2.to_bits(), wi.x.to_bits(), wi.z.to_bits()]);
+        let first = (s1, u1, u2);
+        let (wo, pdf, weight) = match self.cfg.surface {
+            Surface::Conductor => {
+                let fresnel = self.fresnel(mat);
+                let (wo, pdf, w) = match self.cfg.model {
+                    Model::Single => single::sample(&mf, &fresnel, wi, u1, u2)?,
+                    Model::FastMsx => fastmsx::sample(&mf, &fresnel, wi, u1, u2)?,
+                    Model::Compensated => compensated::sample(&mf, &fresnel, wi, u1, u2)?,
+                    Model::Uncorrelated | Model::Correlated | Model::Heitz | Model::Invariance => {
+                        let (wo, w, _) = match self.cfg.model {
+                            Model::Heitz => heitz::sample(&mf, &Microsurface::Conductor(fresnel), wi, first, &opts, &mut rng())?,
+                            Model::Invariance => invariance::sample(&mf, &fresnel, wi, first, &opts, &mut rng())?,
+                            _ => posfree::sample_walk(&mf, &fresnel, wi, first, &opts, &mut rng())?,
+                        };
+                        (wo, self.pdf(mat, wi, wo), w)
+                    }
+                };
+                (wo, pdf, w * mat.specular_reflectance)
+            }
+            Surface::Dielectric => {
+                let eta = valid_ior(mat.ior)?;
+                let (wo, pdf, w) = match self.cfg.model {
+                    Model::Single => {
+                        let (wo, pdf, w, _) = single_dielectric::sample(&mf, eta, wi, s1, u1, u2, mat.radiance)?;
+                        (wo, pdf, w)
+                    }
+                    Model::Heitz => {
+                        let surf = Microsurface::Dielectric { eta, radiance: mat.radiance };
+                        let (wo, w, _) = heitz::sample(&mf, &surf, wi, first, &opts, &mut rng())?;
+                        (wo, self.pdf(mat, wi, wo), w.0[0])
+                    }
+                    _ => {
+                        let (wo, w, _) = posfree_dielectric::sample_walk(&mf, eta, mat.radiance, wi, first, &opts, &mut rng())?;
+                        (wo, self.pdf(mat, wi, wo), w)
+                    }
+                };
+                (wo, pdf, self.dielectric_tint(mat, wi, wo) * w)
+            }
+            Surface::Diffuse => {
+                let (wo, w, _) = match self.cfg.model {
+                    Model::Heitz => heitz::sample(&mf, &Microsurface::Diffuse { albedo: mat.reflectance }, wi, first, &opts, &mut rng())?,
+                    _ => posfree_diffuse::sample_walk(&mf, mat.reflectance, wi, first, &opts, &mut rng())?,
+                };
+                (wo, self.pdf(mat, wi, wo), w)
             }
         };
-        let weight = (weight * mat.specular_reflectance).sanitized();
+        let weight = weight.sanitized();
         if !(pdf > 0.0) || !pdf.is_finite() || !wo.is_finite() {
             return None;
         }
         Some(BsdfSample { wo, pdf, weight })
     }
+}
+
+/// A dielectric's relative IOR if usable (finite, > 0).
+fn valid_ior(eta: f64) -> Option<f64> {
+    (eta.is_finite() && eta > 0.0).then_some(eta)
 }
 
 /// Weight of the cosine lobe in the MIS density of the multiple-scattering

@@ -37,7 +37,8 @@ def register():
 
     Idempotent: a second call for the same variant does nothing. A Python
     BSDF class binds to the variant active when its class statement runs, so
-    the class is created per variant. Returns the class.
+    the classes are created per variant. Returns the factory Mitsuba calls
+    (one class per surface kind, chosen from the ``surface`` property).
     """
     import mitsuba as mi
 

@@ -10,8 +10,12 @@ from ._native import lib
 
 PLUGIN = "msx_posfree"
 
-SURFACES = {"conductor": lib.MSX_SURFACE_CONDUCTOR}
-SURFACES_PLANNED = ("dielectric", "diffuse")
+SURFACES = {
+    "conductor": lib.MSX_SURFACE_CONDUCTOR,
+    "dielectric": lib.MSX_SURFACE_DIELECTRIC,
+    "diffuse": lib.MSX_SURFACE_DIFFUSE,
+}
+SURFACES_PLANNED = ()
 
 DISTRIBUTIONS = {"beckmann": lib.MSX_DISTRIBUTION_BECKMANN, "ggx": lib.MSX_DISTRIBUTION_GGX}
 
@@ -19,16 +23,23 @@ MODELS = {
     "single": lib.MSX_MODEL_SINGLE,
     "uncorrelated": lib.MSX_MODEL_UNCORRELATED,
     "correlated": lib.MSX_MODEL_CORRELATED,
+    "heitz": lib.MSX_MODEL_HEITZ,
+    "invariance": lib.MSX_MODEL_INVARIANCE,
     "fastmsx": lib.MSX_MODEL_FASTMSX,
     "compensated": lib.MSX_MODEL_COMPENSATED,
 }
-MODELS_PLANNED = ("invariance", "heitz", "auto")
+MODELS_PLANNED = ("auto",)
 
-ESTIMATORS = {"pt": lib.MSX_ESTIMATOR_PT}
-ESTIMATORS_PLANNED = ("bdpt",)
+ESTIMATORS = {"pt": lib.MSX_ESTIMATOR_PT, "bdpt": lib.MSX_ESTIMATOR_BDPT}
+ESTIMATORS_PLANNED = ()
 
-# Parameters of other surfaces that must not appear on a conductor.
-NOT_FOR_CONDUCTOR = ("int_ior", "ext_ior", "specular_transmittance", "reflectance")
+# The surface-specific parameters each surface accepts (the others are errors).
+SURFACE_PARAMS = {
+    "conductor": ("material", "eta", "k", "specular_reflectance"),
+    "dielectric": ("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"),
+    "diffuse": ("reflectance",),
+}
+COMMON_PARAMS = "surface, distribution, alpha, alpha_u, alpha_v, model, estimator, max_bounces, seed"
 
 MAX_BOUNCES_LIMIT = lib.MSX_MAX_BOUNCES_LIMIT
 SEED_LIMIT = 2**64
@@ -125,18 +136,52 @@ def conductor_ior(mi, material):
     return cb.items["eta"], cb.items["k"]
 
 
+def dielectric_ior(mi, props):
+    """Relative IOR int_ior/ext_ior with Mitsuba's own names and checks.
+
+    A built-in ``roughdielectric`` interprets the values (floats or names such
+    as 'bk7', 'water', 'air'); its traversed ``eta`` is the relative IOR.
+    """
+    args = {"type": "roughdielectric"}
+    for name, default in (("int_ior", "bk7"), ("ext_ior", "air")):
+        value = props.get(name, default) if name in props else default
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            if not (math.isfinite(value) and value > 0.0):
+                raise MsxParameterError(
+                    "%s: parameter '%s' must be a finite index of refraction > 0 or one of Mitsuba's names "
+                    "('bk7', 'water', 'air', 'diamond', ...) (got %r)" % (PLUGIN, name, value)
+                )
+        elif not isinstance(value, str):
+            raise MsxParameterError("%s: parameter '%s' must be a float or a string (got %r)" % (PLUGIN, name, value))
+        args[name] = value
+    try:
+        ref = mi.load_dict(args)
+    except Exception as e:
+        raise MsxParameterError(
+            "%s: invalid 'int_ior'/'ext_ior' (%r, %r): use an IOR > 0 or one of Mitsuba's names such as "
+            "'bk7', 'water', 'air', 'diamond' (Mitsuba said: %s)"
+            % (PLUGIN, args["int_ior"], args["ext_ior"], str(e).splitlines()[-1] if str(e) else e)
+        ) from None
+    eta = float(mi.traverse(ref)["eta"])
+    if not (math.isfinite(eta) and eta > 0.0):
+        raise MsxParameterError("%s: 'int_ior'/'ext_ior' give a relative IOR %r; it must be > 0" % (PLUGIN, eta))
+    return eta
+
+
 class Config:
     """Parsed parameters of one msx_posfree instance."""
 
     def __init__(self, mi, props):
         self.surface = _choice(props, "surface", "conductor", SURFACES, SURFACES_PLANNED)
-        for name in NOT_FOR_CONDUCTOR:
-            if (name in props):
-                raise MsxParameterError(
-                    "%s: parameter '%s' does not apply to surface='%s' (it is used by dielectric/diffuse "
-                    "surfaces); conductor parameters: distribution, alpha, alpha_u, alpha_v, material, eta, k, "
-                    "specular_reflectance, model, estimator, max_bounces, seed" % (PLUGIN, name, self.surface)
-                )
+        own = SURFACE_PARAMS[self.surface]
+        for other, names in SURFACE_PARAMS.items():
+            for name in names:
+                if name in props and name not in own:
+                    raise MsxParameterError(
+                        "%s: parameter '%s' does not apply to surface='%s' (it belongs to surface='%s'); "
+                        "parameters of surface='%s': %s, %s"
+                        % (PLUGIN, name, self.surface, other, self.surface, COMMON_PARAMS, ", ".join(own))
+                    )
         self.distribution = _choice(props, "distribution", "beckmann", DISTRIBUTIONS)
 
         if ("alpha" in props):
@@ -157,6 +202,27 @@ class Config:
             _check_alpha(mi, "alpha_v", self.alpha_v)
             self.isotropic = False
 
+        # Defaults of the other surfaces' values (unused by this surface).
+        self.material = "none"
+        self.eta = self.k = None
+        self.ior = 1.5046
+        self.specular_transmittance = None
+        self.reflectance = None
+        if self.surface == "conductor":
+            self._conductor(mi, props)
+        elif self.surface == "dielectric":
+            self.ior = dielectric_ior(mi, props)
+            self.specular_transmittance = props.get_texture("specular_transmittance", 1.0)
+        else:
+            self.reflectance = props.get_texture("reflectance", 0.5)
+        self.specular_reflectance = props.get_texture("specular_reflectance", 1.0)
+
+        self.model = _choice(props, "model", "correlated", MODELS, MODELS_PLANNED)
+        self.estimator = _choice(props, "estimator", "pt", ESTIMATORS, ESTIMATORS_PLANNED)
+        self.max_bounces = _int(props, "max_bounces", 0, 1, MAX_BOUNCES_LIMIT)
+        self.seed = _int(props, "seed", 0, 0, SEED_LIMIT - 1)
+
+    def _conductor(self, mi, props):
         material = props.get("material", "none") if ("material" in props) else "none"
         if not isinstance(material, str):
             raise MsxParameterError("%s: parameter 'material' must be a string (got %r)" % (PLUGIN, material))
@@ -172,12 +238,6 @@ class Config:
                         "(eta, k) or 'material', not both" % (PLUGIN, name, material)
                     )
             self.eta, self.k = conductor_ior(mi, material)
-        self.specular_reflectance = props.get_texture("specular_reflectance", 1.0)
-
-        self.model = _choice(props, "model", "correlated", MODELS, MODELS_PLANNED)
-        self.estimator = _choice(props, "estimator", "pt", ESTIMATORS, ESTIMATORS_PLANNED)
-        self.max_bounces = _int(props, "max_bounces", 0, 1, MAX_BOUNCES_LIMIT)
-        self.seed = _int(props, "seed", 0, 0, SEED_LIMIT - 1)
 
     def native_params(self, channels):
         return {
@@ -189,3 +249,4 @@ class Config:
             "channels": channels,
             "seed": self.seed,
         }
+

@@ -94,180 +94,306 @@ def make_bsdf_class(mi, variant):
             return [float(value[0]) if hasattr(value, "__getitem__") else float(value)]
         return [float(value[i]) for i in range(nch)]
 
-    class MsxPosfree(mi.BSDF):
-        """Multiple-scattering microfacet conductor (DESIGN.md §2)."""
+    def build(kind):
+        """The class for one surface kind, with its flags as closure constants."""
+        if kind == "dielectric":
+            LOBES = BSDFFlags.GlossyReflection | BSDFFlags.GlossyTransmission
+            SIDES = BSDFFlags.FrontSide | BSDFFlags.BackSide | BSDFFlags.NonSymmetric
+        elif kind == "diffuse":
+            LOBES = BSDFFlags.DiffuseReflection
+            SIDES = BSDFFlags.FrontSide
+        else:
+            LOBES = GLOSSY_REFLECTION
+            SIDES = BSDFFlags.FrontSide
+        LOBE_BITS = int(LOBES)
 
-        def __init__(self, props):
-            mi.BSDF.__init__(self, props)
-            cfg = Config(mi, props)
-            self._cfg = cfg
-            self._alpha_u = cfg.alpha_u
-            self._alpha_v = cfg.alpha_v
-            self._eta = cfg.eta
-            self._k = cfg.k
-            self._specular_reflectance = cfg.specular_reflectance
+        class MsxPosfree(mi.BSDF):
+            """Multiple-scattering microfacet conductor (DESIGN.md §2)."""
 
-            params = new("MsxParams *", cfg.native_params(nch))
-            out = new("MsxBsdf **")
-            err = new("char[]", _ERR_LEN)
-            rc = lib.msx_bsdf_new(params, out, err, _ERR_LEN)
-            if rc != lib.MSX_OK:
-                raise MsxParameterError("%s: %s" % (PLUGIN, ffi.string(err).decode(errors="replace")))
-            self._h = ffi.gc(out[0], lib.msx_bsdf_free)
-            # Handle + cached material + the per-instance call counter that is
-            # passed as the `key` of msx_eval* (incremented in C per call: it
-            # decorrelates the stochastic estimates of successive calls).
-            self._inst = new("MsxpyInst *")
-            self._inst.bsdf = self._h
-            self._inst.key = 0
-            self._refresh()
+            def __init__(self, props):
+                mi.BSDF.__init__(self, props)
+                cfg = Config(mi, props)
+                self._cfg = cfg
+                self._alpha_u = cfg.alpha_u
+                self._alpha_v = cfg.alpha_v
+                self._eta = cfg.eta
+                self._k = cfg.k
+                self._specular_reflectance = cfg.specular_reflectance
+                self._specular_transmittance = cfg.specular_transmittance
+                self._reflectance = cfg.reflectance
+                self._dielectric = cfg.surface == "dielectric"
 
-        # ------------------------------------------------------------ state
+                params = new("MsxParams *", cfg.native_params(nch))
+                out = new("MsxBsdf **")
+                err = new("char[]", _ERR_LEN)
+                rc = lib.msx_bsdf_new(params, out, err, _ERR_LEN)
+                if rc != lib.MSX_OK:
+                    raise MsxParameterError("%s: %s" % (PLUGIN, ffi.string(err).decode(errors="replace")))
+                self._h = ffi.gc(out[0], lib.msx_bsdf_free)
+                # Handle + cached material + the per-instance call counter that is
+                # passed as the `key` of msx_eval* (incremented in C per call: it
+                # decorrelates the stochastic estimates of successive calls).
+                self._inst = new("MsxpyInst *")
+                self._inst.bsdf = self._h
+                self._inst.key = 0
+                self._refresh()
 
-        def _refresh(self):
-            """(Re)computes cached constants from the current textures."""
-            isotropic = self._cfg.isotropic
-            if isotropic:
-                self._alpha_v = self._alpha_u
-            texs = [self._alpha_u, self._alpha_v, self._eta, self._k, self._specular_reflectance]
-            self._const = all(is_constant(t) for t in texs)
-            self._alpha_const = all(not t.is_spatially_varying() for t in texs[:2])
+            # ------------------------------------------------------------ state
 
-            mat = new("MsxMaterial *")
-            si = SurfaceInteraction3f()
-            if not spectral or self._const:
-                self._fill(mat, si)
-            elif self._alpha_const:
+            def _refresh(self):
+                """(Re)computes cached constants from the current textures."""
+                isotropic = self._cfg.isotropic
+                if isotropic:
+                    self._alpha_v = self._alpha_u
+                texs = [self._alpha_u, self._alpha_v] + self._spectra()
+                self._const = all(is_constant(t) for t in texs)
+                self._alpha_const = all(not t.is_spatially_varying() for t in texs[:2])
+
+                mat = new("MsxMaterial *")
+                si = SurfaceInteraction3f()
+                if not spectral or self._const:
+                    self._fill(mat, si)
+                elif self._alpha_const:
+                    mat.alpha_u = self._alpha_u.eval_1(si)
+                    mat.alpha_v = self._alpha_v.eval_1(si)
+                self._mat = mat
+                # Textures that vary in RGB are spatially varying: evaluated per call.
+                self._inst.mat = mat[0]
+
+                flags = LOBES | SIDES
+                anisotropic = not isotropic and (
+                    not self._alpha_const or mat.alpha_u != mat.alpha_v
+                )
+                if anisotropic:
+                    flags = flags | BSDFFlags.Anisotropic
+                if not self._const and any(t.is_spatially_varying() for t in texs):
+                    flags = flags | BSDFFlags.SpatiallyVarying
+                self.m_flags = flags
+                if kind == "dielectric":
+                    extra = flags & ~LOBES
+                    self.m_components = [BSDFFlags.GlossyReflection | extra, BSDFFlags.GlossyTransmission | extra]
+                else:
+                    self.m_components = [flags]
+
+            def _spectra(self):
+                """The spectral textures this surface uses."""
+                t = [self._specular_reflectance]
+                for x in (self._eta, self._k, self._specular_transmittance, self._reflectance):
+                    if x is not None:
+                        t.append(x)
+                return t
+
+            def _fill_spectra(self, mat, si):
+                mat.ior = self._cfg.ior
+                for field, tex in (("eta", self._eta), ("k", self._k), ("specular_reflectance", self._specular_reflectance),
+                                   ("specular_transmittance", self._specular_transmittance), ("reflectance", self._reflectance)):
+                    if tex is None:
+                        continue
+                    vals = channel_values(tex.eval(si))
+                    arr = getattr(mat, field)
+                    for c in range(nch):
+                        arr[c] = vals[c]
+
+            def _fill(self, mat, si):
                 mat.alpha_u = self._alpha_u.eval_1(si)
                 mat.alpha_v = self._alpha_v.eval_1(si)
-            self._mat = mat
-            # Textures that vary in RGB are spatially varying: evaluated per call.
-            self._inst.mat = mat[0]
+                if self._eta is None:
+                    # Unused conductor fields keep a perfect mirror (η = 0, k = 1).
+                    for c in range(nch):
+                        mat.k[c] = 1.0
+                self._fill_spectra(mat, si)
 
-            flags = GLOSSY_REFLECTION | BSDFFlags.FrontSide
-            anisotropic = not isotropic and (
-                not self._alpha_const or mat.alpha_u != mat.alpha_v
-            )
-            if anisotropic:
-                flags = flags | BSDFFlags.Anisotropic
-            if not self._const and any(t.is_spatially_varying() for t in texs):
-                flags = flags | BSDFFlags.SpatiallyVarying
-            self.m_flags = flags
-            self.m_components = [flags]
+            def _material(self, si):
+                """Material values at the hit (textures evaluated there)."""
+                if self._const:
+                    return self._mat
+                mat = new("MsxMaterial *")
+                if self._alpha_const:
+                    mat.alpha_u = self._mat.alpha_u
+                    mat.alpha_v = self._mat.alpha_v
+                    if self._eta is None:
+                        for c in range(nch):
+                            mat.k[c] = 1.0
+                    self._fill_spectra(mat, si)
+                else:
+                    self._fill(mat, si)
+                return mat
 
-        def _fill(self, mat, si):
-            mat.alpha_u = self._alpha_u.eval_1(si)
-            mat.alpha_v = self._alpha_v.eval_1(si)
-            eta = channel_values(self._eta.eval(si))
-            k = channel_values(self._k.eval(si))
-            r = channel_values(self._specular_reflectance.eval(si))
-            for c in range(nch):
-                mat.eta[c] = eta[c]
-                mat.k[c] = k[c]
-                mat.specular_reflectance[c] = r[c]
+            # ------------------------------------------------------------ calls
+            # Hot paths: kept short on purpose (each Python operation costs
+            # ~0.02-0.1 µs and the path integrator calls these per bounce;
+            # indexing w[0] is measurably cheaper than tuple-unpacking a Vector3f).
 
-        def _material(self, si):
-            """Material values at the hit (textures evaluated there)."""
-            if self._const:
-                return self._mat
-            mat = new("MsxMaterial *")
-            if self._alpha_const:
-                mat.alpha_u = self._mat.alpha_u
-                mat.alpha_v = self._mat.alpha_v
-                eta = channel_values(self._eta.eval(si))
-                k = channel_values(self._k.eval(si))
-                r = channel_values(self._specular_reflectance.eval(si))
-                for c in range(nch):
-                    mat.eta[c] = eta[c]
-                    mat.k[c] = k[c]
-                    mat.specular_reflectance[c] = r[c]
-            else:
-                self._fill(mat, si)
-            return mat
+            def eval(self, ctx, si, wo, active=True):
+                if not (active and ctx.type_mask & LOBE_BITS) or ctx.component not in COMPONENTS:
+                    return ZERO
+                w = si.wi
+                if self._const:
+                    return value_of(c_eval(self._inst, w[0], w[1], w[2], wo[0], wo[1], wo[2]))
+                return value_of(c_eval_m(self._inst, self._material(si), w[0], w[1], w[2], wo[0], wo[1], wo[2]))
 
-        # ------------------------------------------------------------ calls
-        # Hot paths: kept short on purpose (each Python operation costs
-        # ~0.02-0.1 µs and the path integrator calls these per bounce;
-        # indexing w[0] is measurably cheaper than tuple-unpacking a Vector3f).
+            def pdf(self, ctx, si, wo, active=True):
+                if not (active and ctx.type_mask & LOBE_BITS) or ctx.component not in COMPONENTS:
+                    return 0.0
+                w = si.wi
+                if self._const:
+                    return c_pdf(self._inst, w[0], w[1], w[2], wo[0], wo[1], wo[2])
+                return c_pdf_m(self._inst, self._material(si), w[0], w[1], w[2], wo[0], wo[1], wo[2])
 
-        def eval(self, ctx, si, wo, active=True):
-            if not (active and ctx.type_mask & GLOSSY_BIT) or ctx.component not in COMPONENTS:
-                return ZERO
-            w = si.wi
-            if self._const:
-                return value_of(c_eval(self._inst, w[0], w[1], w[2], wo[0], wo[1], wo[2]))
-            return value_of(c_eval_m(self._inst, self._material(si), w[0], w[1], w[2], wo[0], wo[1], wo[2]))
+            def eval_pdf(self, ctx, si, wo, active=True):
+                if not (active and ctx.type_mask & LOBE_BITS) or ctx.component not in COMPONENTS:
+                    return ZERO, 0.0
+                w = si.wi
+                if self._const:
+                    r = c_eval_pdf(self._inst, w[0], w[1], w[2], wo[0], wo[1], wo[2])
+                else:
+                    r = c_eval_pdf_m(self._inst, self._material(si), w[0], w[1], w[2], wo[0], wo[1], wo[2])
+                return value_of(r), r.pdf
 
-        def pdf(self, ctx, si, wo, active=True):
-            if not (active and ctx.type_mask & GLOSSY_BIT) or ctx.component not in COMPONENTS:
-                return 0.0
-            w = si.wi
-            if self._const:
-                return c_pdf(self._inst, w[0], w[1], w[2], wo[0], wo[1], wo[2])
-            return c_pdf_m(self._inst, self._material(si), w[0], w[1], w[2], wo[0], wo[1], wo[2])
+            def sample(self, ctx, si, sample1, sample2, active=True):
+                if not (active and ctx.type_mask & LOBE_BITS) or ctx.component not in COMPONENTS:
+                    return BSDFSample3f(), ZERO
+                w = si.wi
+                if self._const:
+                    r = c_sample(self._inst, w[0], w[1], w[2], sample1, sample2[0], sample2[1])
+                else:
+                    r = c_sample_m(self._inst, self._material(si), w[0], w[1], w[2], sample1, sample2[0], sample2[1])
+                bs = BSDFSample3f(SAMPLE_TEMPLATE)
+                if not r.valid:
+                    return bs, ZERO  # pdf 0, zero weight
+                bs.wo = Vector3f(r.x, r.y, r.z)
+                bs.pdf = r.pdf
+                return bs, weight_of(r)
 
-        def eval_pdf(self, ctx, si, wo, active=True):
-            if not (active and ctx.type_mask & GLOSSY_BIT) or ctx.component not in COMPONENTS:
-                return ZERO, 0.0
-            w = si.wi
-            if self._const:
-                r = c_eval_pdf(self._inst, w[0], w[1], w[2], wo[0], wo[1], wo[2])
-            else:
-                r = c_eval_pdf_m(self._inst, self._material(si), w[0], w[1], w[2], wo[0], wo[1], wo[2])
-            return value_of(r), r.pdf
+            # ------------------------------------------------------ parameters
 
-        def sample(self, ctx, si, sample1, sample2, active=True):
-            if not (active and ctx.type_mask & GLOSSY_BIT) or ctx.component not in COMPONENTS:
-                return BSDFSample3f(), ZERO
-            w = si.wi
-            if self._const:
-                r = c_sample(self._inst, w[0], w[1], w[2], sample1, sample2[0], sample2[1])
-            else:
-                r = c_sample_m(self._inst, self._material(si), w[0], w[1], w[2], sample1, sample2[0], sample2[1])
-            bs = BSDFSample3f(SAMPLE_TEMPLATE)
-            if not r.valid:
-                return bs, ZERO  # pdf 0, zero weight
-            bs.wo = Vector3f(r.x, r.y, r.z)
-            bs.pdf = r.pdf
-            return bs, weight_of(r)
+            def traverse(self, cb):
+                if self._cfg.isotropic:
+                    cb.put("alpha", self._alpha_u, DIFF | DISC)
+                else:
+                    cb.put("alpha_u", self._alpha_u, DIFF | DISC)
+                    cb.put("alpha_v", self._alpha_v, DIFF | DISC)
+                cb.put("eta", self._eta, DIFF | DISC)
+                cb.put("k", self._k, DIFF | DISC)
+                cb.put("specular_reflectance", self._specular_reflectance, DIFF)
 
-        # ------------------------------------------------------ parameters
+            def parameters_changed(self, keys=[]):
+                self._refresh()
 
-        def traverse(self, cb):
-            if self._cfg.isotropic:
-                cb.put("alpha", self._alpha_u, DIFF | DISC)
-            else:
-                cb.put("alpha_u", self._alpha_u, DIFF | DISC)
-                cb.put("alpha_v", self._alpha_v, DIFF | DISC)
-            cb.put("eta", self._eta, DIFF | DISC)
-            cb.put("k", self._k, DIFF | DISC)
-            cb.put("specular_reflectance", self._specular_reflectance, DIFF)
-
-        def parameters_changed(self, keys=[]):
-            self._refresh()
-
-        def to_string(self):
-            cfg = self._cfg
-            if cfg.isotropic:
-                alpha = "  alpha = %s,\n" % _indent(self._alpha_u)
-            else:
-                alpha = "  alpha_u = %s,\n  alpha_v = %s,\n" % (_indent(self._alpha_u), _indent(self._alpha_v))
-            return (
-                "MsxPosfree[\n"
-                "  surface = \"%s\",\n  distribution = \"%s\",\n%s"
-                "  material = \"%s\",\n  eta = %s,\n  k = %s,\n  specular_reflectance = %s,\n"
-                "  model = \"%s\",\n  estimator = \"%s\",\n  max_bounces = %s,\n  seed = %d\n]"
-                % (
-                    cfg.surface, cfg.distribution, alpha, cfg.material,
-                    _indent(self._eta), _indent(self._k), _indent(self._specular_reflectance),
-                    cfg.model, cfg.estimator,
-                    cfg.max_bounces if cfg.max_bounces else "%d (library default)" % lib.MSX_DEFAULT_MAX_BOUNCES,
-                    cfg.seed,
+            def to_string(self):
+                cfg = self._cfg
+                if cfg.isotropic:
+                    alpha = "  alpha = %s,\n" % _indent(self._alpha_u)
+                else:
+                    alpha = "  alpha_u = %s,\n  alpha_v = %s,\n" % (_indent(self._alpha_u), _indent(self._alpha_v))
+                return (
+                    "MsxPosfree[\n"
+                    "  surface = \"%s\",\n  distribution = \"%s\",\n%s"
+                    "  material = \"%s\",\n  eta = %s,\n  k = %s,\n  specular_reflectance = %s,\n"
+                    "  model = \"%s\",\n  estimator = \"%s\",\n  max_bounces = %s,\n  seed = %d\n]"
+                    % (
+                        cfg.surface, cfg.distribution, alpha, cfg.material,
+                        _indent(self._eta), _indent(self._k), _indent(self._specular_reflectance),
+                        cfg.model, cfg.estimator,
+                        cfg.max_bounces if cfg.max_bounces else "%d (library default)" % lib.MSX_DEFAULT_MAX_BOUNCES,
+                        cfg.seed,
+                    )
                 )
-            )
 
-    MsxPosfree.__name__ = MsxPosfree.__qualname__ = "MsxPosfree"
-    return MsxPosfree
+        MsxPosfree.__name__ = MsxPosfree.__qualname__ = "MsxPosfree"
+        return MsxPosfree
+
+    IMPORTANCE = mi.TransportMode.Importance
+    R_BIT = int(BSDFFlags.GlossyReflection)
+    T_BIT = int(BSDFFlags.GlossyTransmission)
+    T_TYPE = int(BSDFFlags.GlossyTransmission)
+    D_TYPE = int(BSDFFlags.DiffuseReflection)
+
+    def _with_surface_calls(mi_, base, kind, nch_):
+        """Adds what differs for dielectric and diffuse surfaces: transport
+        mode, per-side lobes and components, and the sample record's type/eta."""
+        if kind == "diffuse":
+            class Diffuse(base):
+                def sample(self, ctx, si, sample1, sample2, active=True):
+                    bs, w = base.sample(self, ctx, si, sample1, sample2, active)
+                    bs.sampled_type = D_TYPE
+                    return bs, w
+
+            Diffuse.__name__ = Diffuse.__qualname__ = "MsxPosfree"
+            return Diffuse
+
+        class Dielectric(base):
+            def _mat_for(self, ctx, si):
+                """Material for this call, with the transport mode set."""
+                imp = ctx.mode == IMPORTANCE
+                if self._const and not imp:
+                    return self._mat
+                mat = new("MsxMaterial *")
+                mat[0] = self._material(si)[0]
+                mat.mode = lib.MSX_MODE_IMPORTANCE if imp else lib.MSX_MODE_RADIANCE
+                return mat
+
+            @staticmethod
+            def _lobes(ctx):
+                """(reflection enabled, transmission enabled)."""
+                m, c = ctx.type_mask, ctx.component
+                r = bool(m & R_BIT) and c in (0, 0xFFFFFFFF)
+                t = bool(m & T_BIT) and c in (1, 0xFFFFFFFF)
+                return r, t
+
+            def eval(self, ctx, si, wo, active=True):
+                return self.eval_pdf(ctx, si, wo, active)[0]
+
+            def pdf(self, ctx, si, wo, active=True):
+                return self.eval_pdf(ctx, si, wo, active)[1]
+
+            def eval_pdf(self, ctx, si, wo, active=True):
+                r_on, t_on = self._lobes(ctx)
+                w = si.wi
+                reflect = w[2] * wo[2] > 0
+                if not active or not (r_on if reflect else t_on):
+                    return ZERO, 0.0
+                r = c_eval_pdf_m(self._inst, self._mat_for(ctx, si), w[0], w[1], w[2], wo[0], wo[1], wo[2])
+                return value_of(r), r.pdf
+
+            def sample(self, ctx, si, sample1, sample2, active=True):
+                r_on, t_on = self._lobes(ctx)
+                if not (active and (r_on or t_on)):
+                    return BSDFSample3f(), ZERO
+                w = si.wi
+                r = c_sample_m(self._inst, self._mat_for(ctx, si), w[0], w[1], w[2], sample1, sample2[0], sample2[1])
+                bs = BSDFSample3f(SAMPLE_TEMPLATE)
+                if not r.valid:
+                    return bs, ZERO
+                transmit = r.z * w[2] < 0
+                if not (t_on if transmit else r_on):
+                    return bs, ZERO
+                bs.wo = Vector3f(r.x, r.y, r.z)
+                bs.pdf = r.pdf
+                if transmit:
+                    ior = self._cfg.ior
+                    bs.eta = ior if w[2] > 0 else 1.0 / ior
+                    bs.sampled_type = T_TYPE
+                    bs.sampled_component = 1
+                return bs, weight_of(r)
+
+        Dielectric.__name__ = Dielectric.__qualname__ = "MsxPosfree"
+        return Dielectric
+
+    classes = {kind: build(kind) for kind in ("conductor", "dielectric", "diffuse")}
+    for kind in ("dielectric", "diffuse"):
+        classes[kind] = _with_surface_calls(mi, classes[kind], kind, nch)
+
+    class MsxPosfreeFactory:
+        """Creates the msx_posfree instance of the surface named in the properties."""
+
+        classes_by_surface = classes
+
+        def __call__(self, props):
+            surface = props.get("surface", "conductor") if "surface" in props else "conductor"
+            return classes.get(surface, classes["conductor"])(props)
+
+    return MsxPosfreeFactory()
 
 
 def _indent(obj):

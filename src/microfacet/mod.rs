@@ -203,3 +203,12 @@ impl Microfacet {
 pub fn reflect(w: DVec3, m: DVec3) -> DVec3 {
     2.0 * w.dot(m) * m - w
 }
+
+/// Refraction of ω (pointing away from the surface) through the facet m, as
+/// Mitsuba 3's `refract(wi, m, cos_theta_t, eta_ti)`: `cos_t` and `eta_ti` come
+/// from [`fresnel::dielectric_full`] (`cos_t` signed, opposite to ω·m). The
+/// result points away from the surface on the other side of the facet.
+#[inline]
+pub fn refract(w: DVec3, m: DVec3, cos_t: f64, eta_ti: f64) -> DVec3 {
+    m * (w.dot(m) * eta_ti + cos_t) - w * eta_ti
+}

@@ -2,8 +2,14 @@
 
 pub mod compensated;
 pub mod fastmsx;
+pub mod heitz;
+pub mod invariance;
 pub mod posfree;
+pub mod posfree_dielectric;
+pub mod posfree_bdpt;
+pub mod posfree_diffuse;
 pub mod single;
+pub mod single_dielectric;
 
 use crate::microfacet::fresnel;
 use crate::spectrum::Spectrum;

@@ -109,7 +109,13 @@ impl Checker {
         let sigma = est.1.hypot(expected.1);
         let dev = (est.0 - expected.0).abs();
         let allow = rel_allow * expected.0.abs() + abs_allow;
-        let z = if sigma > 0.0 { dev / sigma } else if dev > allow { f64::INFINITY } else { 0.0 };
+        let z = if sigma > 0.0 {
+            dev / sigma
+        } else if dev > allow {
+            f64::INFINITY
+        } else {
+            0.0
+        };
         println!(
             "{label}: measured {:.6e} ± {:.2e}, expected {:.6e} ± {:.2e}, dev {:.2e} ({:.2}σ){}",
             est.0,
@@ -145,7 +151,13 @@ impl Checker {
         let mut max_z = (0.0f64, String::new());
         let mut over3 = 0usize;
         for e in &self.entries {
-            let z = if e.sigma > 0.0 { (e.dev - e.allow).max(0.0) / e.sigma } else if e.dev > e.allow { f64::INFINITY } else { 0.0 };
+            let z = if e.sigma > 0.0 {
+                (e.dev - e.allow).max(0.0) / e.sigma
+            } else if e.dev > e.allow {
+                f64::INFINITY
+            } else {
+                0.0
+            };
             if z > 3.0 {
                 over3 += 1;
             }

@@ -1,0 +1,631 @@
+//! Multiple-bounce Smith microfacet BRDF from the invariance principle,
+//! Cui et al. 2023, for conductors, with the corrected readings of DESIGN.md §5.
+//!
+//! **Path contribution** (supplement eq. 1). A path d_0 = −ω_i, d_1, …, d_k = ω_o
+//! (directions follow the light) contributes (Π_{j<k} v_j)·S_k(d_0..d_k) to
+//! f·cos θ_o, with Wang's vertex terms v_j = F·D(h_j)/(4|cos d_j|) and the
+//! segment term of the complete invariance recursion
+//!
+//! S_k(d_0..d_k) = S_1(d_0,d_k)·Σ_{j=0}^{k−1} S_j(d_0..d_j)·S_{k−1−j}(d_{j+1}..d_k),
+//! S_1(a,b) = 1/(|Λ(a)| + Λ(b)), S_0 ≡ 1, S_m = 0 when its first direction
+//! points up or its last points down.
+//!
+//! **Exit probabilities.** Write L_j = |Λ(d_j)|. Then
+//! p_exit(d_0..d_k) = (Π_{j<k} L_j)·S_k (supplement eq. 7) is the probability
+//! that a ray following the directions hits the microsurface at every vertex and
+//! leaves along d_k (Bitterli & d'Eon 2022, heights integrated out), and
+//! H_m = p_exit(d_0..d_m, ẑ) (Λ(ẑ) = 0: a vertical ray always leaves) is the
+//! probability that d_0..d_m all hit. With P(i,j) = Π_{l=i}^{j−1} L_l and
+//! p(i,j) = P(i,j)·S(i,j) the sub-sequence recursion reads
+//!
+//! p(i,j) = S_1(d_i,d_j)·Σ_{l=i}^{j−1} L_l·p(i,l)·p(l+1,j),   p(i,i) = 1,
+//!
+//! all terms positive (stable), and every p is a probability.
+//!
+//! **Monotone paths.** A conductor reflects an upward ray upward
+//! (d'.z = d.z − 2(d·m)m.z > d.z for a front-facing m), so conductor paths are
+//! a run of a ≥ 1 downward directions followed by upward ones. Then only the
+//! j = 0 and j = k−1 terms of the recursion survive (the printed eq. 2):
+//! S(i,j) = S_1(i,j)·(S(i+1,j) + S(i,j−1)), and in the scaled form
+//!
+//! p(i,j) = (L_i·p(i+1,j) + L_{j−1}·p(i,j−1)) / (L_i + Λ_j),   p(j,j) = 1,
+//!
+//! where p(i+1,j) is dropped when d_{i+1} points up (i+1 < j) and p(i,j−1) when
+//! d_{j−1} points down (j−1 > i). For fixed down directions d_0..d_{a−1} a new
+//! upward direction adds one column p(·, j) of length a: O(a) per vertex,
+//! O(k²) per path at worst ([`MonotoneExit`]).
+//!
+//! **Estimators.** `eval`: sample d_{j+1} by reflecting −d_j about a visible
+//! normal (density v_j/(F_j·L_j)); the NEE at vertex m towards ω_o then weighs
+//! Π_{j≤m}F_j · D(h)/(4A(−d_m)) · p_exit(d_0..d_m, ω_o). The walk carries the
+//! conditional hit probabilities H_{m}/H_{m−1} in its throughput and plays
+//! Russian roulette on it (after the vertex's estimates), so its length is
+//! distributed like Heitz's walk while the heights are integrated out exactly.
+//! For orders ≥ 2 the last inner direction is also sampled from the side of
+//! ω_o and the two strategies are combined with the balance heuristic (a
+//! one-vertex light subpath; closed form because the model is position-free). `sample`: the same walk with exit
+//! probability 1 − H_m/H_{m−1} at each upward direction; the sampling density
+//! is then exactly the path contribution divided by Π F, so the weight is the
+//! product of the Fresnel terms (Cui Alg. 2 with the exact exit probability —
+//! the printed 1/|Λ(d_k)|, or G1(d_k) = 1/(1+Λ(d_k)), needs a weight ratio).
+
+use super::{ConductorFresnel, WalkOptions};
+use crate::microfacet::{reflect, Microfacet};
+use crate::rng::Sampler;
+use crate::spectrum::Spectrum;
+use glam::DVec3;
+
+/// S_1(a, b) = 1/(|Λ(a)| + Λ(b)) for a downward, b upward; 0 otherwise.
+#[inline]
+fn s1(la: f64, a_down: bool, lb: f64, b_up: bool) -> f64 {
+    if a_down && b_up {
+        1.0 / (la + lb)
+    } else {
+        0.0
+    }
+}
+
+/// (|Λ(d)|, d points down) for every direction. Λ(d) = |Λ(d)| for upward d.
+fn lambdas(mf: &Microfacet, dirs: &[DVec3]) -> Vec<(f64, bool)> {
+    dirs.iter().map(|&d| (mf.abs_lambda(d), d.z < 0.0)).collect()
+}
+
+/// S_k of a direction sequence d_0..d_k with the complete invariance-principle
+/// recursion (DESIGN §5): O(k³) dynamic programming over sub-sequences.
+/// One direction (k = 0) gives S_0 = 1; an empty slice gives 0.
+pub fn segment_term(mf: &Microfacet, dirs: &[DVec3]) -> f64 {
+    let n = dirs.len();
+    if n == 0 {
+        return 0.0;
+    }
+    let lam = lambdas(mf, dirs);
+    // s[i*n + j] = S(d_i..d_j), j ≥ i.
+    let mut s = vec![0.0f64; n * n];
+    for i in 0..n {
+        s[i * n + i] = 1.0;
+    }
+    for len in 1..n {
+        for i in 0..n - len {
+            let j = i + len;
+            let (li, di) = lam[i];
+            let (lj, dj) = lam[j];
+            let c = s1(li, di, lj, !dj);
+            if c == 0.0 {
+                continue; // first up or last down: S = 0
+            }
+            let mut sum = 0.0;
+            for l in i..j {
+                sum += s[i * n + l] * s[(l + 1) * n + j];
+            }
+            s[i * n + j] = c * sum;
+        }
+    }
+    s[n - 1]
+}
+
+/// The printed eq. 2 / Alg. 1 recursion S(i,j) = S_1(i,j)·(S(i+1,j) + S(i,j−1))
+/// (S_1 alone for j = i+1): O(k²). Exact only for monotone sequences (no upward
+/// direction later followed by a downward one), which every conductor path is.
+pub fn segment_term_monotone(mf: &Microfacet, dirs: &[DVec3]) -> f64 {
+    let n = dirs.len();
+    if n == 0 {
+        return 0.0;
+    }
+    if n == 1 {
+        return 1.0;
+    }
+    let lam = lambdas(mf, dirs);
+    // row[i] = S(i, j) for the current j; computed for j = 1..n−1.
+    let mut prev = vec![0.0f64; n]; // S(i, j−1)
+    let mut cur = vec![0.0f64; n];
+    prev[0] = 1.0; // S(0,0)
+    for j in 1..n {
+        let (lj, dj) = lam[j];
+        cur[j] = 1.0; // S(j,j)
+        for i in (0..j).rev() {
+            let (li, di) = lam[i];
+            let c = s1(li, di, lj, !dj);
+            cur[i] = if c == 0.0 {
+                0.0
+            } else if j == i + 1 {
+                c
+            } else {
+                c * (cur[i + 1] + prev[i])
+            };
+        }
+        std::mem::swap(&mut prev, &mut cur);
+    }
+    prev[0]
+}
+
+/// Bitterli & d'Eon 2022's p_exit (Cui supplement eq. 5 / Alg. 5 with |Λ|):
+/// the height density after each vertex is kept as a sum of exponentials
+/// Σ a_j e^{−b_j u} in u = −ln C(h). Exact in exact arithmetic (equals
+/// (Π|Λ(d_i)|)·S_k), but a downward direction subtracts |Λ| values
+/// (a_j ← a_j·L/(L − b_j)): cancellation, or division by zero when two
+/// downward directions have the same |Λ|. A stability study, not a shipping path.
+pub fn p_exit(mf: &Microfacet, dirs: &[DVec3]) -> f64 {
+    p_exit_with_bound(mf, dirs).0
+}
+
+/// p_exit and a first-order bound on its absolute rounding error, from running
+/// the same recursion on the magnitudes (unit roundoff u = 2⁻⁵³; L − b, the
+/// quotient and the product each round once, a sum of N terms N times). The
+/// relative bound (bound / |p_exit|) is ∞ at an exact division by zero.
+pub fn p_exit_with_bound(mf: &Microfacet, dirs: &[DVec3]) -> (f64, f64) {
+    const U: f64 = f64::EPSILON * 0.5;
+    let n = dirs.len();
+    if n < 2 {
+        return (if n == 1 { 1.0 } else { 0.0 }, 0.0);
+    }
+    if dirs[0].z >= 0.0 || dirs[n - 1].z <= 0.0 {
+        return (0.0, 0.0);
+    }
+    let l0 = mf.abs_lambda(dirs[0]);
+    // (a_j, b_j, error bound of a_j)
+    let mut a: Vec<f64> = vec![l0];
+    let mut b: Vec<f64> = vec![l0];
+    let mut e: Vec<f64> = vec![0.0];
+    for &d in &dirs[1..n - 1] {
+        if d.z < 0.0 {
+            let l = mf.abs_lambda(d);
+            let mut sum = 0.0;
+            let mut sum_abs = 0.0;
+            let mut sum_err = 0.0;
+            for j in 0..a.len() {
+                let f = l / (l - b[j]);
+                let an = a[j] * f;
+                e[j] = e[j] * f.abs() + 3.0 * U * an.abs();
+                a[j] = an;
+                sum += an;
+                sum_abs += an.abs();
+                sum_err += e[j];
+            }
+            let nn = a.len() as f64;
+            a.push(-sum);
+            b.push(l);
+            e.push(sum_err + nn * U * sum_abs);
+        } else {
+            let lam = mf.lambda(d);
+            for j in 0..a.len() {
+                let f = lam / (b[j] + lam);
+                a[j] *= f;
+                e[j] = e[j] * f + 3.0 * U * a[j].abs();
+            }
+        }
+    }
+    let lk = mf.lambda(dirs[n - 1]);
+    let mut p = 0.0;
+    let mut abs = 0.0;
+    let mut err = 0.0;
+    for j in 0..a.len() {
+        let t = a[j] / (b[j] + lk);
+        p += t;
+        abs += t.abs();
+        err += (e[j] + 2.0 * U * a[j].abs()) / (b[j] + lk);
+    }
+    err += a.len() as f64 * U * abs;
+    if !err.is_finite() {
+        err = f64::INFINITY;
+    }
+    (p, err)
+}
+
+/// Small growable buffer of f64 that stays on the stack for short paths.
+#[derive(Clone)]
+struct Buf {
+    inline: [f64; 24],
+    heap: Vec<f64>,
+    len: usize,
+}
+
+impl Buf {
+    fn new() -> Self {
+        Buf { inline: [0.0; 24], heap: Vec::new(), len: 0 }
+    }
+    #[inline]
+    fn push(&mut self, v: f64) {
+        if self.len < self.inline.len() {
+            self.inline[self.len] = v;
+        } else {
+            if self.heap.is_empty() {
+                self.heap.extend_from_slice(&self.inline);
+            }
+            self.heap.push(v);
+        }
+        self.len += 1;
+    }
+    #[inline]
+    fn as_slice(&self) -> &[f64] {
+        if self.len <= self.inline.len() {
+            &self.inline[..self.len]
+        } else {
+            &self.heap[..self.len]
+        }
+    }
+    #[inline]
+    fn as_mut_slice(&mut self) -> &mut [f64] {
+        if self.len <= self.inline.len() {
+            &mut self.inline[..self.len]
+        } else {
+            &mut self.heap[..self.len]
+        }
+    }
+}
+
+/// Incremental exit probabilities of a monotone path d_0..d_m (a downward
+/// directions, then upward ones), the column form of the monotone recursion in
+/// the module docs. The state is normalised by the hit probability H_m of the
+/// history, so that the values stay O(1) for any path length:
+/// `exit_given_hits(Λ)` = p_exit(d_0..d_m, x)/H_m for an upward x with Λ(x) = Λ.
+#[derive(Clone)]
+pub struct MonotoneExit {
+    /// L_i = |Λ(d_i)| of the downward directions d_0..d_{a−1}.
+    down: Buf,
+    /// p(i, m)/H_{m} for i < a, valid once an upward direction was pushed.
+    col: Buf,
+    has_up: bool,
+    /// |Λ(d_m)| of the last direction.
+    l_last: f64,
+    /// H_m = probability that d_0..d_m all hit (product of the continuations).
+    hit: f64,
+}
+
+impl MonotoneExit {
+    /// Starts a path with d_0 (downward) of |Λ(d_0)| = `l0` (= 1 + Λ(ω_i)).
+    pub fn new(l0: f64) -> Self {
+        let mut down = Buf::new();
+        down.push(l0);
+        MonotoneExit { down, col: Buf::new(), has_up: false, l_last: l0, hit: 1.0 }
+    }
+
+    /// Whether an upward direction has been pushed (a further downward one
+    /// would make the path non-monotone).
+    pub fn has_up(&self) -> bool {
+        self.has_up
+    }
+
+    /// H_m: the probability that every direction pushed so far hits the surface.
+    pub fn hit_probability(&self) -> f64 {
+        self.hit
+    }
+
+    /// Appends a downward direction of |Λ| = `l` (≥ 1). Returns false (and
+    /// does nothing) on a non-monotone path.
+    pub fn push_down(&mut self, l: f64) -> bool {
+        if self.has_up {
+            return false;
+        }
+        self.down.push(l);
+        self.l_last = l;
+        true
+    }
+
+    /// Column p(·, x)/H_m for a virtual upward direction x with Λ(x) = `lambda`,
+    /// evaluated without storing it; `store` writes it into `col`.
+    #[inline]
+    fn column(&mut self, lambda: f64, store: bool) -> f64 {
+        let l_last = self.l_last;
+        let has_up = self.has_up;
+        let a = self.down.len;
+        // p(a, x): 1 when x follows d_{a−1} directly, else 0 (d_a points up).
+        let mut carry = if has_up { 0.0 } else { 1.0 };
+        for i in (0..a).rev() {
+            let li = self.down.as_slice()[i];
+            let prev = if has_up { l_last * self.col.as_slice()[i] } else { 0.0 };
+            carry = (li * carry + prev) / (li + lambda);
+            if store {
+                if has_up {
+                    self.col.as_mut_slice()[i] = carry;
+                } else {
+                    // first column: filled from the top, reversed below
+                    self.col.push(carry);
+                }
+            }
+        }
+        if store && !has_up {
+            self.col.as_mut_slice().reverse();
+        }
+        carry
+    }
+
+    /// p_exit(d_0..d_m, x)/H_m: the probability that the path leaves along the
+    /// upward x (Λ(x) = `lambda` ≥ 0) given that d_0..d_m all hit.
+    #[inline]
+    pub fn exit_given_hits(&mut self, lambda: f64) -> f64 {
+        self.column(lambda, false)
+    }
+
+    /// p_exit(d_0..d_m, x) = (Π_{i≤m}|Λ(d_i)|)·S_{m+1}(d_0..d_m, x).
+    pub fn exit_probability(&mut self, lambda: f64) -> f64 {
+        self.hit * self.exit_given_hits(lambda)
+    }
+
+    /// p_exit(d_0..d_m, y, x)/H_m for a virtual downward y with |Λ(y)| = `l_y`
+    /// followed by the upward x with Λ(x) = `lambda_x` (0 on a path that
+    /// already went up: y would make it non-monotone).
+    pub fn exit_via_down(&mut self, l_y: f64, lambda_x: f64) -> f64 {
+        if self.has_up {
+            return 0.0;
+        }
+        l_y / (l_y + lambda_x) * self.column(lambda_x, false)
+    }
+
+    /// p_exit(d_0..d_m, y, x)/H_m for a virtual upward y with Λ(y) = `lambda_y`
+    /// followed by the upward x with Λ(x) = `lambda_x`: the two columns in one
+    /// O(a) pass, nothing stored.
+    pub fn exit_via_up(&self, lambda_y: f64, lambda_x: f64) -> f64 {
+        let a = self.down.len;
+        let down = self.down.as_slice();
+        let col = self.col.as_slice();
+        let mut carry_y = if self.has_up { 0.0 } else { 1.0 };
+        let mut carry_x = 0.0;
+        for i in (0..a).rev() {
+            let li = down[i];
+            let prev = if self.has_up { self.l_last * col[i] } else { 0.0 };
+            carry_y = (li * carry_y + prev) / (li + lambda_y);
+            carry_x = (li * carry_x + lambda_y * carry_y) / (li + lambda_x);
+        }
+        carry_x
+    }
+
+    /// Appends an upward direction with Λ = `lambda` (finite, ≥ 0) and returns
+    /// the conditional probability H_{m+1}/H_m that it hits the surface again.
+    pub fn push_up(&mut self, lambda: f64) -> f64 {
+        self.column(lambda, true);
+        self.has_up = true;
+        self.l_last = lambda;
+        // H_{m+1}/H_m = p(0, ẑ)/H_m with the new last direction (Λ(ẑ) = 0).
+        let cont = self.column(0.0, false);
+        if cont > 0.0 && cont.is_finite() {
+            for v in self.col.as_mut_slice() {
+                *v /= cont;
+            }
+            self.hit *= cont;
+        } else {
+            self.hit = 0.0;
+        }
+        cont
+    }
+}
+
+/// First vertex after whose NEE Russian roulette may end a walk.
+const RR_START: u32 = 1;
+
+/// One unbiased estimate of f(ω_i, ω_o)·cos θ_o of the invariance model,
+/// restricted to the orders `opts.orders` and at most `opts.max_bounces`
+/// vertices (`opts.segments` is ignored). Order 1 is deterministic:
+/// F·D·G2/(4 cos θ_i) with G2 = 1/(1 + Λ(ω_i) + Λ(ω_o)).
+///
+/// Orders k ≥ 2 combine two strategies for the last inner direction d_{k−1}
+/// with the balance heuristic: the walk's own sample (visible normals of
+/// −d_{k−2}, closed by NEE at vertex k−1) and a connection from vertex k−2 to
+/// d_{k−1} = −(ω_o reflected about a visible normal of ω_o). Both are closed
+/// forms thanks to the position-free path contribution; the second removes
+/// most of the variance off-specular, where the NEE phase value at the last
+/// vertex peaks (order-2 variance ÷2.5–4 at GGX α = 0.5–1).
+pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
+    if !(wi.z > 0.0) || !(wo.z > 0.0) || !wi.is_finite() || !wo.is_finite() {
+        return Spectrum::ZERO;
+    }
+    let last = opts.orders.1.min(opts.max_bounces);
+    if last == 0 || opts.orders.0 > last {
+        return Spectrum::ZERO;
+    }
+    let lambda_o = mf.lambda(wo);
+    if !lambda_o.is_finite() {
+        return Spectrum::ZERO;
+    }
+    let area_o = wo.z * (1.0 + lambda_o); // A(ω_o)
+    let l0 = mf.abs_lambda(-wi);
+    // w = −d_m with its projected area A(w) = |cos d_m|·|Λ(d_m)|; w_prev = −d_{m−1}.
+    let mut w = wi;
+    let mut area = wi.z * l0;
+    let (mut w_prev, mut area_prev) = (wi, area);
+    let mut dp = MonotoneExit::new(l0);
+    let mut throughput = Spectrum::ONE; // Π F · Π (H_j/H_{j−1}) / Π q
+    let mut result = Spectrum::ZERO;
+    for j in 0..last {
+        let order = j + 1;
+        if order >= opts.orders.0 {
+            // NEE: v_m/L_m = D(h)/(4 A(−d_m)) = reflect_pdf(w, ω_o).
+            let (mut value, cos_wh) = reflect_density(mf, w, area, wo);
+            if j > 0 && value > 0.0 {
+                // MIS weight of the forward strategy for d_m.
+                let p_fwd = reflect_density(mf, w_prev, area_prev, -w).0;
+                let p_rev = reflect_density(mf, wo, area_o, w).0;
+                value *= p_fwd / (p_fwd + p_rev);
+            }
+            if value > 0.0 {
+                value *= dp.exit_given_hits(lambda_o);
+                result += throughput * fresnel.eval(cos_wh) * value;
+            }
+        }
+        if order >= last {
+            break;
+        }
+        // Connection strategy for order + 1: d_{m+1} = y from the side of ω_o.
+        if order + 1 >= opts.orders.0 {
+            result += throughput * connect(mf, fresnel, &mut dp, w, area, wo, area_o, lambda_o, rng);
+        }
+        // Russian roulette on the weight carried so far (Π F · H_m), played
+        // after the estimates of this vertex: they always see the continuous
+        // hit probability (a near-vertical upward d_m hits with probability
+        // ∝ Λ(d_m) while its NEE phase value ∝ 1/Λ(d_m); a binary decision
+        // before the NEE multiplies the variance of order 2 ≈ 2×).
+        if j >= RR_START {
+            let q = throughput.max_value().min(1.0);
+            if !(q > 0.0) {
+                break;
+            }
+            if q < 1.0 {
+                if rng.next() >= q {
+                    break;
+                }
+                throughput *= 1.0 / q;
+            }
+        }
+        let (u1, u2) = rng.next2();
+        let Some(m) = mf.sample_visible(w, u1, u2) else { break };
+        let cos_wm = w.dot(m);
+        if cos_wm <= 0.0 {
+            break;
+        }
+        let d_next = reflect(w, m);
+        throughput *= fresnel.eval(cos_wm);
+        let l_next;
+        if d_next.z > 0.0 {
+            l_next = mf.lambda(d_next);
+            if !l_next.is_finite() {
+                break;
+            }
+            let cont = dp.push_up(l_next);
+            throughput *= cont;
+            if !(cont > 0.0) || !(throughput.max_value() > 0.0) {
+                break;
+            }
+        } else {
+            l_next = mf.abs_lambda(d_next);
+            if !l_next.is_finite() || !dp.push_down(l_next) {
+                break;
+            }
+        }
+        (w_prev, area_prev) = (w, area);
+        w = -d_next;
+        area = d_next.z.abs() * l_next;
+    }
+    result.sanitized()
+}
+
+/// reflect_pdf with a known projected area A(w): (D(h)/(4 A(w)), w·h), h the
+/// half vector of w and x; 0 when w does not see h.
+#[inline]
+fn reflect_density(mf: &Microfacet, w: DVec3, area_w: f64, x: DVec3) -> (f64, f64) {
+    let h = w + x;
+    let len = h.length();
+    if !(len > 0.0) || !(area_w > 0.0) {
+        return (0.0, 0.0);
+    }
+    let h = h / len;
+    let c = w.dot(h);
+    if !(c > 0.0) {
+        return (0.0, 0.0);
+    }
+    let v = mf.d(h) / (4.0 * area_w);
+    if v.is_finite() {
+        (v, c)
+    } else {
+        (0.0, 0.0)
+    }
+}
+
+/// The connection estimate at vertex m (w = −d_m, A(w) = `area`): y = −(ω_o
+/// reflected about a visible normal of ω_o), weighted by the balance heuristic
+/// against the walk sampling y from the visible normals of w. Returns the
+/// contribution of the path d_0..d_m, y, ω_o divided by the density of
+/// d_1..d_m and by H_m (the caller multiplies by its throughput).
+#[allow(clippy::too_many_arguments)]
+fn connect(mf: &Microfacet, fresnel: &ConductorFresnel, dp: &mut MonotoneExit, w: DVec3, area: f64, wo: DVec3, area_o: f64, lambda_o: f64, rng: &mut Sampler) -> Spectrum {
+    let (u1, u2) = rng.next2();
+    let Some(m) = mf.sample_visible(wo, u1, u2) else { return Spectrum::ZERO };
+    let cos1 = wo.dot(m);
+    if !(cos1 > 0.0) {
+        return Spectrum::ZERO;
+    }
+    let wy = reflect(wo, m); // −y
+    let y = -wy;
+    let (p_fwd, cos0) = reflect_density(mf, w, area, y);
+    if !(p_fwd > 0.0) {
+        return Spectrum::ZERO;
+    }
+    let p_rev = reflect_density(mf, wo, area_o, wy).0;
+    if !(p_rev > 0.0) {
+        return Spectrum::ZERO;
+    }
+    let (ly, exit) = if y.z > 0.0 {
+        let ly = mf.lambda(y);
+        if !ly.is_finite() {
+            return Spectrum::ZERO;
+        }
+        (ly, dp.exit_via_up(ly, lambda_o))
+    } else {
+        let ly = mf.abs_lambda(y);
+        if !ly.is_finite() {
+            return Spectrum::ZERO;
+        }
+        (ly, dp.exit_via_down(ly, lambda_o))
+    };
+    // F_m F_y · reflect_pdf(w, y)·reflect_pdf(−y, ω_o)·exit / (p_fwd + p_rev),
+    // with A(−y) = |cos y|·|Λ(y)| and reflect_pdf(−y, ω_o) = p_rev·A(ω_o)/A(−y).
+    let area_y = y.z.abs() * ly;
+    let value = p_fwd * (p_rev * area_o / area_y) * exit / (p_fwd + p_rev);
+    if !(value > 0.0) || !value.is_finite() {
+        return Spectrum::ZERO;
+    }
+    fresnel.eval(cos0) * fresnel.eval(cos1) * value
+}
+
+/// Random-walk sampling of the invariance model: reflect about visible normals
+/// and, at each upward direction d_m, leave with probability 1 − H_m/H_{m−1}
+/// (the exact conditional exit probability of the heights-integrated walk).
+/// The density of the sampled ω_o and order is then the path contribution over
+/// Π F, so the weight is Π F (≤ 1 per channel, no roulette needed).
+/// `first` = (u_exit, u1, u2) drives the first vertex. Returns None when the
+/// walk needs more than min(max_bounces, orders.1) vertices, leaves before
+/// orders.0, or meets a degenerate direction — the same truncation as `eval`,
+/// so E[weight·g(ω_o)] = ∫ g·eval.
+pub fn sample(
+    mf: &Microfacet,
+    fresnel: &ConductorFresnel,
+    wi: DVec3,
+    first: (f64, f64, f64),
+    opts: &WalkOptions,
+    rng: &mut Sampler,
+) -> Option<(DVec3, Spectrum, u32)> {
+    if !(wi.z > 0.0) || !wi.is_finite() {
+        return None;
+    }
+    let last = opts.orders.1.min(opts.max_bounces);
+    if last == 0 || opts.orders.0 > last {
+        return None;
+    }
+    let mut w = wi;
+    let mut dp = MonotoneExit::new(mf.abs_lambda(-wi));
+    let mut weight = Spectrum::ONE;
+    for j in 0..last {
+        let (u_exit, u1, u2) = if j == 0 {
+            first
+        } else {
+            let (a, b) = rng.next2();
+            (rng.next(), a, b)
+        };
+        let m = mf.sample_visible(w, u1, u2)?;
+        let cos_wm = w.dot(m);
+        if cos_wm <= 0.0 {
+            return None;
+        }
+        let d_next = reflect(w, m);
+        weight *= fresnel.eval(cos_wm);
+        if d_next.z > 0.0 {
+            let lambda = mf.lambda(d_next);
+            if !lambda.is_finite() {
+                return None;
+            }
+            let cont = dp.push_up(lambda);
+            if u_exit >= cont {
+                let order = j + 1;
+                if order < opts.orders.0 || !d_next.is_finite() {
+                    return None;
+                }
+                return Some((d_next, weight.sanitized(), order));
+            }
+        } else {
+            let l = mf.abs_lambda(d_next);
+            if !l.is_finite() || !dp.push_down(l) {
+                return None;
+            }
+        }
+        w = -d_next;
+    }
+    None
+}

@@ -15,10 +15,13 @@ import time
 from pathlib import Path
 
 MODELS = ("single", "uncorrelated", "correlated")
-# scene -> (title, True if both spheres are in one scene, else one sphere per render)
+# scene -> (title, reference BSDF or None if both spheres are in one scene, models)
 SCENES = {
-    "fig09_copper_sphere": ("Wang 2022 Fig. 9: copper, GGX α = 1, directional light", True),
-    "furnace_sphere": ("White furnace: F = 1, GGX α = 1.5, uniform white environment", False),
+    "fig09_copper_sphere": ("Wang 2022 Fig. 9: copper, GGX α = 1, directional light", None, MODELS + ("heitz", "invariance")),
+    "furnace_sphere": ("White furnace: F = 1, GGX α = 1.5, uniform white environment", "roughconductor",
+                       MODELS + ("heitz", "invariance", "fastmsx", "compensated")),
+    "fig01_dielectric_sphere": ("Wang 2022 Fig. 1 (c, d): rough dielectric, GGX α = 1, bk7", "roughdielectric",
+                                MODELS + ("heitz",)),
 }
 
 
@@ -46,14 +49,15 @@ def run(args):
     montage = {}
     t_start = time.perf_counter()
     opts = dict(variant=args.variant, spp=args.spp, workers=args.workers, seed=args.seed)
-    for scene, (title, in_one) in SCENES.items():
+    for scene, (title, reference, models) in SCENES.items():
+        in_one = reference is None
         path = Path(args.scenes) / f"{scene}.xml"
         if not path.exists():
             raise SystemExit(f"scene not found: {path} (run from the repository root or pass --scenes)")
         if not in_one:
-            ref, ref_chunks, _ = render_scene(str(path), params={"bsdf": "roughconductor"},
-                                              label=f"{scene} [roughconductor]", **opts)
-        for model in MODELS:
+            ref, ref_chunks, _ = render_scene(str(path), params={"bsdf": reference},
+                                              label=f"{scene} [{reference}]", **opts)
+        for model in models:
             label = f"{scene} [{model}]"
             img, chunks, wall = render_scene(str(path), params={"model": model}, label=label, **opts)
             if in_one:
@@ -89,8 +93,8 @@ def run(args):
         z = abs(diff) / se if se > 0 else float("nan")
         lines.append(f"| {scene} | {model} | {left:.5f} | {right:.5f} | {right / left:.4f} | {diff:+.5f} | {se:.5f} | {z:.1f} | {wall:.1f} |")
     lines += ["", "Images: `<scene>_<model>.png/.exr`, `<scene>_<model>_absdiff.png` (|right − left|, mirrored), "
-              "`<scene>_montage.png` (rows: " + ", ".join(MODELS) + ")."]
-    for scene, (title, _) in SCENES.items():
+              "`<scene>_montage.png` (one row per model, in the table's order)."]
+    for scene, (title, _, models) in SCENES.items():
         lines += ["", f"## {scene}", "", title, "", f"![{scene}]({scene}_montage.png)"]
     try:
         import matplotlib
@@ -98,15 +102,19 @@ def run(args):
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        fig, ax = plt.subplots(figsize=(6, 3.2))
+        all_models = []
+        for r in rows:
+            if r[1] not in all_models:
+                all_models.append(r[1])
+        fig, ax = plt.subplots(figsize=(8, 3.4))
+        width = 0.8 / len(SCENES)
         for i, scene in enumerate(SCENES):
             sel = [r for r in rows if r[0] == scene]
-            ratios = [r[3] / r[2] for r in sel]
-            errs = [r[5] / r[2] for r in sel]
-            ax.bar([k + 0.38 * i for k in range(len(sel))], ratios, width=0.36, yerr=errs, label=scene)
+            xs = [all_models.index(r[1]) + width * i for r in sel]
+            ax.bar(xs, [r[3] / r[2] for r in sel], width=width * 0.95, yerr=[r[5] / r[2] for r in sel], label=scene)
         ax.axhline(1.0, color="k", lw=0.8)
-        ax.set_xticks([k + 0.19 for k in range(len(MODELS))], MODELS)
-        ax.set_ylabel("energy: msx / roughconductor")
+        ax.set_xticks([k + 0.4 - width / 2 for k in range(len(all_models))], all_models)
+        ax.set_ylabel("energy: msx / Mitsuba built-in")
         ax.legend(fontsize=7)
         fig.tight_layout()
         fig.savefig(out / "energy_ratio.png", dpi=120)

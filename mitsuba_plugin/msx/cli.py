@@ -155,7 +155,7 @@ def main(argv=None):
     c = sub.add_parser("compare", help="render the paper comparisons side by side with Mitsuba's built-ins")
     c.add_argument("--scenes", default="scenes", help="folder with the scene XMLs")
     c.add_argument("--out", default="out", help="report folder")
-    c.add_argument("--spp", type=int, default=64)
+    c.add_argument("--spp", type=int, default=32)
     c.add_argument("--variant", default=DEFAULT_VARIANT)
     c.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     c.add_argument("--seed", type=int, default=0)

@@ -239,8 +239,7 @@ fn mode_scale(eta: f64, radiance: bool, wi: DVec3, wo_z: f64) -> f64 {
 const RR_START: u32 = 1;
 
 #[inline]
-fn valid_inputs(mf: &Microfacet, eta: f64, wi: DVec3) -> bool {
-    let _ = mf;
+fn valid_inputs(eta: f64, wi: DVec3) -> bool {
     eta > 0.0 && eta.is_finite() && wi.z != 0.0 && wi.is_finite()
 }
 
@@ -249,7 +248,7 @@ fn valid_inputs(mf: &Microfacet, eta: f64, wi: DVec3) -> bool {
 /// the pair is a reflection (ω_i, ω_o on the same side).
 pub fn eval_pt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> (f64, bool) {
     let is_reflection = wi.z * wo.z > 0.0;
-    if !valid_inputs(mf, eta, wi) || wo.z == 0.0 || !wo.is_finite() {
+    if !valid_inputs(eta, wi) || wo.z == 0.0 || !wo.is_finite() {
         return (0.0, is_reflection);
     }
     let seg = opts.segments;
@@ -312,7 +311,7 @@ pub fn eval_pt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, 
 /// within the chosen branch, decides the first exit. Returns (ω_o, weight,
 /// order) or None (no visible normal, or `opts.max_bounces` reached).
 pub fn sample_walk(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, first: (f64, f64, f64), opts: &WalkOptions, rng: &mut Sampler) -> Option<(DVec3, f64, u32)> {
-    if !valid_inputs(mf, eta, wi) {
+    if !valid_inputs(eta, wi) {
         return None;
     }
     let seg = opts.segments;

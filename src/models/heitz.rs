@@ -50,7 +50,7 @@
 // `!(x > 0.0)` is deliberate: it is also true for NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use super::{Microsurface, WalkOptions};
+use super::{russian_roulette, Microsurface, WalkOptions};
 use crate::microfacet::{fresnel, reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
@@ -354,22 +354,6 @@ fn visible_normal(mf: &Microfacet, wi: DVec3, u1: f64, u2: f64) -> Option<DVec3>
     }
 }
 
-/// Russian roulette on the largest channel of the throughput. Returns false
-/// when the path is terminated; rescales the throughput otherwise.
-#[inline]
-fn roulette(throughput: &mut Spectrum, rng: &mut Sampler) -> bool {
-    let q = throughput.max_value().min(1.0);
-    if !(q > 0.0) {
-        return false;
-    }
-    if q < 1.0 {
-        if rng.next() >= q {
-            return false;
-        }
-        *throughput *= 1.0 / q;
-    }
-    true
-}
 
 /// One unbiased estimate of f(ω_i, ω_o)·|cos θ_o| restricted to the scattering
 /// orders `opts.orders` (1 = single scattering) and at most `opts.max_bounces`
@@ -472,7 +456,7 @@ pub fn eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, opts: &W
             outside = !outside;
             t = flip_height(t);
         }
-        if !roulette(&mut throughput, rng) {
+        if !russian_roulette(&mut throughput, rng) {
             break;
         }
     }
@@ -578,7 +562,7 @@ pub fn sample(
             outside = !outside;
             t = flip_height(t);
         }
-        if !roulette(&mut throughput, rng) {
+        if !russian_roulette(&mut throughput, rng) {
             return None;
         }
     }

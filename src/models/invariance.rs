@@ -49,7 +49,7 @@
 //! product of the Fresnel terms (Cui Alg. 2 with the exact exit probability —
 //! the printed 1/|Λ(d_k)|, or G1(d_k) = 1/(1+Λ(d_k)), needs a weight ratio).
 
-use super::{ConductorFresnel, WalkOptions};
+use super::{russian_roulette, vertex_numbers, ConductorFresnel, WalkOptions};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
@@ -454,15 +454,8 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
         // ∝ Λ(d_m) while its NEE phase value ∝ 1/Λ(d_m); a binary decision
         // before the NEE multiplies the variance of order 2 ≈ 2×).
         if j >= RR_START {
-            let q = throughput.max_value().min(1.0);
-            if !(q > 0.0) {
+            if !russian_roulette(&mut throughput, rng) {
                 break;
-            }
-            if q < 1.0 {
-                if rng.next() >= q {
-                    break;
-                }
-                throughput *= 1.0 / q;
             }
         }
         let (u1, u2) = rng.next2();
@@ -593,12 +586,7 @@ pub fn sample(
     let mut dp = MonotoneExit::new(mf.abs_lambda(-wi));
     let mut weight = Spectrum::ONE;
     for j in 0..last {
-        let (u_exit, u1, u2) = if j == 0 {
-            first
-        } else {
-            let (a, b) = rng.next2();
-            (rng.next(), a, b)
-        };
+        let (u_exit, u1, u2) = vertex_numbers(j, first, rng);
         let m = mf.sample_visible(w, u1, u2)?;
         let cos_wm = w.dot(m);
         if cos_wm <= 0.0 {

@@ -12,7 +12,39 @@ pub mod single;
 pub mod single_dielectric;
 
 use crate::microfacet::fresnel;
+use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
+
+/// Russian roulette on the largest channel of a throughput that is ≤ 1 per
+/// channel: returns false when the path ends, otherwise divides the
+/// throughput by the survival probability (unbiased).
+#[inline]
+pub fn russian_roulette(throughput: &mut Spectrum, rng: &mut Sampler) -> bool {
+    let q = throughput.max_value().min(1.0);
+    if !(q > 0.0) {
+        return false;
+    }
+    if q < 1.0 {
+        if rng.next() >= q {
+            return false;
+        }
+        *throughput *= 1.0 / q;
+    }
+    true
+}
+
+/// The three uniform numbers (u_choice, u1, u2) of vertex `j` of a sampled
+/// walk: the caller's (from Mitsuba's sample1/sample2) at the first vertex,
+/// the walk's own stream after it.
+#[inline]
+pub fn vertex_numbers(j: u32, first: (f64, f64, f64), rng: &mut Sampler) -> (f64, f64, f64) {
+    if j == 0 {
+        first
+    } else {
+        let (a, b) = rng.next2();
+        (rng.next(), a, b)
+    }
+}
 
 /// Options of one evaluation.
 #[derive(Clone, Copy, Debug)]

@@ -18,7 +18,7 @@
 //! v_j·p_j/F, so f/pdf of a path prefix is Π F_j·L_j·(p_j e_{j+1}), i.e. a
 //! product of Fresnel terms and the "continue" factors of the table times L_j.
 
-use super::{ConductorFresnel, WalkOptions};
+use super::{russian_roulette, vertex_numbers, ConductorFresnel, WalkOptions};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
@@ -116,15 +116,8 @@ pub fn eval_pt(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3
         w = -d_next;
         // Russian roulette.
         if j + 1 >= RR_START {
-            let q = throughput.max_value().min(1.0);
-            if !(q > 0.0) {
+            if !russian_roulette(&mut throughput, rng) {
                 break;
-            }
-            if q < 1.0 {
-                if rng.next() >= q {
-                    break;
-                }
-                throughput *= 1.0 / q;
             }
         }
     }
@@ -150,12 +143,7 @@ pub fn sample_walk(
     let mut l = 1.0 + mf.lambda(wi);
     let mut weight = Spectrum::ONE;
     for j in 0..opts.max_bounces {
-        let (u_exit, u1, u2) = if j == 0 {
-            first
-        } else {
-            let (a, b) = rng.next2();
-            (rng.next(), a, b)
-        };
+        let (u_exit, u1, u2) = vertex_numbers(j, first, rng);
         let m = mf.sample_visible(w, u1, u2)?;
         let cos_wm = w.dot(m);
         if cos_wm <= 0.0 {

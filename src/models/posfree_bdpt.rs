@@ -58,7 +58,7 @@
 //! (a direction that sees no microfacet, Λ = 0 exactly).
 
 use super::posfree::Segments;
-use super::{ConductorFresnel, WalkOptions};
+use super::{russian_roulette, ConductorFresnel, WalkOptions};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
@@ -349,15 +349,8 @@ pub fn eval_bdpt_with(
             }
             w = -d_next;
             if j + 1 >= kb + RR_START {
-                let q = throughput.max_value().min(1.0);
-                if !(q > 0.0) {
+                if !russian_roulette(&mut throughput, rng) {
                     break;
-                }
-                if q < 1.0 {
-                    if rng.next() >= q {
-                        break;
-                    }
-                    throughput *= 1.0 / q;
                 }
             }
         }

@@ -49,7 +49,7 @@
 //! past is exact, so the estimator stays unbiased).
 
 use super::posfree::Segments;
-use super::WalkOptions;
+use super::{russian_roulette, vertex_numbers, WalkOptions};
 use crate::microfacet::Microfacet;
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
@@ -118,15 +118,8 @@ pub fn eval_pt(mf: &Microfacet, albedo: Spectrum, wi: DVec3, wo: DVec3, opts: &W
         }
         w = -d_next;
         if j + 1 >= RR_START {
-            let q = throughput.max_value().min(1.0);
-            if !(q > 0.0) {
+            if !russian_roulette(&mut throughput, rng) {
                 break;
-            }
-            if q < 1.0 {
-                if rng.next() >= q {
-                    break;
-                }
-                throughput *= 1.0 / q;
             }
         }
     }
@@ -153,12 +146,7 @@ pub fn sample_walk(
     let mut l = 1.0 + mf.lambda(wi);
     let mut weight = Spectrum::ONE;
     for j in 0..opts.max_bounces {
-        let (u_exit, u1, u2) = if j == 0 {
-            first
-        } else {
-            let (a, b) = rng.next2();
-            (rng.next(), a, b)
-        };
+        let (u_exit, u1, u2) = vertex_numbers(j, first, rng);
         let m = mf.sample_visible(w, u1, u2)?;
         let (u3, u4) = rng.next2();
         let d_next = cosine_about(m, u3, u4);

@@ -22,7 +22,8 @@ use msx::bsdf::{Config, Material, Model};
 use msx::rng::Sampler;
 use msx::{Bsdf, Distribution};
 
-const ALPHAS: [f64; 5] = [0.05, 0.3, 0.6, 1.0, 1.5];
+// Issue 2 asks for {0.05, 0.3, 0.6, 1.0, 1.5}; the model-family issue adds 0.1 and 2.0.
+const ALPHAS: [f64; 7] = [0.05, 0.1, 0.3, 0.6, 1.0, 1.5, 2.0];
 const THETAS: [f64; 3] = [0.0, 1.0, 1.45];
 const N_EVAL: usize = 500_000;
 const N_SAMPLE: usize = 100_000;

@@ -5,6 +5,7 @@
 use crate::microfacet::{Distribution, Microfacet};
 use crate::models::posfree::{self, Segments};
 use crate::models::WalkOptions;
+use crate::models::albedo::AlbedoTable;
 use crate::models::{
     compensated, fastmsx, heitz, invariance, posfree_bdpt, posfree_dielectric, posfree_diffuse, single, single_dielectric, ConductorFresnel,
     Microsurface,
@@ -337,10 +338,11 @@ impl Bsdf {
     }
 
     /// Density reported for MIS. Exact for `single`, `fastmsx` and
-    /// `compensated` (they sample with `single`'s sampler); for the
-    /// multiple-scattering models a mixture of the single-scattering density
-    /// and a cosine lobe (Heitz 2016), weighted by [`diffuse_fraction`]; a
-    /// cosine lobe for the diffuse microsurface.
+    /// `compensated` (they sample with `single`'s sampler); for the conductor
+    /// random walks the exact order-1 density plus a cosine lobe with the
+    /// remaining mass (see `conductor_walk_pdf`); for dielectrics a mixture of
+    /// the single-scattering density and a cosine lobe on both sides weighted by
+    /// [`diffuse_fraction`] (Heitz 2016); a cosine lobe for the diffuse microsurface.
     pub fn pdf(&self, mat: &Material, wi: DVec3, wo: DVec3) -> f64 {
         let (Some(wi), Some(wo)) = (finite_unit(wi), finite_unit(wo)) else { return 0.0 };
         let mf = self.microfacet(mat);
@@ -351,8 +353,7 @@ impl Bsdf {
                     if wi.z <= 0.0 || wo.z <= 0.0 {
                         0.0
                     } else {
-                        let k = diffuse_fraction(&mf);
-                        (1.0 - k) * mf.reflect_pdf(wi, wo) + k * wo.z * FRAC_1_PI
+                        self.conductor_walk_pdf(&mf, wi, wo)
                     }
                 }
             },
@@ -380,6 +381,26 @@ impl Bsdf {
         } else {
             0.0
         }
+    }
+
+    /// MIS density of the conductor random walks: the exact density of leaving
+    /// after one bounce (visible-normal reflection × exit probability: G1(ω_o)
+    /// uncorrelated, L_0/(L_0 + Λ_o) height-correlated, which order 1 of heitz
+    /// and invariance share) plus a cosine lobe carrying the remaining mass
+    /// 1 − E_1(ω_i) from the order-1 albedo table, floored at 1e-3 so that no
+    /// direction the walk can reach has density 0. Integrates to 1 up to the
+    /// table's interpolation error.
+    fn conductor_walk_pdf(&self, mf: &Microfacet, wi: DVec3, wo: DVec3) -> f64 {
+        let table = AlbedoTable::get(mf.dist);
+        let alpha = (mf.alpha_u * mf.alpha_v).sqrt();
+        let lambda_o = mf.lambda(wo);
+        let (exit, e1) = if self.cfg.model == Model::Uncorrelated {
+            (1.0 / (1.0 + lambda_o), table.e1_uncorrelated(alpha, wi.z))
+        } else {
+            let l0 = 1.0 + mf.lambda(wi);
+            (l0 / (l0 + lambda_o), table.e1_correlated(alpha, wi.z))
+        };
+        mf.reflect_pdf(wi, wo) * exit + (1.0 - e1).max(1e-3) * wo.z * FRAC_1_PI
     }
 
     pub fn eval_pdf(&self, mat: &Material, wi: DVec3, wo: DVec3, key: u64) -> (Spectrum, f64) {

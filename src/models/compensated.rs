@@ -9,112 +9,15 @@
 //! E(μ) is the directional albedo of `single` with F = 1, E_avg = 2∫E(μ)μ dμ,
 //! F_avg = 2∫F(μ)μ dμ. With F = 1 the scaled lobe has albedo exactly 1 at the
 //! tabulated nodes; with Fresnel it adds F_ms·(1 − E) like Kulla-Conty's lobe.
-//! The albedo table is computed by this project's own code on first use
-//! (deterministic stratified quadrature over visible normals) and cached.
+//! The albedo table (`albedo.rs`) is computed by this project's own code on
+//! first use (deterministic stratified quadrature over visible normals).
 
+pub use super::albedo::{single_albedo, AlbedoTable};
 use super::{single, ConductorFresnel};
-use crate::microfacet::{mitsuba, reflect, Distribution, Microfacet};
+use crate::microfacet::Microfacet;
 use crate::spectrum::{Spectrum, MAX_CHANNELS};
 use glam::DVec3;
 use std::cell::Cell;
-use std::sync::OnceLock;
-
-/// Table resolution: cos θ nodes (uniform in μ²) and roughness nodes uniform
-/// in √α over [1e-4, 4] (E varies fastest with α at high roughness, where a
-/// log-α grid was measured 3 % off between nodes).
-const N_MU: usize = 32;
-const N_ALPHA: usize = 48;
-const SQRT_ALPHA_MIN: f64 = 0.01;
-const SQRT_ALPHA_MAX: f64 = 2.0;
-/// Stratified quadrature grid per table entry (GRID × GRID visible normals).
-const GRID: usize = 32;
-
-/// E(μ, α) with F = 1 for one distribution, plus E_avg(α).
-pub struct AlbedoTable {
-    e: Vec<f64>,     // [alpha][mu]
-    e_avg: Vec<f64>, // [alpha]
-}
-
-fn mu_node(i: usize) -> f64 {
-    // Nodes from grazing to normal incidence, denser near grazing.
-    let t = (i as f64 + 0.5) / N_MU as f64;
-    t.sqrt()
-}
-
-fn alpha_node(j: usize) -> f64 {
-    (SQRT_ALPHA_MIN + (SQRT_ALPHA_MAX - SQRT_ALPHA_MIN) * j as f64 / (N_ALPHA - 1) as f64).powi(2)
-}
-
-/// Directional albedo of `single` with F = 1 (Mitsuba's G1): E over visible
-/// normals of G1m(ω_i)·G1m(ω_o)/G1(ω_i) (the visible-normal density uses the exact G1).
-pub fn single_albedo(dist: Distribution, alpha: f64, mu: f64) -> f64 {
-    let mf = Microfacet::new(dist, alpha, alpha);
-    let wi = DVec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu);
-    let g1_exact = mf.g1_dist(wi);
-    let mut sum = 0.0;
-    for a in 0..GRID {
-        for b in 0..GRID {
-            let u1 = (a as f64 + 0.5) / GRID as f64;
-            let u2 = (b as f64 + 0.5) / GRID as f64;
-            let Some(m) = mf.sample_visible(wi, u1, u2) else { continue };
-            let wo = reflect(wi, m);
-            if wo.z <= 0.0 {
-                continue;
-            }
-            sum += mitsuba::smith_g1(&mf, wi, m) * mitsuba::smith_g1(&mf, wo, m) / g1_exact;
-        }
-    }
-    sum / (GRID * GRID) as f64
-}
-
-impl AlbedoTable {
-    fn compute(dist: Distribution) -> Self {
-        let mut e = vec![0.0; N_ALPHA * N_MU];
-        let mut e_avg = vec![0.0; N_ALPHA];
-        for j in 0..N_ALPHA {
-            let alpha = alpha_node(j);
-            let mut avg = 0.0;
-            for i in 0..N_MU {
-                let v = single_albedo(dist, alpha, mu_node(i)).clamp(1e-6, 1.0);
-                e[j * N_MU + i] = v;
-                // 2∫E μ dμ with μ = √t: dμ·2μ = dt, so a midpoint rule in t.
-                avg += v / N_MU as f64;
-            }
-            e_avg[j] = avg;
-        }
-        AlbedoTable { e, e_avg }
-    }
-
-    pub fn get(dist: Distribution) -> &'static AlbedoTable {
-        static GGX: OnceLock<AlbedoTable> = OnceLock::new();
-        static BECKMANN: OnceLock<AlbedoTable> = OnceLock::new();
-        match dist {
-            Distribution::Ggx => GGX.get_or_init(|| AlbedoTable::compute(Distribution::Ggx)),
-            Distribution::Beckmann => BECKMANN.get_or_init(|| AlbedoTable::compute(Distribution::Beckmann)),
-        }
-    }
-
-    fn alpha_coord(alpha: f64) -> (usize, f64) {
-        let x = ((alpha.sqrt() - SQRT_ALPHA_MIN) / (SQRT_ALPHA_MAX - SQRT_ALPHA_MIN) * (N_ALPHA - 1) as f64).clamp(0.0, (N_ALPHA - 1) as f64);
-        let j = (x.floor() as usize).min(N_ALPHA - 2);
-        (j, x - j as f64)
-    }
-
-    /// E(μ, α), bilinear in (μ², √α).
-    pub fn e(&self, alpha: f64, mu: f64) -> f64 {
-        let (j, fa) = Self::alpha_coord(alpha);
-        let x = (mu.clamp(0.0, 1.0).powi(2) * N_MU as f64 - 0.5).clamp(0.0, (N_MU - 1) as f64);
-        let i = (x.floor() as usize).min(N_MU - 2);
-        let fm = x - i as f64;
-        let at = |jj: usize| self.e[jj * N_MU + i] * (1.0 - fm) + self.e[jj * N_MU + i + 1] * fm;
-        at(j) * (1.0 - fa) + at(j + 1) * fa
-    }
-
-    pub fn e_avg(&self, alpha: f64) -> f64 {
-        let (j, fa) = Self::alpha_coord(alpha);
-        self.e_avg[j] * (1.0 - fa) + self.e_avg[j + 1] * fa
-    }
-}
 
 /// Hemispherical average F_avg = 2∫F(μ)μ dμ of the conductor Fresnel per
 /// channel (16-point Gauss-Legendre in μ), memoised per thread for the last IOR.

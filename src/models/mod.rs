@@ -1,5 +1,6 @@
 //! The scattering models, each a small file to read beside its paper.
 
+pub mod albedo;
 pub mod compensated;
 pub mod fastmsx;
 pub mod heitz;

@@ -2,7 +2,7 @@
 //! habit): a stream is seeded by hashing the call's inputs, the BSDF's `seed`
 //! and a caller-supplied key (a per-call counter in the plugin).
 
-use rand::{Rng, RngCore, SeedableRng};
+use rand::{Rng, RngCore};
 use rand_pcg::Pcg64Mcg;
 
 /// SplitMix64 finaliser: a bijective 64-bit mixer.
@@ -33,10 +33,6 @@ impl Sampler {
         let lo = mix64(seed);
         let hi = mix64(seed ^ 0xd1b5_4a32_d192_ed03);
         Sampler { rng: Pcg64Mcg::new(((hi as u128) << 64) | lo as u128 | 1) }
-    }
-
-    pub fn from_rng_seed(seed: u64) -> Self {
-        Sampler { rng: Pcg64Mcg::seed_from_u64(seed) }
     }
 
     /// Uniform in [0, 1).

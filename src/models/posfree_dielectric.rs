@@ -136,7 +136,7 @@ pub fn last(seg: Segments, refracted: bool, l: f64, lambda_o: f64) -> f64 {
 
 /// Reflection vertex term F·D(h)/(4|w_z|) towards o (current frame, o.z > 0).
 #[inline]
-fn vertex_reflect(mf: &Microfacet, eta_f: f64, w: DVec3, o: DVec3) -> f64 {
+pub fn vertex_reflect(mf: &Microfacet, eta_f: f64, w: DVec3, o: DVec3) -> f64 {
     let h = w + o;
     let len = h.length();
     if !(len > 0.0) {
@@ -158,7 +158,7 @@ fn vertex_reflect(mf: &Microfacet, eta_f: f64, w: DVec3, o: DVec3) -> f64 {
 
 /// Transmission vertex term (eq. 3) towards o (current frame, o.z < 0).
 #[inline]
-fn vertex_transmit(mf: &Microfacet, eta_f: f64, w: DVec3, o: DVec3) -> f64 {
+pub fn vertex_transmit(mf: &Microfacet, eta_f: f64, w: DVec3, o: DVec3) -> f64 {
     let h = -(w + eta_f * o);
     let len = h.length();
     if !(len > 0.0) || !len.is_finite() {

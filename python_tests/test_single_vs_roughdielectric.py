@@ -106,7 +106,7 @@ def test_single_dielectric_equals_roughdielectric(dist, ior, mode):
 
 @pytest.mark.parametrize("surface,model", [
     ("dielectric", "uncorrelated"), ("dielectric", "correlated"), ("dielectric", "heitz"),
-    ("diffuse", "uncorrelated"), ("diffuse", "correlated"), ("diffuse", "heitz"),
+    ("diffuse", "uncorrelated"), ("diffuse", "correlated"), ("diffuse", "heitz"), ("diffuse", "invariance"),
     ("conductor", "heitz"), ("conductor", "invariance"), ("conductor", "fastmsx"), ("conductor", "compensated"),
 ])
 def test_every_model_loads_and_returns_finite_values(surface, model):

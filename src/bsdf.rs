@@ -7,7 +7,7 @@ use crate::models::posfree::{self, Segments};
 use crate::models::WalkOptions;
 use crate::models::albedo::AlbedoTable;
 use crate::models::{
-    compensated, fastmsx, heitz, invariance, posfree_bdpt, posfree_dielectric, posfree_diffuse, single, single_dielectric, ConductorFresnel,
+    compensated, fastmsx, heitz, invariance, invariance_general, posfree_bdpt, posfree_dielectric, posfree_diffuse, single, single_dielectric, ConductorFresnel,
     Microsurface,
 };
 use crate::rng::{hash_words, Sampler};
@@ -77,7 +77,7 @@ pub fn models_for(surface: Surface) -> &'static [Model] {
             Model::Compensated,
         ],
         Surface::Dielectric => &[Model::Single, Model::Uncorrelated, Model::Correlated, Model::Heitz],
-        Surface::Diffuse => &[Model::Uncorrelated, Model::Correlated, Model::Heitz],
+        Surface::Diffuse => &[Model::Uncorrelated, Model::Correlated, Model::Heitz, Model::Invariance],
     }
 }
 
@@ -322,6 +322,9 @@ impl Bsdf {
             Surface::Diffuse => match self.cfg.model {
                 Model::Uncorrelated | Model::Correlated => posfree_diffuse::eval_pt(&mf, mat.reflectance, wi, wo, &opts, &mut rng()),
                 Model::Heitz => heitz::eval(&mf, &Microsurface::Diffuse { albedo: mat.reflectance }, wi, wo, &opts, &mut rng()),
+                Model::Invariance => {
+                    invariance_general::eval(&mf, &Microsurface::Diffuse { albedo: mat.reflectance }, wi, wo, &opts, &mut rng())
+                }
                 _ => Spectrum::ZERO,
             },
         };
@@ -457,6 +460,9 @@ impl Bsdf {
             Surface::Diffuse => {
                 let (wo, w, _) = match self.cfg.model {
                     Model::Heitz => heitz::sample(&mf, &Microsurface::Diffuse { albedo: mat.reflectance }, wi, first, &opts, &mut rng())?,
+                    Model::Invariance => {
+                        invariance_general::sample(&mf, &Microsurface::Diffuse { albedo: mat.reflectance }, wi, first, &opts, &mut rng())?
+                    }
                     _ => posfree_diffuse::sample_walk(&mf, mat.reflectance, wi, first, &opts, &mut rng())?,
                 };
                 (wo, self.pdf(mat, wi, wo), w)

@@ -27,7 +27,7 @@ fn combos() -> Vec<(u32, u32, u32, u32)> {
         for model in [MSX_MODEL_SINGLE, MSX_MODEL_UNCORRELATED, MSX_MODEL_CORRELATED, MSX_MODEL_HEITZ] {
             v.push((MSX_SURFACE_DIELECTRIC, dist, model, MSX_ESTIMATOR_PT));
         }
-        for model in [MSX_MODEL_UNCORRELATED, MSX_MODEL_CORRELATED, MSX_MODEL_HEITZ] {
+        for model in [MSX_MODEL_UNCORRELATED, MSX_MODEL_CORRELATED, MSX_MODEL_HEITZ, MSX_MODEL_INVARIANCE] {
             v.push((MSX_SURFACE_DIFFUSE, dist, model, MSX_ESTIMATOR_PT));
         }
     }

@@ -5,6 +5,7 @@ pub mod compensated;
 pub mod fastmsx;
 pub mod heitz;
 pub mod invariance;
+pub mod invariance_general;
 pub mod posfree;
 pub mod posfree_dielectric;
 pub mod posfree_bdpt;

@@ -41,7 +41,7 @@ BAD = [
     (dict(model="auto"), ["model", "not implemented"]),
     (dict(model="Single"), ["model", "single"]),
     (dict(estimator="bdpt", model="single"), ["estimator", "bdpt", "uncorrelated"]),
-    (dict(surface="dielectric", estimator="bdpt"), ["estimator", "bdpt"]),
+    (dict(surface="dielectric", model="heitz", estimator="bdpt"), ["estimator", "bdpt", "uncorrelated"]),
     (dict(estimator="mlt"), ["estimator", "pt"]),
     (dict(max_bounces=0), ["max_bounces", "1024"]),
     (dict(max_bounces=2000), ["max_bounces", "1024"]),

@@ -7,7 +7,7 @@ use crate::models::posfree::{self, Segments};
 use crate::models::WalkOptions;
 use crate::models::albedo::AlbedoTable;
 use crate::models::{
-    compensated, fastmsx, heitz, invariance, invariance_general, posfree_bdpt, posfree_dielectric, posfree_diffuse, single, single_dielectric, ConductorFresnel,
+    compensated, fastmsx, heitz, invariance, invariance_general, posfree_bdpt, posfree_bdpt_dielectric, posfree_bdpt_diffuse, posfree_dielectric, posfree_diffuse, single, single_dielectric, ConductorFresnel,
     Microsurface,
 };
 use crate::rng::{hash_words, Sampler};
@@ -84,8 +84,7 @@ pub fn models_for(surface: Surface) -> &'static [Model] {
 /// Models that accept `estimator="bdpt"`.
 pub fn bdpt_models(surface: Surface) -> &'static [Model] {
     match surface {
-        Surface::Conductor => &[Model::Uncorrelated, Model::Correlated],
-        Surface::Dielectric | Surface::Diffuse => &[],
+        Surface::Conductor | Surface::Dielectric | Surface::Diffuse => &[Model::Uncorrelated, Model::Correlated],
     }
 }
 
@@ -308,9 +307,10 @@ impl Bsdf {
                 let Some(eta) = valid_ior(mat.ior) else { return Spectrum::ZERO };
                 let v = match self.cfg.model {
                     Model::Single if first => single_dielectric::eval(&mf, eta, wi, wo, mat.radiance).0,
-                    Model::Uncorrelated | Model::Correlated => {
-                        posfree_dielectric::eval_pt(&mf, eta, mat.radiance, wi, wo, &opts, &mut rng()).0
-                    }
+                    Model::Uncorrelated | Model::Correlated => match self.cfg.estimator {
+                        Estimator::Pt => posfree_dielectric::eval_pt(&mf, eta, mat.radiance, wi, wo, &opts, &mut rng()).0,
+                        Estimator::Bdpt => posfree_bdpt_dielectric::eval_bdpt(&mf, eta, mat.radiance, wi, wo, &opts, &mut rng()),
+                    },
                     Model::Heitz => {
                         let surf = Microsurface::Dielectric { eta, radiance: mat.radiance };
                         heitz::eval(&mf, &surf, wi, wo, &opts, &mut rng()).0[0]
@@ -320,7 +320,10 @@ impl Bsdf {
                 self.dielectric_tint(mat, wi, wo) * v
             }
             Surface::Diffuse => match self.cfg.model {
-                Model::Uncorrelated | Model::Correlated => posfree_diffuse::eval_pt(&mf, mat.reflectance, wi, wo, &opts, &mut rng()),
+                Model::Uncorrelated | Model::Correlated => match self.cfg.estimator {
+                    Estimator::Pt => posfree_diffuse::eval_pt(&mf, mat.reflectance, wi, wo, &opts, &mut rng()),
+                    Estimator::Bdpt => posfree_bdpt_diffuse::eval_bdpt(&mf, mat.reflectance, wi, wo, &opts, &mut rng()),
+                },
                 Model::Heitz => heitz::eval(&mf, &Microsurface::Diffuse { albedo: mat.reflectance }, wi, wo, &opts, &mut rng()),
                 Model::Invariance => {
                     invariance_general::eval(&mf, &Microsurface::Diffuse { albedo: mat.reflectance }, wi, wo, &opts, &mut rng())

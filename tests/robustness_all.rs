@@ -27,6 +27,10 @@ fn combos() -> Vec<(u32, u32, u32, u32)> {
         for model in [MSX_MODEL_SINGLE, MSX_MODEL_UNCORRELATED, MSX_MODEL_CORRELATED, MSX_MODEL_HEITZ] {
             v.push((MSX_SURFACE_DIELECTRIC, dist, model, MSX_ESTIMATOR_PT));
         }
+        for surface in [MSX_SURFACE_DIELECTRIC, MSX_SURFACE_DIFFUSE] {
+            v.push((surface, dist, MSX_MODEL_UNCORRELATED, MSX_ESTIMATOR_BDPT));
+            v.push((surface, dist, MSX_MODEL_CORRELATED, MSX_ESTIMATOR_BDPT));
+        }
         for model in [MSX_MODEL_UNCORRELATED, MSX_MODEL_CORRELATED, MSX_MODEL_HEITZ, MSX_MODEL_INVARIANCE] {
             v.push((MSX_SURFACE_DIFFUSE, dist, model, MSX_ESTIMATOR_PT));
         }

@@ -9,6 +9,8 @@ pub mod invariance_general;
 pub mod posfree;
 pub mod posfree_dielectric;
 pub mod posfree_bdpt;
+pub mod posfree_bdpt_dielectric;
+pub mod posfree_bdpt_diffuse;
 pub mod posfree_diffuse;
 pub mod single;
 pub mod single_dielectric;

@@ -61,7 +61,7 @@ const RR_START: u32 = 1;
 
 /// Cosine-distributed direction about the unit vector n (density ⟨ω,n⟩⁺/π).
 #[inline]
-fn cosine_about(n: DVec3, u1: f64, u2: f64) -> DVec3 {
+pub fn cosine_about(n: DVec3, u1: f64, u2: f64) -> DVec3 {
     // Orthonormal basis (Duff et al. 2017).
     let sign = if n.z >= 0.0 { 1.0 } else { -1.0 };
     let a = -1.0 / (sign + n.z);

@@ -1,0 +1,176 @@
+//! Bidirectional estimator of the position-free rough diffuse microsurface
+//! (`models::posfree_bdpt_diffuse`) against the PT estimator
+//! (`models::posfree_diffuse::eval_pt`), per scattering order and in total, both
+//! segment models; white furnace; variance and time per call.
+//!
+//! Statistical checks: |estimate − expected| ≤ z·σ (+ stated allowance), σ the
+//! combined Monte Carlo standard error, z the family-wise 3σ level of
+//! `common::family_sigmas`. Run with `--nocapture` for the measured values.
+
+mod common;
+
+use common::*;
+use glam::DVec3;
+use msx::models::posfree::Segments;
+use msx::models::posfree_bdpt_diffuse as bd;
+use msx::models::posfree_diffuse as pfd;
+use msx::models::WalkOptions;
+use msx::rng::Sampler;
+use msx::{Distribution, Microfacet, Spectrum};
+use std::f64::consts::PI;
+use std::time::Instant;
+
+const MAX_BOUNCES: u32 = 256;
+
+fn opts(segments: Segments, orders: (u32, u32)) -> WalkOptions {
+    WalkOptions { segments, max_bounces: MAX_BOUNCES, orders }
+}
+
+fn seg_name(s: Segments) -> &'static str {
+    match s {
+        Segments::Uncorrelated => "unc",
+        Segments::Correlated => "cor",
+    }
+}
+
+fn albedo() -> Spectrum {
+    Spectrum([0.9, 0.5, 0.2, 1.0])
+}
+
+fn pairs() -> [(&'static str, DVec3, DVec3); 3] {
+    [
+        ("mirror", dir(0.6, 0.0), dir(0.6, PI)),
+        ("off-specular", dir(0.3, 0.0), dir(1.1, 2.0)),
+        ("grazing", dir(1.45, 0.0), dir(1.3, PI - 0.4)),
+    ]
+}
+
+fn run(n: usize, mut f: impl FnMut(&mut Sampler) -> Spectrum, seed: u64) -> ([Stat; 3], f64) {
+    let mut rng = Sampler::new(seed);
+    let mut st = [Stat::default(); 3];
+    let t0 = Instant::now();
+    for _ in 0..n {
+        let v = f(&mut rng);
+        for c in 0..3 {
+            st[c].push(v.0[c]);
+        }
+    }
+    (st, t0.elapsed().as_nanos() as f64 / n as f64)
+}
+
+#[test]
+fn bdpt_equals_pt_per_order() {
+    let mut ck = Checker::new("diffuse bdpt = pt per order (albedo 0.9/0.5/0.2)");
+    let n = 40_000;
+    let mut seed = 100u64;
+    for seg in [Segments::Uncorrelated, Segments::Correlated] {
+        for dist in [Distribution::Ggx, Distribution::Beckmann] {
+            for alpha in [0.5, 1.0] {
+                let mf = Microfacet::new(dist, alpha, alpha);
+                for (pname, wi, wo) in pairs() {
+                    for orders in [(1, 1), (2, 2), (3, 3), (1, MAX_BOUNCES)] {
+                        let o = opts(seg, orders);
+                        seed += 2;
+                        let (pt, _) = run(n, |r| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r), seed);
+                        let (b, _) = run(n, |r| bd::eval_bdpt(&mf, albedo(), wi, wo, &o, r), seed + 1);
+                        for c in [0usize, 2] {
+                            let label = format!("{} {:?} α={alpha} {pname} orders {}..={} ch{c}", seg_name(seg), dist, orders.0, orders.1);
+                            ck.close(&label, b[c].est(), pt[c].est(), 0.0, 1e-12);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    ck.finish();
+}
+
+#[test]
+fn bdpt_tail_and_kb_agree() {
+    let mut ck = Checker::new("diffuse bdpt with K_b ∈ {1, 2, 5} = pt");
+    let n = 40_000;
+    let mut seed = 9000u64;
+    for seg in [Segments::Uncorrelated, Segments::Correlated] {
+        let mf = Microfacet::new(Distribution::Ggx, 1.0, 1.0);
+        let (pname, wi, wo) = pairs()[1];
+        for kb in [1u32, 2, 5] {
+            for orders in [(1, MAX_BOUNCES), (3, 6)] {
+                let o = opts(seg, orders);
+                seed += 2;
+                let (pt, _) = run(n, |r| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r), seed);
+                let (b, _) = run(n, |r| bd::eval_bdpt_with(&mf, albedo(), wi, wo, &o, kb, r), seed + 1);
+                let label = format!("{} ggx α=1 {pname} K_b={kb} orders {}..={}", seg_name(seg), orders.0, orders.1);
+                ck.close(&label, b[0].est(), pt[0].est(), 0.0, 1e-12);
+            }
+        }
+    }
+    ck.finish();
+}
+
+#[test]
+fn bdpt_furnace() {
+    let mut ck = Checker::new("diffuse bdpt white furnace (albedo 1): ∫ eval dω_o = 1");
+    let n = 100_000;
+    let mut seed = 5000u64;
+    for seg in [Segments::Uncorrelated, Segments::Correlated] {
+        for dist in [Distribution::Ggx, Distribution::Beckmann] {
+            for alpha in [0.5, 1.0] {
+                let mf = Microfacet::new(dist, alpha, alpha);
+                for theta in [0.3, 1.2] {
+                    let wi = dir(theta, 0.3);
+                    let o = opts(seg, (1, MAX_BOUNCES));
+                    seed += 1;
+                    let mut rng = Sampler::new(seed);
+                    let mut st = Stat::default();
+                    for _ in 0..n {
+                        let (u1, u2) = rng.next2();
+                        let wo = cosine_hemisphere(u1, u2);
+                        let p = wo.z / PI;
+                        let v = if p > 0.0 { bd::eval_bdpt(&mf, Spectrum::ONE, wi, wo, &o, &mut rng).0[0] / p } else { 0.0 };
+                        st.push(v);
+                    }
+                    let label = format!("{} {:?} α={alpha} θ_i={theta}", seg_name(seg), dist);
+                    ck.close(&label, st.est(), exact(1.0), 0.003, 0.0);
+                }
+            }
+        }
+    }
+    ck.finish();
+}
+
+/// Not pass/fail: variance per call and time per call of bdpt vs pt.
+#[test]
+fn bdpt_vs_pt_variance_and_time() {
+    println!("=== diffuse, all orders, channel 0 (albedo 0.9): variance and ns per call, pt vs bdpt (K_b = {}) ===", bd::DEFAULT_BDPT_ORDERS);
+    println!("{:<4} {:<9} {:>4} {:<13} {:>11} {:>11} {:>7} {:>7} {:>6} {:>6}", "seg", "dist", "α", "pair", "var pt", "var bdpt", "ns pt", "ns bd", "var×", "eff×");
+    let n = 40_000;
+    let mut seed = 7000u64;
+    for seg in [Segments::Uncorrelated, Segments::Correlated] {
+        for dist in [Distribution::Ggx, Distribution::Beckmann] {
+            for alpha in [0.5, 1.0] {
+                let mf = Microfacet::new(dist, alpha, alpha);
+                for (pname, wi, wo) in pairs() {
+                    let o = opts(seg, (1, MAX_BOUNCES));
+                    seed += 2;
+                    let _ = run(2000, |r| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r), seed + 77);
+                    let (pt, t_pt) = run(n, |r| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r), seed);
+                    let (b, t_bd) = run(n, |r| bd::eval_bdpt(&mf, albedo(), wi, wo, &o, r), seed + 1);
+                    let (vp, vb) = (pt[0].var(), b[0].var());
+                    println!(
+                        "{:<4} {:<9} {:>4} {:<13} {:>11.3e} {:>11.3e} {:>7.0} {:>7.0} {:>6.2} {:>6.2}",
+                        seg_name(seg),
+                        format!("{dist:?}"),
+                        alpha,
+                        pname,
+                        vp,
+                        vb,
+                        t_pt,
+                        t_bd,
+                        vp / vb,
+                        (vp * t_pt) / (vb * t_bd)
+                    );
+                }
+            }
+        }
+    }
+}

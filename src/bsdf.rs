@@ -7,7 +7,7 @@ use crate::models::posfree::{self, Segments};
 use crate::models::WalkOptions;
 use crate::models::albedo::AlbedoTable;
 use crate::models::{
-    compensated, fastmsx, heitz, invariance, invariance_general, posfree_bdpt, posfree_bdpt_dielectric, posfree_bdpt_diffuse, posfree_dielectric, posfree_diffuse, single, single_dielectric, ConductorFresnel,
+    compensated, compensated_dielectric, fastmsx, heitz, invariance, invariance_general, posfree_bdpt, posfree_bdpt_dielectric, posfree_bdpt_diffuse, posfree_dielectric, posfree_diffuse, single, single_dielectric, ConductorFresnel,
     Microsurface,
 };
 use crate::rng::{hash_words, Sampler};
@@ -76,7 +76,7 @@ pub fn models_for(surface: Surface) -> &'static [Model] {
             Model::FastMsx,
             Model::Compensated,
         ],
-        Surface::Dielectric => &[Model::Single, Model::Uncorrelated, Model::Correlated, Model::Heitz],
+        Surface::Dielectric => &[Model::Single, Model::Uncorrelated, Model::Correlated, Model::Heitz, Model::Compensated],
         Surface::Diffuse => &[Model::Uncorrelated, Model::Correlated, Model::Heitz, Model::Invariance],
     }
 }
@@ -307,6 +307,7 @@ impl Bsdf {
                 let Some(eta) = valid_ior(mat.ior) else { return Spectrum::ZERO };
                 let v = match self.cfg.model {
                     Model::Single if first => single_dielectric::eval(&mf, eta, wi, wo, mat.radiance).0,
+                    Model::Compensated if first => compensated_dielectric::eval(&mf, eta, wi, wo, mat.radiance),
                     Model::Uncorrelated | Model::Correlated => match self.cfg.estimator {
                         Estimator::Pt => posfree_dielectric::eval_pt(&mf, eta, mat.radiance, wi, wo, &opts, &mut rng()).0,
                         Estimator::Bdpt => posfree_bdpt_dielectric::eval_bdpt(&mf, eta, mat.radiance, wi, wo, &opts, &mut rng()),
@@ -367,7 +368,7 @@ impl Bsdf {
                 let Some(eta) = valid_ior(mat.ior) else { return 0.0 };
                 let ss = single_dielectric::pdf(&mf, eta, wi, wo);
                 match self.cfg.model {
-                    Model::Single => ss,
+                    Model::Single | Model::Compensated => ss,
                     _ => {
                         let k = diffuse_fraction(&mf);
                         (1.0 - k) * ss + k * wo.z.abs() * 0.5 * FRAC_1_PI
@@ -448,6 +449,7 @@ impl Bsdf {
                         let (wo, pdf, w, _) = single_dielectric::sample(&mf, eta, wi, s1, u1, u2, mat.radiance)?;
                         (wo, pdf, w)
                     }
+                    Model::Compensated => compensated_dielectric::sample(&mf, eta, wi, s1, u1, u2, mat.radiance)?,
                     Model::Heitz => {
                         let surf = Microsurface::Dielectric { eta, radiance: mat.radiance };
                         let (wo, w, _) = heitz::sample(&mf, &surf, wi, first, &opts, &mut rng())?;

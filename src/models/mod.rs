@@ -2,6 +2,7 @@
 
 pub mod albedo;
 pub mod compensated;
+pub mod compensated_dielectric;
 pub mod fastmsx;
 pub mod heitz;
 pub mod invariance;

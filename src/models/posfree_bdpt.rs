@@ -118,7 +118,7 @@ const LIG0: LightVertex = LightVertex { e: DVec3::ZERO, l: 0.0, area: 0.0, w: Sp
 /// Λ of the upward direction with the same slope, u ≥ 0, gives |Λ(d)| = u
 /// (d up) or 1 + u (d down) without cancellation (DESIGN.md §5).
 #[inline]
-fn smith(mf: &Microfacet, d: DVec3) -> (f64, f64, f64) {
+pub(crate) fn smith(mf: &Microfacet, d: DVec3) -> (f64, f64, f64) {
     let u = mf.lambda(DVec3::new(d.x, d.y, d.z.abs()));
     let c = d.z.abs();
     if d.z >= 0.0 {
@@ -130,7 +130,7 @@ fn smith(mf: &Microfacet, d: DVec3) -> (f64, f64, f64) {
 
 /// g_j · L_j for a middle vertex: the continue factor of the next direction.
 #[inline]
-fn cont(seg: Segments, l: f64, next: DVec3, l_next: f64) -> f64 {
+pub(crate) fn cont(seg: Segments, l: f64, next: DVec3, l_next: f64) -> f64 {
     if next.z > 0.0 {
         seg.continue_up(l, l_next)
     } else {

@@ -48,10 +48,8 @@ use crate::microfacet::{reflect, refract, Microfacet};
 use crate::rng::Sampler;
 use glam::DVec3;
 
-/// Default number of orders handled bidirectionally (higher orders: PT).
-pub const DEFAULT_BDPT_ORDERS: u32 = 3;
-/// Largest K_b (stack arrays).
-pub const MAX_BDPT_ORDERS: u32 = 32;
+/// Orders handled bidirectionally by default, and at most (as for conductors).
+pub use super::posfree_bdpt::{DEFAULT_BDPT_ORDERS, MAX_BDPT_ORDERS};
 
 /// First continuation vertex after which roulette may end the PT tail.
 const RR_START: u32 = 1;

@@ -39,40 +39,17 @@
 
 use super::{russian_roulette, WalkOptions};
 use crate::microfacet::Microfacet;
-use crate::models::posfree::Segments;
 use crate::models::posfree_diffuse::cosine_about;
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 use std::f64::consts::FRAC_1_PI;
 
-/// Default number of orders handled bidirectionally (higher orders: PT).
-pub const DEFAULT_BDPT_ORDERS: u32 = 3;
-/// Largest K_b (stack arrays).
-pub const MAX_BDPT_ORDERS: u32 = 32;
+/// Orders handled bidirectionally by default, and at most (as for conductors).
+pub use super::posfree_bdpt::{DEFAULT_BDPT_ORDERS, MAX_BDPT_ORDERS};
+use super::posfree_bdpt::{cont, smith};
 
 const RR_START: u32 = 1;
-
-/// (L = |Λ(d)|, A(d), A(−d)) from one Λ evaluation.
-#[inline]
-fn smith(mf: &Microfacet, d: DVec3) -> (f64, f64, f64) {
-    let u = mf.lambda(DVec3::new(d.x, d.y, d.z.abs()));
-    let c = d.z.abs();
-    if d.z >= 0.0 {
-        (u, c * (1.0 + u), c * u)
-    } else {
-        (1.0 + u, c * u, c * (1.0 + u))
-    }
-}
-
-#[inline]
-fn cont(seg: Segments, l: f64, next: DVec3, l_next: f64) -> f64 {
-    if next.z > 0.0 {
-        seg.continue_up(l, l_next)
-    } else {
-        1.0
-    }
-}
 
 #[derive(Clone, Copy)]
 struct CamVertex {

@@ -70,27 +70,62 @@ pub fn eval_pt(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3
     if wi.z <= 0.0 || wo.z <= 0.0 {
         return Spectrum::ZERO;
     }
-    let lambda_o = mf.lambda(wo);
-    let mut w = wi; // −d_j: the direction light arrives from, seen from the vertex
-    let mut l = 1.0 + mf.lambda(wi); // L_j = |Λ(d_j)|
-    let mut throughput = Spectrum::ONE;
+    // Vertex 0: light arrives from ω_i, L_0 = |Λ(−ω_i)| = 1 + Λ(ω_i).
+    let start = PtState { w: wi, l: 1.0 + mf.lambda(wi), throughput: Spectrum::ONE };
+    let orders = (opts.orders.0, opts.orders.1.min(opts.max_bounces));
+    pt_walk(mf, fresnel, wo, mf.lambda(wo), opts.segments, start, 0, orders, RR_START, rng)
+}
+
+/// A PT walk arriving at a vertex: `w` = −d_j (where the light comes from, seen
+/// from the vertex), `l` = L_j = |Λ(d_j)|, and the throughput f/pdf of the prefix.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct PtState {
+    pub w: DVec3,
+    pub l: f64,
+    pub throughput: Spectrum,
+}
+
+/// The PT-with-NEE walk from vertex `first_vertex` (0-based) on: at each
+/// vertex close the path towards ω_o when its order is within `orders`, then
+/// sample the next direction from the visible normals, multiply the Fresnel
+/// term and the continue factor, and play Russian roulette after vertices ≥
+/// `rr_start`. Shared by `eval_pt` and the PT tail of the BDPT estimators.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn pt_walk(
+    mf: &Microfacet,
+    fresnel: &ConductorFresnel,
+    wo: DVec3,
+    lambda_o: f64,
+    segments: Segments,
+    state: PtState,
+    first_vertex: u32,
+    orders: (u32, u32),
+    rr_start: u32,
+    rng: &mut Sampler,
+) -> Spectrum {
+    let PtState { mut w, mut l, mut throughput } = state;
     let mut result = Spectrum::ZERO;
-    for j in 0..opts.max_bounces {
+    for j in first_vertex..orders.1 {
+        // L = 0 (the walk left for sure; p_j = 1/L_j would divide by zero), a
+        // horizontal direction (p_j = 0), or nothing left to carry.
+        if !(l > 0.0) || !l.is_finite() || !(throughput.max_value() > 0.0) {
+            break;
+        }
         let order = j + 1;
         // Next-event estimation: close the path towards ω_o at this vertex.
-        if order >= opts.orders.0 && order <= opts.orders.1 {
+        if order >= orders.0 {
             let h = w + wo;
             let len = h.length();
             if len > 0.0 {
                 let h = h / len;
                 let cos_wh = w.dot(h);
                 if cos_wh > 0.0 && wo.dot(h) > 0.0 {
-                    let value = mf.d(h) * opts.segments.last(l, lambda_o) / (4.0 * w.z.abs());
+                    let value = mf.d(h) * segments.last(l, lambda_o) / (4.0 * w.z.abs());
                     result += throughput * fresnel.eval(cos_wh) * value;
                 }
             }
         }
-        if order >= opts.orders.1 {
+        if order >= orders.1 {
             break;
         }
         // Sample the next direction from the visible normals of w.
@@ -104,21 +139,14 @@ pub fn eval_pt(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3
         throughput *= fresnel.eval(cos_wm);
         if d_next.z > 0.0 {
             let lambda = mf.lambda(d_next);
-            throughput *= opts.segments.continue_up(l, lambda);
+            throughput *= segments.continue_up(l, lambda);
             l = lambda;
-            if !(l > 0.0) || !(throughput.max_value() > 0.0) {
-                // Λ = 0: the walk leaves for sure (and p_j = 1/L_j would divide by zero).
-                break;
-            }
         } else {
             l = mf.abs_lambda(d_next);
         }
         w = -d_next;
-        // Russian roulette.
-        if j + 1 >= RR_START {
-            if !russian_roulette(&mut throughput, rng) {
-                break;
-            }
+        if j + 1 >= rr_start && !russian_roulette(&mut throughput, rng) {
+            break;
         }
     }
     result

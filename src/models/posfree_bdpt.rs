@@ -57,8 +57,8 @@
 //! high orders is unbiased. Subpaths stop early only on measure-zero events
 //! (a direction that sees no microfacet, Λ = 0 exactly).
 
-use super::posfree::Segments;
-use super::{russian_roulette, ConductorFresnel, WalkOptions};
+use super::posfree::{pt_walk, PtState, Segments};
+use super::{ConductorFresnel, WalkOptions};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
@@ -309,51 +309,8 @@ pub fn eval_bdpt_with(
     // ---- orders kb+1 ..= o_hi: the camera subpath continues as PT with NEE.
     if pt_tail && n_c == kb as usize {
         let cv = cam[kb as usize];
-        let mut w = -cv.d;
-        let mut l = cv.l;
-        let mut throughput = cv.thr;
-        for j in kb..opts.max_bounces {
-            if !(l > 0.0) || !l.is_finite() || !(throughput.max_value() > 0.0) {
-                break;
-            }
-            let order = j + 1;
-            if order >= o_lo && order <= o_hi {
-                let h = w + wo;
-                let len = h.length();
-                if len > 0.0 {
-                    let h = h / len;
-                    let cos_wh = w.dot(h);
-                    if cos_wh > 0.0 && wo.dot(h) > 0.0 {
-                        let value = mf.d(h) * seg.last(l, lambda_o) / (4.0 * w.z.abs());
-                        result += throughput * fresnel.eval(cos_wh) * value;
-                    }
-                }
-            }
-            if order >= o_hi {
-                break;
-            }
-            let (u1, u2) = rng.next2();
-            let Some(m) = mf.sample_visible(w, u1, u2) else { break };
-            let cos_wm = w.dot(m);
-            if cos_wm <= 0.0 {
-                break;
-            }
-            let d_next = reflect(w, m);
-            throughput *= fresnel.eval(cos_wm);
-            if d_next.z > 0.0 {
-                let lambda = mf.lambda(d_next);
-                throughput *= seg.continue_up(l, lambda);
-                l = lambda;
-            } else {
-                l = mf.abs_lambda(d_next);
-            }
-            w = -d_next;
-            if j + 1 >= kb + RR_START {
-                if !russian_roulette(&mut throughput, rng) {
-                    break;
-                }
-            }
-        }
+        let state = PtState { w: -cv.d, l: cv.l, throughput: cv.thr };
+        result += pt_walk(mf, fresnel, wo, lambda_o, seg, state, kb, (o_lo, o_hi), kb + RR_START, rng);
     }
     result
 }

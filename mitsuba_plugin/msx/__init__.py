@@ -14,7 +14,7 @@ the hit and forwards each BSDF call to the C ABI (``include/msx.h``).
 
 __version__ = "0.1.0"
 
-__all__ = ["register", "registered_variants", "native_version", "__version__"]
+__all__ = ["register", "registered_variants", "native_version", "evaluated_mode", "check_fallback", "__version__"]
 
 # Variants for which msx_posfree has been registered in this process.
 _REGISTERED = {}
@@ -48,9 +48,28 @@ def register():
     cls = _REGISTERED.get(variant)
     if cls is not None:
         return cls
-    from ._plugin import make_bsdf_class
+    if variant.startswith("llvm_"):
+        from ._plugin_llvm import make_bsdf_class
+    else:
+        from ._plugin import make_bsdf_class
 
     cls = make_bsdf_class(mi, variant)
     mi.register_bsdf("msx_posfree", lambda props: cls(props))
     _REGISTERED[variant] = cls
     return cls
+
+
+def evaluated_mode():
+    """LLVM variants: context manager turning off dr.JitFlag.SymbolicLoops and
+    SymbolicCalls, required to render scenes that use msx_posfree
+    (``with msx.evaluated_mode(): mi.render(scene)``; ``.enable()`` keeps it on)."""
+    from ._plugin_llvm import evaluated_mode as _f
+
+    return _f()
+
+
+def check_fallback(error=False):
+    """LLVM variants: warn (or raise) if a symbolic render reached msx_posfree's zero fallback."""
+    from ._plugin_llvm import check_fallback as _f
+
+    return _f(error)

@@ -31,6 +31,9 @@ def _setup(variant: str):
     import msx
 
     msx.register()
+    if variant.startswith("llvm_"):
+        # Native code cannot run in drjit's symbolic kernels (INTEGRATION.md).
+        msx.evaluated_mode().enable()
     return mi
 
 

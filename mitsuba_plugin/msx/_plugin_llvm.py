@@ -1,0 +1,550 @@
+"""The ``msx_posfree`` BSDF class for Mitsuba's LLVM variants (``llvm_ad_rgb``,
+``llvm_ad_spectral``, ``llvm_ad_mono``).
+
+Each BSDF method invocation makes exactly one batched C call
+(``msx_eval_batch`` / ``msx_pdf_batch`` / ``msx_eval_pdf_batch`` /
+``msx_sample_batch``, see ``include/msx.h``) over all the lanes it receives.
+
+Native code cannot run inside drjit's symbolic (traced) kernels, so
+
+* **Rendering a scene that uses msx_posfree requires evaluated mode**: turn
+  off ``dr.JitFlag.SymbolicLoops`` and ``dr.JitFlag.SymbolicCalls``, e.g.
+  ``with msx.evaluated_mode(): img = mi.render(scene)``. The BSDF methods
+  then receive evaluated arrays of the lanes that hit the surface.
+* In symbolic mode (``dr.flag(dr.JitFlag.SymbolicScope)`` or symbolic
+  inputs) the methods return a traceable fallback (zero value, zero pdf,
+  invalid sample) instead of calling native code: drjit traces every live
+  BSDF instance of the variant in a symbolic call, so a failure there would
+  break symbolic renders of scenes that do not even use msx_posfree. The
+  fallback counts the active lanes that reach it (a side effect recorded in
+  the kernel); when that count becomes non-zero a warning is emitted (once
+  per instance) at the next evaluated call, by :func:`check_fallback` and at
+  interpreter exit: a symbolic render of a scene *with* msx_posfree gives
+  a black surface.
+"""
+
+import atexit
+import warnings
+import weakref
+
+import numpy as np
+
+from ._native import ffi, lib
+from ._params import PLUGIN, Config, MsxParameterError
+
+_ERR_LEN = 512
+
+# Live instances (for check_fallback).
+_INSTANCES = weakref.WeakSet()
+
+_FALLBACK_MSG = (
+    "%s: a render reached msx_posfree in drjit's symbolic mode, where native code cannot run; "
+    "the BSDF returned zero there (%d lanes so far), so the image is wrong where msx_posfree is visible. "
+    "Render scenes that use msx_posfree in evaluated mode: `with msx.evaluated_mode(): mi.render(scene)` "
+    "(turns off dr.JitFlag.SymbolicLoops and dr.JitFlag.SymbolicCalls)."
+)
+
+
+class _EvaluatedMode:
+    """Turns off dr.JitFlag.SymbolicLoops and SymbolicCalls.
+
+    As a context manager the previous flags are restored on exit; calling
+    :meth:`enable` instead leaves them off for the rest of the process.
+    """
+
+    def __init__(self):
+        import drjit as dr
+
+        self._dr = dr
+        self._saved = None
+
+    def enable(self):
+        dr = self._dr
+        self._saved = (dr.flag(dr.JitFlag.SymbolicLoops), dr.flag(dr.JitFlag.SymbolicCalls))
+        dr.set_flag(dr.JitFlag.SymbolicLoops, False)
+        dr.set_flag(dr.JitFlag.SymbolicCalls, False)
+        return self
+
+    def __enter__(self):
+        return self.enable()
+
+    def __exit__(self, *exc):
+        dr = self._dr
+        if self._saved is not None:
+            dr.set_flag(dr.JitFlag.SymbolicLoops, self._saved[0])
+            dr.set_flag(dr.JitFlag.SymbolicCalls, self._saved[1])
+        return False
+
+
+def evaluated_mode():
+    """Evaluated mode needed to render scenes with msx_posfree in LLVM variants.
+
+    ``with msx.evaluated_mode(): mi.render(scene)`` — or
+    ``msx.evaluated_mode().enable()`` to keep it for the whole process.
+    """
+    return _EvaluatedMode()
+
+
+def check_fallback(error=False):
+    """Warns (or raises RuntimeError with ``error=True``) if a symbolic
+    render reached the zero fallback of a live msx_posfree instance.
+    Returns the total number of fallback lanes."""
+    total = 0
+    for inst in list(_INSTANCES):
+        total += inst._fallback_check(error)
+    return total
+
+
+@atexit.register
+def _check_at_exit():
+    try:
+        check_fallback()
+    except Exception:  # interpreter shutting down: nothing sensible to do
+        pass
+
+
+class _ScalarTex:
+    """Wraps a texture so that _params' scalar checks (``float(tex.eval_1(si))``)
+    work with LLVM arrays; unwrapped again right after parsing."""
+
+    def __init__(self, tex):
+        self.tex = tex
+
+    def eval_1(self, si, active=True):
+        return _scalar(self.tex.eval_1(si, active))
+
+    def __getattr__(self, name):
+        return getattr(self.tex, name)
+
+
+class _Props:
+    """mi.Properties seen by _params.Config (textures wrapped by _ScalarTex)."""
+
+    def __init__(self, props):
+        self._p = props
+
+    def __contains__(self, name):
+        return name in self._p
+
+    def get_texture(self, *args, **kw):
+        return _ScalarTex(self._p.get_texture(*args, **kw))
+
+    def get_unbounded_texture(self, *args, **kw):
+        return _ScalarTex(self._p.get_unbounded_texture(*args, **kw))
+
+    def __getattr__(self, name):
+        return getattr(self._p, name)
+
+
+def _scalar(v):
+    return float(v[0]) if hasattr(v, "__len__") and len(v) == 1 else v
+
+
+class _Mi:
+    """The mitsuba module seen by _params.Config: ``traverse(obj)[key]`` gives
+    Python floats for width-1 arrays (as in scalar variants)."""
+
+    def __init__(self, mi):
+        self._mi = mi
+
+    def traverse(self, obj):
+        params = self._mi.traverse(obj)
+
+        class _P:
+            def __getitem__(self, key):
+                return _scalar(params[key])
+
+        return _P()
+
+    def __getattr__(self, name):
+        return getattr(self._mi, name)
+
+
+def _unwrap(cfg):
+    for name in ("alpha_u", "alpha_v", "eta", "k", "specular_reflectance", "specular_transmittance", "reflectance"):
+        v = getattr(cfg, name, None)
+        if isinstance(v, _ScalarTex):
+            setattr(cfg, name, v.tex)
+    return cfg
+
+
+def _channels(mi, variant):
+    if mi.is_polarized:
+        raise NotImplementedError("%s: polarized variants ('%s') are not supported" % (PLUGIN, variant))
+    if mi.is_spectral:
+        return 4
+    if mi.is_rgb:
+        return 3
+    return 1
+
+
+def make_bsdf_class(mi, variant):
+    """Defines the BSDF classes for the current LLVM variant; returns the factory."""
+    import drjit as dr
+
+    nch = _channels(mi, variant)
+    if nch > lib.MSX_MAX_CHANNELS:
+        raise NotImplementedError("%s: %d channels exceed the core's limit" % (PLUGIN, nch))
+
+    BSDFFlags = mi.BSDFFlags
+    Float, UInt32, Bool = mi.Float, mi.UInt32, mi.Bool
+    Spectrum, Vector3f = mi.Spectrum, mi.Vector3f
+    BSDFSample3f = mi.BSDFSample3f
+    IMPORTANCE = mi.TransportMode.Importance
+    DIFF = mi.ParamFlags.Differentiable
+    DISC = mi.ParamFlags.Discontinuous
+    spectral = bool(mi.is_spectral)
+    ALL = 0xFFFFFFFF
+    R_BIT = int(BSDFFlags.GlossyReflection)
+    T_BIT = int(BSDFFlags.GlossyTransmission)
+    D_BIT = int(BSDFFlags.DiffuseReflection)
+    SYMBOLIC = dr.VarState.Symbolic
+    new = ffi.new
+    cast = ffi.cast
+    NULL = ffi.NULL
+
+    def spectrum_of(chs):
+        return Spectrum(*chs) if nch > 1 else Spectrum(chs[0])
+
+    def is_symbolic(*arrays):
+        if dr.flag(dr.JitFlag.SymbolicScope):
+            return True
+        for a in arrays:
+            if isinstance(a, (bool, int, float)):
+                continue
+            for leaf in (a if dr.depth_v(a) > 1 else (a,)):
+                if getattr(leaf, "state", None) == SYMBOLIC:
+                    return True
+        return False
+
+    def channels(value):
+        """List of nch Float channels of a texture's eval() result."""
+        if nch == 1:
+            try:
+                return [value[0]] if dr.depth_v(value) > 1 else [value]
+            except TypeError:
+                return [value]
+        return [value[c] for c in range(nch)]
+
+    def width_of(*arrays):
+        n = 1
+        for a in arrays:
+            w = dr.width(a)
+            if w > n:
+                n = w
+        return n
+
+    def build(kind):
+        if kind == "dielectric":
+            LOBES = BSDFFlags.GlossyReflection | BSDFFlags.GlossyTransmission
+            SIDES = BSDFFlags.FrontSide | BSDFFlags.BackSide | BSDFFlags.NonSymmetric
+            R_TYPE, T_TYPE = R_BIT, T_BIT
+        elif kind == "diffuse":
+            LOBES = BSDFFlags.DiffuseReflection
+            SIDES = BSDFFlags.FrontSide
+            R_TYPE, T_TYPE = D_BIT, D_BIT
+        else:
+            LOBES = BSDFFlags.GlossyReflection
+            SIDES = BSDFFlags.FrontSide
+            R_TYPE, T_TYPE = R_BIT, R_BIT
+        LOBE_BITS = int(LOBES)
+        dielectric = kind == "dielectric"
+
+        def lobes(ctx):
+            """(reflection enabled, transmission enabled) for this context."""
+            m, c = int(ctx.type_mask), int(ctx.component)
+            if dielectric:
+                return bool(m & R_BIT) and c in (0, ALL), bool(m & T_BIT) and c in (1, ALL)
+            on = bool(m & LOBE_BITS) and c in (0, ALL)
+            return on, False
+
+        class MsxPosfree(mi.BSDF):
+            """Multiple-scattering microfacet BSDF (LLVM variants, batched native calls)."""
+
+            def __init__(self, props):
+                mi.BSDF.__init__(self, props)
+                cfg = _unwrap(Config(_Mi(mi), _Props(props)))
+                self._cfg = cfg
+                self._alpha_u = cfg.alpha_u
+                self._alpha_v = cfg.alpha_u if cfg.isotropic else cfg.alpha_v
+                self._eta = cfg.eta
+                self._k = cfg.k
+                self._specular_reflectance = cfg.specular_reflectance
+                self._specular_transmittance = cfg.specular_transmittance
+                self._reflectance = cfg.reflectance
+                params = new("MsxParams *", cfg.native_params(nch))
+                out = new("MsxBsdf **")
+                err = new("char[]", _ERR_LEN)
+                rc = lib.msx_bsdf_new(params, out, err, _ERR_LEN)
+                if rc != lib.MSX_OK:
+                    raise MsxParameterError("%s: %s" % (PLUGIN, ffi.string(err).decode(errors="replace")))
+                self._h = ffi.gc(out[0], lib.msx_bsdf_free)
+                self._err = new("char[]", _ERR_LEN)
+                self._key = 0  # advanced by n per call (decorrelates the estimates)
+                self._fallback = dr.zeros(UInt32, 1)
+                self._fallback_warned = False
+                self._fallback_seen = False
+                _INSTANCES.add(self)
+                self._refresh()
+
+            # ------------------------------------------------------------ state
+
+            def _refresh(self):
+                texs = [self._alpha_u, self._alpha_v]
+                varying = any(t.is_spatially_varying() for t in texs + self._spectra())
+                flags = LOBES | SIDES
+                if not self._cfg.isotropic:
+                    aniso = any(t.is_spatially_varying() for t in texs)
+                    if not aniso:
+                        si = mi.SurfaceInteraction3f()
+                        a = self._alpha_u.eval_1(si)
+                        b = self._alpha_v.eval_1(si)
+                        aniso = bool(dr.any(a != b))
+                    if aniso:
+                        flags = flags | BSDFFlags.Anisotropic
+                if varying:
+                    flags = flags | BSDFFlags.SpatiallyVarying
+                self.m_flags = flags
+                if dielectric:
+                    extra = flags & ~LOBES
+                    self.m_components = [BSDFFlags.GlossyReflection | extra, BSDFFlags.GlossyTransmission | extra]
+                else:
+                    self.m_components = [flags]
+
+            def _spectra(self):
+                t = [self._specular_reflectance]
+                for x in (self._eta, self._k, self._specular_transmittance, self._reflectance):
+                    if x is not None:
+                        t.append(x)
+                return t
+
+            # ------------------------------------------------- symbolic fallback
+
+            def _fallback_count(self, active):
+                """Records (in the traced kernel) how many active lanes reached the fallback."""
+                if not self._fallback_seen:
+                    self._fallback_seen = True
+                try:
+                    dr.scatter_reduce(dr.ReduceOp.Add, self._fallback, UInt32(1), UInt32(0), Bool(active))
+                except Exception:  # never break the trace for a diagnostic
+                    pass
+
+            def _fallback_check(self, error=False):
+                if not self._fallback_seen or dr.flag(dr.JitFlag.SymbolicScope):
+                    return 0
+                count = int(self._fallback[0])
+                if count and error:
+                    raise RuntimeError(_FALLBACK_MSG % (PLUGIN, count))
+                if count and not self._fallback_warned:
+                    msg = _FALLBACK_MSG % (PLUGIN, count)
+                    self._fallback_warned = True
+                    warnings.warn(msg, RuntimeWarning, stacklevel=3)
+                    try:
+                        mi.Log(mi.LogLevel.Warn, msg)
+                    except Exception:
+                        pass
+                return count
+
+            # ------------------------------------------------------- native call
+
+            def _call(self, fn, ctx, si, active, wo=None, sample1=None, sample2=None, want_value=True,
+                      want_pdf=True, want_wo=False):
+                """One batched native call. Returns (values list | None, pdf | None, wo list | None)
+                as mi.Float arrays (unmasked)."""
+                if self._fallback_seen:
+                    self._fallback_check()
+                wi = si.wi
+                si_a = active
+                au = self._alpha_u.eval_1(si, si_a)
+                av = au if self._cfg.isotropic else self._alpha_v.eval_1(si, si_a)
+                inputs = {"wi": [wi[0], wi[1], wi[2]], "alpha_u": [au], "alpha_v": [av]}
+                if wo is not None:
+                    inputs["wo"] = [wo[0], wo[1], wo[2]]
+                if sample1 is not None:
+                    inputs["sample1"] = [Float(sample1)]
+                    inputs["sample2"] = [Float(sample2[0]), Float(sample2[1])]
+                inputs["specular_reflectance"] = channels(self._specular_reflectance.eval(si, si_a))
+                if self._eta is not None:
+                    inputs["eta"] = channels(self._eta.eval(si, si_a))
+                    inputs["k"] = channels(self._k.eval(si, si_a))
+                if self._specular_transmittance is not None:
+                    inputs["specular_transmittance"] = channels(self._specular_transmittance.eval(si, si_a))
+                if self._reflectance is not None:
+                    inputs["reflectance"] = channels(self._reflectance.eval(si, si_a))
+                flat = [Float(x) if not isinstance(x, Float) else x for v in inputs.values() for x in v]
+                n = max(width_of(*flat), dr.width(active) if not isinstance(active, bool) else 1)
+                dr.eval(*flat)
+
+                keep = []
+                inp = new("MsxBatchIn *")
+                inp.n = n
+
+                def put(field_arr, x):
+                    a = x.numpy()  # read-only use: may alias JIT memory
+                    if a.dtype != np.float32 or not a.flags.c_contiguous:
+                        a = np.ascontiguousarray(a, dtype=np.float32)
+                    ln = a.shape[0]
+                    if ln != n and ln != 1:
+                        raise RuntimeError("%s: input of width %d in a batch of %d lanes" % (PLUGIN, ln, n))
+                    keep.append(a)
+                    field_arr.ptr = cast("const float *", a.ctypes.data)
+                    field_arr.len = ln
+
+                for name, vals in inputs.items():
+                    if name in ("alpha_u", "alpha_v", "sample1"):
+                        put(getattr(inp, name), vals[0])
+                    else:
+                        arr = getattr(inp, name)
+                        for c, v in enumerate(vals):
+                            put(arr[c], v)
+                f_ior = np.full(1, self._cfg.ior, dtype=np.float32)
+                keep.append(f_ior)
+                inp.ior.ptr = cast("const float *", f_ior.ctypes.data)
+                inp.ior.len = 1
+                inp.mode = lib.MSX_MODE_IMPORTANCE if (dielectric and ctx.mode == IMPORTANCE) else lib.MSX_MODE_RADIANCE
+                inp.key = self._key & 0xFFFFFFFFFFFFFFFF
+                self._key += n
+
+                out = new("MsxBatchOut *")
+                val = pdf = wo_out = None
+                if want_value:
+                    val = np.empty((nch, n), dtype=np.float32)
+                    for c in range(nch):
+                        out.value[c] = cast("float *", val[c].ctypes.data)
+                if want_pdf:
+                    pdf = np.empty(n, dtype=np.float32)
+                    out.pdf = cast("float *", pdf.ctypes.data)
+                if want_wo:
+                    wo_out = np.empty((3, n), dtype=np.float32)
+                    for c in range(3):
+                        out.wo[c] = cast("float *", wo_out[c].ctypes.data)
+                rc = fn(self._h, inp, out, self._err, _ERR_LEN)
+                if rc != lib.MSX_OK:
+                    raise RuntimeError("%s: native batch call failed (%d): %s"
+                                       % (PLUGIN, rc, ffi.string(self._err).decode(errors="replace")))
+                del keep
+                # Never NaN/inf, whatever the inputs of inactive lanes held.
+                res = []
+                for a in (val, pdf, wo_out):
+                    if a is None:
+                        res.append(None)
+                        continue
+                    np.nan_to_num(a, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
+                    res.append([Float(a[c]) for c in range(a.shape[0])] if a.ndim == 2 else Float(a))
+                return res
+
+            # ------------------------------------------------------------ calls
+
+            def _lane_mask(self, ctx, si, wo, active):
+                r_on, t_on = lobes(ctx)
+                if not dielectric:
+                    return active if r_on else None
+                if not (r_on or t_on):
+                    return None
+                if r_on and t_on:
+                    return active
+                reflect = si.wi[2] * wo[2] > 0
+                return active & (reflect if r_on else ~reflect)
+
+            def eval_pdf(self, ctx, si, wo, active=True):
+                mask = self._lane_mask(ctx, si, wo, active)
+                if mask is None:
+                    return dr.zeros(Spectrum), dr.zeros(Float)
+                if is_symbolic(si.wi, wo, active):
+                    self._fallback_count(mask)
+                    return dr.zeros(Spectrum), dr.zeros(Float)
+                val, pdf, _ = self._call(lib.msx_eval_pdf_batch, ctx, si, active, wo=wo)
+                return (dr.select(mask, spectrum_of(val), 0.0), dr.select(mask, pdf, 0.0))
+
+            def eval(self, ctx, si, wo, active=True):
+                mask = self._lane_mask(ctx, si, wo, active)
+                if mask is None:
+                    return dr.zeros(Spectrum)
+                if is_symbolic(si.wi, wo, active):
+                    self._fallback_count(mask)
+                    return dr.zeros(Spectrum)
+                val, _, _ = self._call(lib.msx_eval_batch, ctx, si, active, wo=wo, want_pdf=False)
+                return dr.select(mask, spectrum_of(val), 0.0)
+
+            def pdf(self, ctx, si, wo, active=True):
+                mask = self._lane_mask(ctx, si, wo, active)
+                if mask is None:
+                    return dr.zeros(Float)
+                if is_symbolic(si.wi, wo, active):
+                    self._fallback_count(mask)
+                    return dr.zeros(Float)
+                _, pdf, _ = self._call(lib.msx_pdf_batch, ctx, si, active, wo=wo, want_value=False)
+                return dr.select(mask, pdf, 0.0)
+
+            def sample(self, ctx, si, sample1, sample2, active=True):
+                r_on, t_on = lobes(ctx)
+                if not (r_on or t_on):
+                    return dr.zeros(BSDFSample3f), dr.zeros(Spectrum)
+                if is_symbolic(si.wi, sample1, sample2, active):
+                    self._fallback_count(active)
+                    return dr.zeros(BSDFSample3f), dr.zeros(Spectrum)
+                val, pdf, wo = self._call(lib.msx_sample_batch, ctx, si, active, sample1=sample1,
+                                          sample2=sample2, want_wo=True)
+                n = dr.width(pdf)
+                wo_v = Vector3f(wo[0], wo[1], wo[2])
+                ok = Bool(active) & (pdf > 0)
+                transmit = wo_v[2] * si.wi[2] < 0
+                if dielectric:
+                    ok &= dr.select(transmit, t_on, r_on)
+                bs = dr.zeros(BSDFSample3f, n)
+                bs.wo = dr.select(ok, wo_v, Vector3f(0.0))
+                bs.pdf = dr.select(ok, pdf, 0.0)
+                if dielectric:
+                    ior = self._cfg.ior
+                    eta_t = dr.select(si.wi[2] > 0, Float(ior), Float(1.0 / ior))
+                    bs.eta = dr.select(ok & transmit, eta_t, Float(1.0))
+                    bs.sampled_type = dr.select(ok & transmit, UInt32(T_TYPE), UInt32(R_TYPE))
+                    bs.sampled_component = dr.select(ok & transmit, UInt32(1), UInt32(0))
+                else:
+                    bs.eta = dr.full(Float, 1.0, n)
+                    bs.sampled_type = dr.full(UInt32, R_TYPE, n)
+                    bs.sampled_component = dr.zeros(UInt32, n)
+                return bs, dr.select(ok, spectrum_of(val), 0.0)
+
+            # ------------------------------------------------------ parameters
+
+            def traverse(self, cb):
+                if self._cfg.isotropic:
+                    cb.put("alpha", self._alpha_u, DIFF | DISC)
+                else:
+                    cb.put("alpha_u", self._alpha_u, DIFF | DISC)
+                    cb.put("alpha_v", self._alpha_v, DIFF | DISC)
+                if self._eta is not None:
+                    cb.put("eta", self._eta, DIFF | DISC)
+                    cb.put("k", self._k, DIFF | DISC)
+                cb.put("specular_reflectance", self._specular_reflectance, DIFF)
+                if self._specular_transmittance is not None:
+                    cb.put("specular_transmittance", self._specular_transmittance, DIFF)
+                if self._reflectance is not None:
+                    cb.put("reflectance", self._reflectance, DIFF)
+
+            def parameters_changed(self, keys=[]):
+                self._refresh()
+
+            def to_string(self):
+                cfg = self._cfg
+                return ("MsxPosfree[surface=\"%s\", distribution=\"%s\", model=\"%s\", estimator=\"%s\", "
+                        "max_bounces=%s, seed=%d, variant=\"%s\" (batched LLVM)]"
+                        % (cfg.surface, cfg.distribution, cfg.model, cfg.estimator,
+                           cfg.max_bounces or "default", cfg.seed, variant))
+
+        MsxPosfree.__name__ = MsxPosfree.__qualname__ = "MsxPosfree"
+        return MsxPosfree
+
+    classes = {kind: build(kind) for kind in ("conductor", "dielectric", "diffuse")}
+
+    class MsxPosfreeFactory:
+        """Creates the msx_posfree instance of the surface named in the properties."""
+
+        classes_by_surface = classes
+
+        def __call__(self, props):
+            surface = props.get("surface", "conductor") if "surface" in props else "conductor"
+            return classes.get(surface, classes["conductor"])(props)
+
+    return MsxPosfreeFactory()

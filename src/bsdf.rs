@@ -260,11 +260,9 @@ impl Bsdf {
         }
     }
 
+    /// A random stream determined by the BSDF's `seed` and the call's inputs.
     fn seeded(&self, words: &[u64]) -> Sampler {
-        let mut all = [0u64; 10];
-        all[0] = self.cfg.seed;
-        all[1..=words.len()].copy_from_slice(words);
-        Sampler::new(hash_words(&all[..=words.len()]))
+        Sampler::new(hash_words(&[self.cfg.seed, hash_words(words)]))
     }
 
     /// f(ω_i, ω_o)·|cos θ_o| per channel. `key` decorrelates calls (the plugin

@@ -8,11 +8,14 @@
 //! At the end a table of ns per call and ratios to `single` is printed, read
 //! from the estimates criterion just wrote (this run only).
 
+#[path = "common.rs"]
+mod common;
+
+use common::estimate_ns;
 use criterion::{black_box, BenchmarkId, Criterion, Throughput};
 use glam::DVec3;
 use msx::ffi::*;
 use msx::{Bsdf, Config, Distribution, Material, Model, Spectrum};
-use std::path::PathBuf;
 use std::time::{Duration, SystemTime};
 
 const N: usize = 1024;
@@ -206,38 +209,6 @@ fn bench_ffi_eval(c: &mut Criterion, set: &Set) {
 }
 
 // ------------------------------------------------------------ summary table
-
-fn criterion_dir() -> PathBuf {
-    if let Some(d) = std::env::var_os("CRITERION_HOME") {
-        return PathBuf::from(d);
-    }
-    if let Some(d) = std::env::var_os("CARGO_TARGET_DIR") {
-        return PathBuf::from(d).join("criterion");
-    }
-    // <target>/<profile>/deps/eval-<hash>
-    std::env::current_exe()
-        .ok()
-        .and_then(|e| e.parent()?.parent()?.parent().map(|t| t.join("criterion")))
-        .unwrap_or_else(|| PathBuf::from("target/criterion"))
-}
-
-/// Time per 1024-call iteration (ns) that criterion estimated in this run:
-/// the slope estimate if present, else the mean.
-fn estimate_ns(group: &str, function: &str, since: SystemTime) -> Option<f64> {
-    let path = criterion_dir().join(group).join(function).join("new/estimates.json");
-    let modified = std::fs::metadata(&path).ok()?.modified().ok()?;
-    if modified < since {
-        return None; // stale: this benchmark was filtered out of this run
-    }
-    let json = std::fs::read_to_string(&path).ok()?;
-    let point = |key: &str| -> Option<f64> {
-        let rest = &json[json.find(&format!("\"{key}\":{{"))?..];
-        let rest = &rest[rest.find("\"point_estimate\":")? + "\"point_estimate\":".len()..];
-        let end = rest.find([',', '}'])?;
-        rest[..end].trim().parse().ok()
-    };
-    point("slope").or_else(|| point("mean"))
-}
 
 fn print_summary(since: SystemTime) {
     let per_call = |g: &str, f: &str| estimate_ns(g, f, since).map(|ns| ns / N as f64);

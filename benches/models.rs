@@ -17,11 +17,14 @@
 //! keys, all models of a cell interleaved in chunks of 1 000 calls so that
 //! machine drift hits them alike.
 
+#[path = "common.rs"]
+mod common;
+
+use common::estimate_ns;
 use criterion::{black_box, BenchmarkId, Criterion, Throughput};
 use glam::DVec3;
 use msx::bsdf::{bdpt_models, models_for};
 use msx::{Bsdf, Config, Distribution, Estimator, Material, Model, Spectrum, Surface};
-use std::path::PathBuf;
 use std::time::{Duration, Instant, SystemTime};
 
 /// Pairs per criterion iteration.
@@ -208,35 +211,9 @@ fn bench_sample(c: &mut Criterion, set: &Set) {
     }
 }
 
-fn criterion_dir() -> PathBuf {
-    if let Some(d) = std::env::var_os("CRITERION_HOME") {
-        return PathBuf::from(d);
-    }
-    if let Some(d) = std::env::var_os("CARGO_TARGET_DIR") {
-        return PathBuf::from(d).join("criterion");
-    }
-    // <target>/<profile>/deps/models-<hash>
-    std::env::current_exe()
-        .ok()
-        .and_then(|e| e.parent()?.parent()?.parent().map(|t| t.join("criterion")))
-        .unwrap_or_else(|| PathBuf::from("target/criterion"))
-}
-
-/// ns per call that criterion estimated in this run (slope, else mean, / 256);
-/// None if the benchmark was filtered out (no estimates written since `since`).
+/// ns per call that criterion estimated in this run (per iteration / N_SET).
 fn ns_per_call(group: &str, function: &str, since: SystemTime) -> Option<f64> {
-    let path = criterion_dir().join(group).join(function).join("new/estimates.json");
-    if std::fs::metadata(&path).ok()?.modified().ok()? < since {
-        return None;
-    }
-    let json = std::fs::read_to_string(&path).ok()?;
-    let point = |key: &str| -> Option<f64> {
-        let rest = &json[json.find(&format!("\"{key}\":{{"))?..];
-        let rest = &rest[rest.find("\"point_estimate\":")? + "\"point_estimate\":".len()..];
-        let end = rest.find([',', '}'])?;
-        rest[..end].trim().parse().ok()
-    };
-    point("slope").or_else(|| point("mean")).map(|ns| ns / N_SET as f64)
+    estimate_ns(group, function, since).map(|ns| ns / N_SET as f64)
 }
 
 fn print_speed_table(since: SystemTime) {

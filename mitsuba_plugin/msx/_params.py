@@ -45,6 +45,17 @@ MAX_BOUNCES_LIMIT = lib.MSX_MAX_BOUNCES_LIMIT
 SEED_LIMIT = 2**64
 
 
+def channels_of(mi, variant):
+    """Spectral channels per call in a Mitsuba variant (RGB 3, spectral 4, mono 1)."""
+    if mi.is_polarized:
+        raise NotImplementedError("%s: polarized variants ('%s') are not supported" % (PLUGIN, variant))
+    if mi.is_spectral:
+        return 4
+    if mi.is_rgb:
+        return 3
+    return 1
+
+
 class MsxParameterError(ValueError):
     """A scene parameter of ``msx_posfree`` is invalid."""
 

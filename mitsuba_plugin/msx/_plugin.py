@@ -9,7 +9,7 @@ struct is computed once and reused.
 """
 
 from ._native import ffi, lib
-from ._params import PLUGIN, Config, MsxParameterError
+from ._params import PLUGIN, Config, MsxParameterError, channels_of
 
 _ERR_LEN = 512
 
@@ -18,15 +18,9 @@ def _channels(mi, variant):
     if not variant.startswith("scalar_"):
         raise NotImplementedError(
             "%s: variant '%s' is not supported yet; use a scalar variant (scalar_rgb, scalar_spectral, "
-            "scalar_mono)" % (PLUGIN, variant)
+            "scalar_mono) or an LLVM variant (llvm_ad_rgb, llvm_ad_spectral)" % (PLUGIN, variant)
         )
-    if mi.is_polarized:
-        raise NotImplementedError("%s: polarized variants ('%s') are not supported" % (PLUGIN, variant))
-    if mi.is_spectral:
-        return 4
-    if mi.is_rgb:
-        return 3
-    return 1
+    return channels_of(mi, variant)
 
 
 def make_bsdf_class(mi, variant):

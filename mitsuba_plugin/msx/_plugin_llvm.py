@@ -30,7 +30,7 @@ import weakref
 import numpy as np
 
 from ._native import ffi, lib
-from ._params import PLUGIN, Config, MsxParameterError
+from ._params import PLUGIN, Config, MsxParameterError, channels_of
 
 _ERR_LEN = 512
 
@@ -168,21 +168,11 @@ def _unwrap(cfg):
     return cfg
 
 
-def _channels(mi, variant):
-    if mi.is_polarized:
-        raise NotImplementedError("%s: polarized variants ('%s') are not supported" % (PLUGIN, variant))
-    if mi.is_spectral:
-        return 4
-    if mi.is_rgb:
-        return 3
-    return 1
-
-
 def make_bsdf_class(mi, variant):
     """Defines the BSDF classes for the current LLVM variant; returns the factory."""
     import drjit as dr
 
-    nch = _channels(mi, variant)
+    nch = channels_of(mi, variant)
     if nch > lib.MSX_MAX_CHANNELS:
         raise NotImplementedError("%s: %d channels exceed the core's limit" % (PLUGIN, nch))
 

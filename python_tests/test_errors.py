@@ -28,7 +28,7 @@ BAD = [
     (dict(material="Unobtainium"), ["material"]),
     (dict(material="Cu", eta=1.5), ["eta", "material"]),
     (dict(material="Au", k=2.0), ["k", "material"]),
-    (dict(surface="dielectric", model="invariance"), ["model", "dielectric", "single", "heitz"]),
+    (dict(surface="diffuse", model="compensated"), ["model", "diffuse", "invariance"]),
     (dict(surface="diffuse", model="single"), ["model", "diffuse", "uncorrelated"]),
     (dict(surface="dielectric", model="fastmsx"), ["model", "dielectric"]),
     (dict(surface="dielectric", int_ior=-1.0), ["int_ior"]),

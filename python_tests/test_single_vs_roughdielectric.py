@@ -105,7 +105,8 @@ def test_single_dielectric_equals_roughdielectric(dist, ior, mode):
 
 
 @pytest.mark.parametrize("surface,model", [
-    ("dielectric", "uncorrelated"), ("dielectric", "correlated"), ("dielectric", "heitz"), ("dielectric", "compensated"),
+    ("dielectric", "uncorrelated"), ("dielectric", "correlated"), ("dielectric", "heitz"), ("dielectric", "invariance"),
+    ("dielectric", "compensated"),
     ("diffuse", "uncorrelated"), ("diffuse", "correlated"), ("diffuse", "heitz"), ("diffuse", "invariance"),
     ("conductor", "heitz"), ("conductor", "invariance"), ("conductor", "fastmsx"), ("conductor", "compensated"),
 ])

@@ -7,7 +7,7 @@ use crate::models::posfree::{self, Segments};
 use crate::models::WalkOptions;
 use crate::models::albedo::AlbedoTable;
 use crate::models::{
-    compensated, compensated_dielectric, fastmsx, heitz, invariance, invariance_general, posfree_bdpt, posfree_bdpt_dielectric, posfree_bdpt_diffuse, posfree_dielectric, posfree_diffuse, single, single_dielectric, ConductorFresnel,
+    compensated, compensated_dielectric, fastmsx, heitz, invariance, invariance_dielectric, invariance_general, posfree_bdpt, posfree_bdpt_dielectric, posfree_bdpt_diffuse, posfree_dielectric, posfree_diffuse, single, single_dielectric, ConductorFresnel,
     Microsurface,
 };
 use crate::rng::{hash_words, Sampler};
@@ -76,7 +76,7 @@ pub fn models_for(surface: Surface) -> &'static [Model] {
             Model::FastMsx,
             Model::Compensated,
         ],
-        Surface::Dielectric => &[Model::Single, Model::Uncorrelated, Model::Correlated, Model::Heitz, Model::Compensated],
+        Surface::Dielectric => &[Model::Single, Model::Uncorrelated, Model::Correlated, Model::Heitz, Model::Invariance, Model::Compensated],
         Surface::Diffuse => &[Model::Uncorrelated, Model::Correlated, Model::Heitz, Model::Invariance],
     }
 }
@@ -314,6 +314,7 @@ impl Bsdf {
                         let surf = Microsurface::Dielectric { eta, radiance: mat.radiance };
                         heitz::eval(&mf, &surf, wi, wo, &opts, &mut rng()).0[0]
                     }
+                    Model::Invariance => invariance_dielectric::eval(&mf, eta, mat.radiance, wi, wo, &opts, &mut rng()),
                     _ => 0.0,
                 };
                 self.dielectric_tint(mat, wi, wo) * v
@@ -452,6 +453,10 @@ impl Bsdf {
                         let surf = Microsurface::Dielectric { eta, radiance: mat.radiance };
                         let (wo, w, _) = heitz::sample(&mf, &surf, wi, first, &opts, &mut rng())?;
                         (wo, self.pdf(mat, wi, wo), w.0[0])
+                    }
+                    Model::Invariance => {
+                        let (wo, w, _) = invariance_dielectric::sample(&mf, eta, mat.radiance, wi, first, &opts, &mut rng())?;
+                        (wo, self.pdf(mat, wi, wo), w)
                     }
                     _ => {
                         let (wo, w, _) = posfree_dielectric::sample_walk(&mf, eta, mat.radiance, wi, first, &opts, &mut rng())?;

@@ -21,7 +21,7 @@ SCENES = {
     "furnace_sphere": ("White furnace: F = 1, GGX α = 1.5, uniform white environment", "roughconductor",
                        MODELS + ("heitz", "invariance", "fastmsx", "compensated")),
     "fig01_dielectric_sphere": ("Wang 2022 Fig. 1 (c, d): rough dielectric, GGX α = 1, bk7", "roughdielectric",
-                                MODELS + ("heitz",)),
+                                MODELS + ("heitz", "invariance")),
 }
 
 

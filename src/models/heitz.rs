@@ -172,7 +172,7 @@ fn cosine_about(m: DVec3, u1: f64, u2: f64) -> DVec3 {
 /// Refraction of `w` (pointing away from the facet, w·m = `cos_i` > 0) through
 /// the facet m with relative IOR `eta` = η_t/η_i. `None` under TIR.
 #[inline]
-fn refract(w: DVec3, m: DVec3, cos_i: f64, eta: f64) -> Option<DVec3> {
+pub(crate) fn refract(w: DVec3, m: DVec3, cos_i: f64, eta: f64) -> Option<DVec3> {
     let sin2_t = (1.0 - cos_i * cos_i).max(0.0) / (eta * eta);
     if sin2_t >= 1.0 {
         return None;
@@ -187,7 +187,7 @@ fn refract(w: DVec3, m: DVec3, cos_i: f64, eta: f64) -> Option<DVec3> {
 }
 
 #[inline]
-fn local(v: DVec3, outside: bool) -> DVec3 {
+pub(crate) fn local(v: DVec3, outside: bool) -> DVec3 {
     if outside {
         v
     } else {
@@ -201,7 +201,7 @@ fn local(v: DVec3, outside: bool) -> DVec3 {
 
 /// Conductor phase function × Fresnel at ω_o (same side): F·D_ωi(h)/(4 ωi·h).
 #[inline]
-fn conductor_phase(mf: &Microfacet, wi: DVec3, wo: DVec3) -> Option<(f64, f64)> {
+pub(crate) fn conductor_phase(mf: &Microfacet, wi: DVec3, wo: DVec3) -> Option<(f64, f64)> {
     let h = wi + wo;
     let len = h.length();
     if !(len > 1e-12) {
@@ -224,7 +224,7 @@ fn conductor_phase(mf: &Microfacet, wi: DVec3, wo: DVec3) -> Option<(f64, f64)> 
 /// (reflection, `same = true`) or on the other side (transmission; ω_o in the
 /// current local frame points down). `eta` = relative IOR of the far side.
 #[inline]
-fn dielectric_phase(mf: &Microfacet, wi: DVec3, wo: DVec3, eta: f64, same: bool) -> f64 {
+pub(crate) fn dielectric_phase(mf: &Microfacet, wi: DVec3, wo: DVec3, eta: f64, same: bool) -> f64 {
     if same {
         match conductor_phase(mf, wi, wo) {
             Some((p, c)) => p * fresnel::dielectric(c, eta),
@@ -283,7 +283,7 @@ impl<'a> Mat<'a> {
 
 /// Relative IOR η_t/η_i seen from the current side.
 #[inline]
-fn eta_side(eta: f64, outside: bool) -> f64 {
+pub(crate) fn eta_side(eta: f64, outside: bool) -> f64 {
     if outside {
         eta
     } else {
@@ -294,7 +294,7 @@ fn eta_side(eta: f64, outside: bool) -> f64 {
 /// 1/η_rel² for a dielectric result that crossed the macro surface in
 /// Radiance mode (η_rel from the ω_i side to the ω_o side), else 1.
 #[inline]
-fn radiance_scale(eta: f64, radiance: bool, wi_outside: bool, wo_outside: bool) -> f64 {
+pub(crate) fn radiance_scale(eta: f64, radiance: bool, wi_outside: bool, wo_outside: bool) -> f64 {
     if radiance && wi_outside != wo_outside {
         let e = eta_side(eta, wi_outside);
         1.0 / (e * e)
@@ -304,7 +304,7 @@ fn radiance_scale(eta: f64, radiance: bool, wi_outside: bool, wo_outside: bool) 
 }
 
 #[inline]
-fn valid_dielectric_eta(eta: f64) -> bool {
+pub(crate) fn valid_dielectric_eta(eta: f64) -> bool {
     eta.is_finite() && eta > 0.0
 }
 
@@ -345,7 +345,7 @@ fn scatter(mat: &Mat, wi: DVec3, m: DVec3, outside: bool, ua: f64, ub: f64) -> O
 
 /// Draws the visible normal of `wi` (local frame).
 #[inline]
-fn visible_normal(mf: &Microfacet, wi: DVec3, u1: f64, u2: f64) -> Option<DVec3> {
+pub(crate) fn visible_normal(mf: &Microfacet, wi: DVec3, u1: f64, u2: f64) -> Option<DVec3> {
     let m = mf.sample_visible(wi, u1, u2)?;
     if m.is_finite() && wi.dot(m) > 0.0 {
         Some(m)
@@ -355,39 +355,78 @@ fn visible_normal(mf: &Microfacet, wi: DVec3, u1: f64, u2: f64) -> Option<DVec3>
 }
 
 
+/// State of a walk between two vertices: the medium the ray travels in
+/// (`outside`), its direction in that medium's local frame, its height
+/// t = ln C¹(h) (0 = above the microsurface), the throughput, and the order of
+/// the vertex it will reach next (1 = first).
+#[derive(Clone, Copy, Debug)]
+pub struct WalkState {
+    pub outside: bool,
+    pub dir: DVec3,
+    pub t: f64,
+    pub throughput: Spectrum,
+    pub next_order: u32,
+}
+
+impl WalkState {
+    /// A walk entering the microsurface from the side of ω_i, above it.
+    fn start(wi: DVec3) -> Self {
+        let outside = wi.z > 0.0;
+        WalkState { outside, dir: -local(wi, outside), t: 0.0, throughput: Spectrum::ONE, next_order: 1 }
+    }
+
+    /// The state after a refraction at height t (of the side the ray leaves):
+    /// the other medium, the refracted direction `o` given in the old frame,
+    /// the flipped height.
+    pub fn after_refraction(outside: bool, o: DVec3, t: f64, throughput: Spectrum, next_order: u32) -> Self {
+        WalkState { outside: !outside, dir: -o, t: flip_height(t), throughput, next_order }
+    }
+}
+
+/// Checks shared by `eval` and `sample`: finite directions, the upper
+/// hemisphere for conductor and diffuse, a usable IOR for dielectrics.
+fn valid_incidence(mat: &Mat, wi: DVec3) -> bool {
+    if !wi.is_finite() {
+        return false;
+    }
+    match mat {
+        Mat::Conductor(_) | Mat::Diffuse(_) => wi.z > 0.0,
+        Mat::Dielectric { eta, .. } => wi.z != 0.0 && valid_dielectric_eta(*eta),
+    }
+}
+
 /// One unbiased estimate of f(ω_i, ω_o)·|cos θ_o| restricted to the scattering
 /// orders `opts.orders` (1 = single scattering) and at most `opts.max_bounces`
 /// vertices. `opts.segments` is ignored.
 pub fn eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
     let mat = Mat::of(surf);
-    if !wi.is_finite() || !wo.is_finite() {
+    if !valid_incidence(&mat, wi) || !valid_incidence(&mat, wo) {
         return Spectrum::ZERO;
     }
-    match mat {
-        Mat::Conductor(_) | Mat::Diffuse(_) => {
-            if !(wi.z > 0.0) || !(wo.z > 0.0) {
-                return Spectrum::ZERO;
-            }
-        }
-        Mat::Dielectric { eta, .. } => {
-            if wi.z == 0.0 || wo.z == 0.0 || !valid_dielectric_eta(eta) {
-                return Spectrum::ZERO;
-            }
-        }
+    let mut sum = eval_from(mf, surf, wo, WalkState::start(wi), opts, rng);
+    if let Mat::Dielectric { eta, radiance } = mat {
+        sum *= radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0);
     }
+    sum.sanitized()
+}
+
+/// Heitz's eval walk (NEE towards ω_o at every vertex) from `state` on: the
+/// contributions of the vertices of order `state.next_order` and later, scaled
+/// by `state.throughput`, within `opts.orders` and `opts.max_bounces`. No
+/// Radiance-mode 1/η² (the caller applies it once for the whole path).
+/// Public so that a model that integrates the heights of the first vertices
+/// exactly can hand the rest of a path to this walk.
+pub fn eval_from(mf: &Microfacet, surf: &Microsurface, wo: DVec3, state: WalkState, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
+    let mat = Mat::of(surf);
     let last = opts.orders.1.min(opts.max_bounces);
-    if last == 0 || opts.orders.0 > last {
+    if last == 0 || opts.orders.0 > last || state.next_order > last {
         return Spectrum::ZERO;
     }
-    let wi_outside = wi.z > 0.0;
     let wo_outside = wo.z > 0.0;
-    let mut outside = wi_outside;
-    let mut wr = -local(wi, outside); // travel direction, local frame
-    let mut t = 0.0f64; // ln C¹(h): start above the microsurface
-    let mut throughput = Spectrum::ONE;
+    let WalkState { mut outside, dir: mut wr, mut t, mut throughput, next_order } = state;
     let mut sum = Spectrum::ZERO;
 
-    for order in 1..=last {
+    for order in next_order..=last {
         // Next intersection. Leaving contributes nothing to eval, so the hit is
         // forced and weighted by its probability (expected value of Heitz's
         // exit test). This keeps the NEE bounded: a near-vertical upward ray
@@ -460,11 +499,7 @@ pub fn eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, opts: &W
             break;
         }
     }
-
-    if let Mat::Dielectric { eta, radiance } = mat {
-        sum *= radiance_scale(eta, radiance, wi_outside, wo_outside);
-    }
-    sum.sanitized()
+    sum
 }
 
 /// Random-walk sampling (supplement Algorithm 3). `first` = (u_choice, u1, u2)
@@ -488,38 +523,48 @@ pub fn sample(
     rng: &mut Sampler,
 ) -> Option<(DVec3, Spectrum, u32)> {
     let mat = Mat::of(surf);
-    if !wi.is_finite() {
-        return None;
-    }
-    match mat {
-        Mat::Conductor(_) | Mat::Diffuse(_) => {
-            if !(wi.z > 0.0) {
-                return None;
-            }
-        }
-        Mat::Dielectric { eta, .. } => {
-            if wi.z == 0.0 || !valid_dielectric_eta(eta) {
-                return None;
-            }
-        }
-    }
-    let last = opts.orders.1.min(opts.max_bounces);
-    if last == 0 || opts.orders.0 > last {
+    if !valid_incidence(&mat, wi) {
         return None;
     }
     let clamp_u = |u: f64| if u.is_finite() { u.clamp(0.0, 1.0 - f64::EPSILON) } else { 0.5 };
     let first = (clamp_u(first.0), clamp_u(first.1), clamp_u(first.2));
-    let is_dielectric = matches!(mat, Mat::Dielectric { .. });
+    let (wo, weight, order) = sample_from(mf, surf, WalkState::start(wi), Some(first), opts, rng)?;
+    let mut weight = weight;
+    if let Mat::Dielectric { eta, radiance } = mat {
+        weight *= radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0);
+    }
+    if !weight.is_finite() {
+        return None;
+    }
+    Some((wo, weight.sanitized(), order))
+}
 
-    let wi_outside = wi.z > 0.0;
-    let mut outside = wi_outside;
-    let mut wr = -local(wi, outside);
-    let mut t = 0.0f64;
-    let mut throughput = Spectrum::ONE;
-    let mut order = 0u32;
+/// Heitz's sampling walk from `state` on (see [`sample`]); `first` drives the
+/// first vertex when the walk starts above the microsurface. Returns the exit
+/// direction in the macro frame, the weight without the Radiance-mode 1/η²,
+/// and the order. Public for the same reason as [`eval_from`].
+pub fn sample_from(
+    mf: &Microfacet,
+    surf: &Microsurface,
+    state: WalkState,
+    first: Option<(f64, f64, f64)>,
+    opts: &WalkOptions,
+    rng: &mut Sampler,
+) -> Option<(DVec3, Spectrum, u32)> {
+    let mat = Mat::of(surf);
+    let last = opts.orders.1.min(opts.max_bounces);
+    if last == 0 || opts.orders.0 > last {
+        return None;
+    }
+    let is_dielectric = matches!(mat, Mat::Dielectric { .. });
+    let WalkState { mut outside, dir: mut wr, mut t, mut throughput, next_order } = state;
+    let mut order = next_order.max(1) - 1; // vertices so far
 
     loop {
-        let u_height = if order == 0 && !is_dielectric { first.0 } else { rng.next() };
+        let u_height = match first {
+            Some(f) if order == 0 && !is_dielectric => f.0,
+            _ => rng.next(),
+        };
         match sample_height(mf, wr, t, u_height) {
             Some(tn) => t = tn,
             None => {
@@ -528,14 +573,10 @@ pub fn sample(
                     return None;
                 }
                 let wo = local(wr, outside);
-                let mut weight = throughput;
-                if let Mat::Dielectric { eta, radiance } = mat {
-                    weight *= radiance_scale(eta, radiance, wi_outside, outside);
-                }
-                if !wo.is_finite() || wo.z == 0.0 || !weight.is_finite() {
+                if !wo.is_finite() || wo.z == 0.0 || !throughput.is_finite() {
                     return None;
                 }
-                return Some((wo, weight.sanitized(), order));
+                return Some((wo, throughput, order));
             }
         }
         order += 1;
@@ -543,13 +584,16 @@ pub fn sample(
             return None;
         }
         let wi_l = -wr;
-        let (u1, u2, ua, ub) = if order == 1 {
-            let (a, b) = if is_dielectric { (first.0, 0.0) } else { rng.next2() };
-            (first.1, first.2, a, b)
-        } else {
-            let (u1, u2) = rng.next2();
-            let (a, b) = rng.next2();
-            (u1, u2, a, b)
+        let (u1, u2, ua, ub) = match first {
+            Some(f) if order == 1 => {
+                let (a, b) = if is_dielectric { (f.0, 0.0) } else { rng.next2() };
+                (f.1, f.2, a, b)
+            }
+            _ => {
+                let (u1, u2) = rng.next2();
+                let (a, b) = rng.next2();
+                (u1, u2, a, b)
+            }
         };
         let m = visible_normal(mf, wi_l, u1, u2)?;
         let s = scatter(&mat, wi_l, m, outside, ua, ub)?;

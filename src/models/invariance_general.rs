@@ -31,11 +31,12 @@
 //! leaves along d_{m+1}; the exit density is then exactly the path contribution
 //! divided by a^k, so the weight is a^k (Π albedo), no roulette.
 //!
-//! **Dielectrics are not handled** (zero / None): across a refraction Heitz's
-//! walk flips the height (h → flip), and the heights-integrated exit
-//! probabilities of a path that crosses the interface are no longer rational
-//! functions of the Λ values (for uniform heights they become beta-function
-//! integrals ∫ h^a (1−h)^b), so the S_k recursion above does not apply as is.
+//! **Dielectrics are handled elsewhere** (zero / None here): across a
+//! refraction Heitz's walk flips the height (C¹ ↦ 1 − C¹), the heights-integrated
+//! exit probabilities are no longer rational functions of the Λ values (already
+//! order 1 is a Beta function), so the S_k recursion above does not apply;
+//! `invariance_dielectric.rs` integrates the heights exactly up to the first
+//! refraction and samples them after it.
 
 use super::{russian_roulette, vertex_numbers, Microsurface, WalkOptions};
 use crate::microfacet::Microfacet;

@@ -6,6 +6,7 @@ pub mod compensated_dielectric;
 pub mod fastmsx;
 pub mod heitz;
 pub mod invariance;
+pub mod invariance_dielectric;
 pub mod invariance_general;
 pub mod posfree;
 pub mod posfree_dielectric;

@@ -6,7 +6,7 @@
 
 use glam::DVec3;
 use msx::rng::Sampler;
-use msx::Distribution;
+use msx::{Distribution, Microfacet};
 use std::f64::consts::PI;
 
 /// Running mean and variance (Welford).
@@ -487,5 +487,76 @@ impl VndfOutProposal {
             return 0.0;
         }
         self.k * wo.z / PI + (1.0 - self.k) * self.mf.reflect_pdf(self.wi, wo)
+    }
+}
+
+/// Full-sphere proposal for a dielectric: reflection and refraction about a
+/// visible normal of ω_i (msx's VNDF sampler, validated in tests/foundation.rs)
+/// and the uniform sphere. Works in the local frame of ω_i's side.
+pub struct DielectricProposal {
+    mf: Microfacet,
+    wi_l: DVec3,
+    eta_l: f64,
+    flip: bool,
+    w: [f64; 3],
+}
+
+impl DielectricProposal {
+    pub fn new(mf: Microfacet, wi: DVec3, eta: f64) -> Self {
+        let flip = wi.z < 0.0;
+        let wi_l = if flip { -wi } else { wi };
+        DielectricProposal { mf, wi_l, eta_l: if flip { 1.0 / eta } else { eta }, flip, w: [0.35, 0.35, 0.3] }
+    }
+
+    pub fn to_global(&self, v: DVec3) -> DVec3 {
+        if self.flip {
+            -v
+        } else {
+            v
+        }
+    }
+
+    pub fn sample(&self, rng: &mut Sampler) -> Option<DVec3> {
+        let c = rng.next();
+        let (u1, u2) = rng.next2();
+        if c < self.w[2] {
+            return Some(uniform_sphere(u1, u2));
+        }
+        let m = self.mf.sample_visible(self.wi_l, u1, u2)?;
+        let ci = self.wi_l.dot(m);
+        if c < self.w[2] + self.w[0] {
+            return Some(self.to_global(reflect(self.wi_l, m).normalize()));
+        }
+        let e = self.eta_l;
+        let s2 = (1.0 - ci * ci) / (e * e);
+        if s2 >= 1.0 {
+            return None; // TIR: a failed sample of the refraction component
+        }
+        let o = m * (ci / e - (1.0 - s2).sqrt()) - self.wi_l / e;
+        Some(self.to_global(o.normalize()))
+    }
+
+    pub fn pdf(&self, wo: DVec3) -> f64 {
+        let wo_l = if self.flip { -wo } else { wo };
+        // Both components can land on either side (a steep facet reflects below
+        // the macro horizon or refracts above it): add both densities everywhere.
+        let mut p = self.w[2] * UNIFORM_SPHERE_PDF + self.w[0] * self.mf.reflect_pdf(self.wi_l, wo_l);
+        {
+            let e = self.eta_l;
+            let h = -(self.wi_l + wo_l * e);
+            let len = h.length();
+            if len > 1e-12 {
+                let mut h = h / len;
+                if h.z < 0.0 {
+                    h = -h;
+                }
+                let (ci, co) = (self.wi_l.dot(h), wo_l.dot(h));
+                if ci > 0.0 && co < 0.0 {
+                    let denom = ci + e * co;
+                    p += self.w[1] * self.mf.d_visible(self.wi_l, h) * e * e * (-co) / (denom * denom);
+                }
+            }
+        }
+        p
     }
 }

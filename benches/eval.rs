@@ -158,6 +158,7 @@ fn bench_ffi_eval(c: &mut Criterion, set: &Set) {
             max_bounces: 0,
             channels: 3,
             seed: 0,
+            auto_tolerance: 0.0,
         };
         let mut h: *mut MsxBsdf = std::ptr::null_mut();
         assert_eq!(msx_bsdf_new(&params, &mut h, std::ptr::null_mut(), 0), MSX_OK);

@@ -38,6 +38,8 @@
 
 #define MSX_MODEL_COMPENSATED 6
 
+#define MSX_MODEL_AUTO 7
+
 #define MSX_ESTIMATOR_PT 0
 
 #define MSX_ESTIMATOR_BDPT 1
@@ -50,6 +52,11 @@
  Bounce cap used when `MsxParams::max_bounces` is 0.
  */
 #define MSX_DEFAULT_MAX_BOUNCES 64
+
+/*
+ `MsxParams::auto_tolerance` used when it is 0.
+ */
+#define MSX_DEFAULT_AUTO_TOLERANCE 0.01
 
 /*
  Largest accepted `MsxParams::max_bounces`.
@@ -67,6 +74,16 @@
 #define MSX_ALPHA_MIN 1e-4
 
 #define MSX_ALPHA_MAX 1e4
+
+/*
+ Tail values stored per cell: T_1 … T_K.
+ */
+#define K_TABLE 24
+
+/*
+ Default tolerance: 1 % of the scattered energy may be omitted.
+ */
+#define DEFAULT_TOLERANCE 0.01
 
 /*
  Opaque BSDF handle.
@@ -105,6 +122,11 @@ typedef struct MsxParams {
    Decorrelates / reproduces the stochastic estimates
    */
   uint64_t seed;
+  /*
+   MSX_MODEL_AUTO only: fraction of the scattered energy the bounce
+   truncation may omit, in (0, 1) (0 = MSX_DEFAULT_AUTO_TOLERANCE)
+   */
+  double auto_tolerance;
 } MsxParams;
 
 /*

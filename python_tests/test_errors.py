@@ -38,7 +38,10 @@ BAD = [
     (dict(surface="diffuse", specular_reflectance=0.5), ["specular_reflectance", "diffuse"]),
     (dict(model="fastmsx"), ["distribution", "fastmsx", "ggx"]),  # default distribution is beckmann
     (dict(model="fastmsx", distribution="beckmann"), ["distribution", "ggx"]),
-    (dict(model="auto"), ["model", "not implemented"]),
+    (dict(model="correlated", auto_tolerance=0.05), ["auto_tolerance", "auto"]),
+    (dict(model="auto", auto_tolerance=0.0), ["auto_tolerance", "(0, 1)"]),
+    (dict(model="auto", auto_tolerance=1.0), ["auto_tolerance", "(0, 1)"]),
+    (dict(model="auto", auto_tolerance="low"), ["auto_tolerance"]),
     (dict(model="Single"), ["model", "single"]),
     (dict(estimator="bdpt", model="single"), ["estimator", "bdpt", "uncorrelated"]),
     (dict(surface="dielectric", model="heitz", estimator="bdpt"), ["estimator", "bdpt", "uncorrelated"]),

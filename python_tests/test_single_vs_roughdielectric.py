@@ -106,7 +106,7 @@ def test_single_dielectric_equals_roughdielectric(dist, ior, mode):
 
 @pytest.mark.parametrize("surface,model", [
     ("dielectric", "uncorrelated"), ("dielectric", "correlated"), ("dielectric", "heitz"), ("dielectric", "invariance"),
-    ("dielectric", "compensated"),
+    ("dielectric", "compensated"), ("dielectric", "auto"), ("diffuse", "auto"), ("conductor", "auto"),
     ("diffuse", "uncorrelated"), ("diffuse", "correlated"), ("diffuse", "heitz"), ("diffuse", "invariance"),
     ("conductor", "heitz"), ("conductor", "invariance"), ("conductor", "fastmsx"), ("conductor", "compensated"),
 ])

@@ -7,7 +7,7 @@ use crate::models::posfree::{self, Segments};
 use crate::models::WalkOptions;
 use crate::models::albedo::AlbedoTable;
 use crate::models::{
-    compensated, compensated_dielectric, fastmsx, heitz, invariance, invariance_dielectric, invariance_general, posfree_bdpt, posfree_bdpt_dielectric, posfree_bdpt_diffuse, posfree_dielectric, posfree_diffuse, single, single_dielectric, ConductorFresnel,
+    auto, compensated, compensated_dielectric, fastmsx, heitz, invariance, invariance_dielectric, invariance_general, posfree_bdpt, posfree_bdpt_dielectric, posfree_bdpt_diffuse, posfree_dielectric, posfree_diffuse, single, single_dielectric, ConductorFresnel,
     Microsurface,
 };
 use crate::rng::{hash_words, Sampler};
@@ -32,6 +32,9 @@ pub enum Model {
     Invariance,
     FastMsx,
     Compensated,
+    /// `correlated` truncated per call after the fewest bounces whose omitted
+    /// energy is under `Config::tolerance` (models/auto.rs).
+    Auto,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -60,6 +63,7 @@ impl Model {
             Model::Invariance => "invariance",
             Model::FastMsx => "fastmsx",
             Model::Compensated => "compensated",
+            Model::Auto => "auto",
         }
     }
 }
@@ -75,16 +79,17 @@ pub fn models_for(surface: Surface) -> &'static [Model] {
             Model::Invariance,
             Model::FastMsx,
             Model::Compensated,
+            Model::Auto,
         ],
-        Surface::Dielectric => &[Model::Single, Model::Uncorrelated, Model::Correlated, Model::Heitz, Model::Invariance, Model::Compensated],
-        Surface::Diffuse => &[Model::Uncorrelated, Model::Correlated, Model::Heitz, Model::Invariance],
+        Surface::Dielectric => &[Model::Single, Model::Uncorrelated, Model::Correlated, Model::Heitz, Model::Invariance, Model::Compensated, Model::Auto],
+        Surface::Diffuse => &[Model::Uncorrelated, Model::Correlated, Model::Heitz, Model::Invariance, Model::Auto],
     }
 }
 
 /// Models that accept `estimator="bdpt"`.
 pub fn bdpt_models(surface: Surface) -> &'static [Model] {
     match surface {
-        Surface::Conductor | Surface::Dielectric | Surface::Diffuse => &[Model::Uncorrelated, Model::Correlated],
+        Surface::Conductor | Surface::Dielectric | Surface::Diffuse => &[Model::Uncorrelated, Model::Correlated, Model::Auto],
     }
 }
 
@@ -102,6 +107,8 @@ pub struct Config {
     pub max_bounces: u32,
     pub channels: usize,
     pub seed: u64,
+    /// `auto` only: fraction of the scattered energy the truncation may omit.
+    pub tolerance: f64,
 }
 
 impl Default for Config {
@@ -114,6 +121,7 @@ impl Default for Config {
             max_bounces: DEFAULT_MAX_BOUNCES,
             channels: 3,
             seed: 0,
+            tolerance: auto::DEFAULT_TOLERANCE,
         }
     }
 }
@@ -227,6 +235,12 @@ impl Bsdf {
                 ),
             });
         }
+        if !(cfg.tolerance > 0.0 && cfg.tolerance < 1.0) {
+            return Err(ParamError {
+                parameter: "auto_tolerance",
+                message: format!("must lie in (0, 1) (fraction of the scattered energy), got {}", cfg.tolerance),
+            });
+        }
         if cfg.max_bounces == 0 || cfg.max_bounces > MAX_BOUNCES_LIMIT {
             return Err(ParamError {
                 parameter: "max_bounces",
@@ -248,16 +262,28 @@ impl Bsdf {
         ConductorFresnel::new(mat.eta, mat.k, self.cfg.channels)
     }
 
-    fn walk_options(&self, segments: Segments) -> WalkOptions {
-        WalkOptions { segments, max_bounces: self.cfg.max_bounces, orders: (1, self.cfg.max_bounces) }
+    /// The model a call runs and its bounce cap: the configured ones, except
+    /// that `auto` runs `correlated` with the cap of models/auto.rs for this
+    /// call's roughness, incidence and IOR.
+    fn resolve(&self, mat: &Material, wi: DVec3) -> (Model, u32) {
+        if self.cfg.model != Model::Auto {
+            return (self.cfg.model, self.cfg.max_bounces);
+        }
+        let (surface, eta) = match self.cfg.surface {
+            Surface::Conductor => (auto::TableSurface::Conductor, 1.0),
+            Surface::Dielectric => (auto::TableSurface::Dielectric, if wi.z > 0.0 { mat.ior } else { 1.0 / mat.ior }),
+            Surface::Diffuse => (auto::TableSurface::Diffuse, 1.0),
+        };
+        let alpha = mat.alpha_u.max(mat.alpha_v);
+        let cap = auto::bounce_cap(surface, self.cfg.distribution, alpha, wi.z.abs(), eta, self.cfg.tolerance, self.cfg.max_bounces);
+        (Model::Correlated, cap)
     }
 
-    fn segments(&self) -> Option<Segments> {
-        match self.cfg.model {
-            Model::Uncorrelated => Some(Segments::Uncorrelated),
-            Model::Correlated => Some(Segments::Correlated),
-            _ => None,
-        }
+    /// Walk options of `model` (segment terms of the position-free models;
+    /// the others ignore them) with the bounce cap `max_bounces`.
+    fn walk_options(model: Model, max_bounces: u32) -> WalkOptions {
+        let segments = if model == Model::Uncorrelated { Segments::Uncorrelated } else { Segments::Correlated };
+        WalkOptions { segments, max_bounces, orders: (1, max_bounces) }
     }
 
     /// A random stream determined by the BSDF's `seed` and the call's inputs.
@@ -281,18 +307,19 @@ impl Bsdf {
         }
         let mf = self.microfacet(mat);
         let first = orders.0 <= 1;
-        let mut opts = self.walk_options(self.segments().unwrap_or(Segments::Correlated));
-        opts.orders = (orders.0.max(1), orders.1.min(self.cfg.max_bounces));
+        let (model, max_bounces) = self.resolve(mat, wi);
+        let mut opts = Self::walk_options(model, max_bounces);
+        opts.orders = (orders.0.max(1), orders.1.min(max_bounces));
         let rng = || self.seeded(&[key, wi.x.to_bits(), wi.y.to_bits(), wi.z.to_bits(), wo.x.to_bits(), wo.y.to_bits(), wo.z.to_bits()]);
         let value = match self.cfg.surface {
             Surface::Conductor => {
                 let fresnel = self.fresnel(mat);
-                let v = match self.cfg.model {
+                let v = match model {
                     Model::Single if first => single::eval(&mf, &fresnel, wi, wo),
                     Model::FastMsx if first => fastmsx::eval(&mf, &fresnel, wi, wo),
                     Model::Compensated if first => compensated::eval(&mf, &fresnel, wi, wo),
                     Model::Single | Model::FastMsx | Model::Compensated => Spectrum::ZERO,
-                    Model::Uncorrelated | Model::Correlated => match self.cfg.estimator {
+                    Model::Uncorrelated | Model::Correlated | Model::Auto => match self.cfg.estimator {
                         Estimator::Pt => posfree::eval_pt(&mf, &fresnel, wi, wo, &opts, &mut rng()),
                         Estimator::Bdpt => posfree_bdpt::eval_bdpt(&mf, &fresnel, wi, wo, &opts, &mut rng()),
                     },
@@ -303,7 +330,7 @@ impl Bsdf {
             }
             Surface::Dielectric => {
                 let Some(eta) = valid_ior(mat.ior) else { return Spectrum::ZERO };
-                let v = match self.cfg.model {
+                let v = match model {
                     Model::Single if first => single_dielectric::eval(&mf, eta, wi, wo, mat.radiance).0,
                     Model::Compensated if first => compensated_dielectric::eval(&mf, eta, wi, wo, mat.radiance),
                     Model::Uncorrelated | Model::Correlated => match self.cfg.estimator {
@@ -319,7 +346,7 @@ impl Bsdf {
                 };
                 self.dielectric_tint(mat, wi, wo) * v
             }
-            Surface::Diffuse => match self.cfg.model {
+            Surface::Diffuse => match model {
                 Model::Uncorrelated | Model::Correlated => match self.cfg.estimator {
                     Estimator::Pt => posfree_diffuse::eval_pt(&mf, mat.reflectance, wi, wo, &opts, &mut rng()),
                     Estimator::Bdpt => posfree_bdpt_diffuse::eval_bdpt(&mf, mat.reflectance, wi, wo, &opts, &mut rng()),
@@ -352,21 +379,22 @@ impl Bsdf {
     pub fn pdf(&self, mat: &Material, wi: DVec3, wo: DVec3) -> f64 {
         let (Some(wi), Some(wo)) = (finite_unit(wi), finite_unit(wo)) else { return 0.0 };
         let mf = self.microfacet(mat);
+        let (model, _) = self.resolve(mat, wi);
         let p = match self.cfg.surface {
-            Surface::Conductor => match self.cfg.model {
+            Surface::Conductor => match model {
                 Model::Single | Model::FastMsx | Model::Compensated => single::pdf(&mf, wi, wo),
                 _ => {
                     if wi.z <= 0.0 || wo.z <= 0.0 {
                         0.0
                     } else {
-                        self.conductor_walk_pdf(&mf, wi, wo)
+                        self.conductor_walk_pdf(model, &mf, wi, wo)
                     }
                 }
             },
             Surface::Dielectric => {
                 let Some(eta) = valid_ior(mat.ior) else { return 0.0 };
                 let ss = single_dielectric::pdf(&mf, eta, wi, wo);
-                match self.cfg.model {
+                match model {
                     Model::Single | Model::Compensated => ss,
                     _ => {
                         let k = diffuse_fraction(&mf);
@@ -396,11 +424,11 @@ impl Bsdf {
     /// 1 − E_1(ω_i) from the order-1 albedo table, floored at 1e-3 so that no
     /// direction the walk can reach has density 0. Integrates to 1 up to the
     /// table's interpolation error.
-    fn conductor_walk_pdf(&self, mf: &Microfacet, wi: DVec3, wo: DVec3) -> f64 {
+    fn conductor_walk_pdf(&self, model: Model, mf: &Microfacet, wi: DVec3, wo: DVec3) -> f64 {
         let table = AlbedoTable::get(mf.dist);
         let alpha = (mf.alpha_u * mf.alpha_v).sqrt();
         let lambda_o = mf.lambda(wo);
-        let (exit, e1) = if self.cfg.model == Model::Uncorrelated {
+        let (exit, e1) = if model == Model::Uncorrelated {
             (1.0 / (1.0 + lambda_o), table.e1_uncorrelated(alpha, wi.z))
         } else {
             let l0 = 1.0 + mf.lambda(wi);
@@ -420,18 +448,19 @@ impl Bsdf {
         let clamp01 = |u: f64| if u.is_finite() { u.clamp(0.0, 1.0 - f64::EPSILON / 2.0) } else { 0.5 };
         let (s1, u1, u2) = (clamp01(sample1), clamp01(sample2.0), clamp01(sample2.1));
         let mf = self.microfacet(mat);
-        let opts = self.walk_options(self.segments().unwrap_or(Segments::Correlated));
+        let (model, max_bounces) = self.resolve(mat, wi);
+        let opts = Self::walk_options(model, max_bounces);
         let rng = || self.seeded(&[s1.to_bits(), u1.to_bits(), u2.to_bits(), wi.x.to_bits(), wi.z.to_bits()]);
         let first = (s1, u1, u2);
         let (wo, pdf, weight) = match self.cfg.surface {
             Surface::Conductor => {
                 let fresnel = self.fresnel(mat);
-                let (wo, pdf, w) = match self.cfg.model {
+                let (wo, pdf, w) = match model {
                     Model::Single => single::sample(&mf, &fresnel, wi, u1, u2)?,
                     Model::FastMsx => fastmsx::sample(&mf, &fresnel, wi, u1, u2)?,
                     Model::Compensated => compensated::sample(&mf, &fresnel, wi, u1, u2)?,
-                    Model::Uncorrelated | Model::Correlated | Model::Heitz | Model::Invariance => {
-                        let (wo, w, _) = match self.cfg.model {
+                    Model::Uncorrelated | Model::Correlated | Model::Auto | Model::Heitz | Model::Invariance => {
+                        let (wo, w, _) = match model {
                             Model::Heitz => heitz::sample(&mf, &Microsurface::Conductor(fresnel), wi, first, &opts, &mut rng())?,
                             Model::Invariance => invariance::sample(&mf, &fresnel, wi, first, &opts, &mut rng())?,
                             _ => posfree::sample_walk(&mf, &fresnel, wi, first, &opts, &mut rng())?,
@@ -443,7 +472,7 @@ impl Bsdf {
             }
             Surface::Dielectric => {
                 let eta = valid_ior(mat.ior)?;
-                let (wo, pdf, w) = match self.cfg.model {
+                let (wo, pdf, w) = match model {
                     Model::Single => {
                         let (wo, pdf, w, _) = single_dielectric::sample(&mf, eta, wi, s1, u1, u2, mat.radiance)?;
                         (wo, pdf, w)
@@ -466,7 +495,7 @@ impl Bsdf {
                 (wo, pdf, self.dielectric_tint(mat, wi, wo) * w)
             }
             Surface::Diffuse => {
-                let (wo, w, _) = match self.cfg.model {
+                let (wo, w, _) = match model {
                     Model::Heitz => heitz::sample(&mf, &Microsurface::Diffuse { albedo: mat.reflectance }, wi, first, &opts, &mut rng())?,
                     Model::Invariance => {
                         invariance_general::sample(&mf, &Microsurface::Diffuse { albedo: mat.reflectance }, wi, first, &opts, &mut rng())?

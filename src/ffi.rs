@@ -31,6 +31,7 @@ pub const MSX_MODEL_HEITZ: u32 = 3;
 pub const MSX_MODEL_INVARIANCE: u32 = 4;
 pub const MSX_MODEL_FASTMSX: u32 = 5;
 pub const MSX_MODEL_COMPENSATED: u32 = 6;
+pub const MSX_MODEL_AUTO: u32 = 7;
 
 pub const MSX_ESTIMATOR_PT: u32 = 0;
 pub const MSX_ESTIMATOR_BDPT: u32 = 1;
@@ -40,6 +41,8 @@ pub const MSX_MODE_IMPORTANCE: u32 = 1;
 
 /// Bounce cap used when `MsxParams::max_bounces` is 0.
 pub const MSX_DEFAULT_MAX_BOUNCES: u32 = 64;
+/// `MsxParams::auto_tolerance` used when it is 0.
+pub const MSX_DEFAULT_AUTO_TOLERANCE: f64 = 0.01;
 /// Largest accepted `MsxParams::max_bounces`.
 pub const MSX_MAX_BOUNCES_LIMIT: u32 = 1024;
 /// Channels per call at most.
@@ -52,6 +55,7 @@ pub const MSX_ALPHA_MAX: f64 = 1e4;
 const _: () = assert!(MSX_DEFAULT_MAX_BOUNCES == crate::bsdf::DEFAULT_MAX_BOUNCES);
 const _: () = assert!(MSX_MAX_BOUNCES_LIMIT == crate::bsdf::MAX_BOUNCES_LIMIT);
 const _: () = assert!(MSX_MAX_CHANNELS as usize == MAX_CHANNELS);
+const _: () = assert!(MSX_DEFAULT_AUTO_TOLERANCE == crate::models::auto::DEFAULT_TOLERANCE);
 const _: () = assert!(MSX_ALPHA_MIN == crate::microfacet::ALPHA_MIN && MSX_ALPHA_MAX == crate::microfacet::ALPHA_MAX);
 
 /// Static configuration of a BSDF.
@@ -72,6 +76,9 @@ pub struct MsxParams {
     pub channels: u32,
     /// Decorrelates / reproduces the stochastic estimates
     pub seed: u64,
+    /// MSX_MODEL_AUTO only: fraction of the scattered energy the bounce
+    /// truncation may omit, in (0, 1) (0 = MSX_DEFAULT_AUTO_TOLERANCE)
+    pub auto_tolerance: f64,
 }
 
 /// Per-hit material values (textures evaluated at the hit).
@@ -260,10 +267,11 @@ fn config_from(p: &MsxParams) -> Result<Config, (&'static str, String)> {
         MSX_MODEL_INVARIANCE => Model::Invariance,
         MSX_MODEL_FASTMSX => Model::FastMsx,
         MSX_MODEL_COMPENSATED => Model::Compensated,
+        MSX_MODEL_AUTO => Model::Auto,
         v => {
             return Err((
                 "model",
-                format!("unknown value {v}; allowed: single (0), uncorrelated (1), correlated (2), heitz (3), invariance (4), fastmsx (5), compensated (6)"),
+                format!("unknown value {v}; allowed: single (0), uncorrelated (1), correlated (2), heitz (3), invariance (4), fastmsx (5), compensated (6), auto (7)"),
             ))
         }
     };
@@ -273,7 +281,11 @@ fn config_from(p: &MsxParams) -> Result<Config, (&'static str, String)> {
         v => return Err(("estimator", format!("unknown value {v}; allowed: pt (0), bdpt (1)"))),
     };
     let max_bounces = if p.max_bounces == 0 { DEFAULT_MAX_BOUNCES } else { p.max_bounces };
-    Ok(Config { surface, distribution, model, estimator, max_bounces, channels: p.channels as usize, seed: p.seed })
+    if p.auto_tolerance != 0.0 && model != Model::Auto {
+        return Err(("auto_tolerance", format!("applies to model 'auto' only (model is '{}')", model.name())));
+    }
+    let tolerance = if p.auto_tolerance == 0.0 { MSX_DEFAULT_AUTO_TOLERANCE } else { p.auto_tolerance };
+    Ok(Config { surface, distribution, model, estimator, max_bounces, channels: p.channels as usize, seed: p.seed, tolerance })
 }
 
 /// Creates a BSDF. On success writes the handle to `*out` and returns MSX_OK;

@@ -88,6 +88,7 @@ fn params(model: u32, distribution: u32) -> MsxParams {
         max_bounces: 0,
         channels: 4,
         seed: 1234,
+        auto_tolerance: 0.0,
     }
 }
 
@@ -415,7 +416,7 @@ fn invalid_configuration_is_reported_by_name() {
     for v in [2, 3, 100, u32::MAX] {
         expect_error(&MsxParams { distribution: v, ..base }, "distribution");
     }
-    for v in [7, 99, u32::MAX] {
+    for v in [8, 99, u32::MAX] {
         expect_error(&MsxParams { model: v, ..base }, "model");
     }
     // Known values in a combination that does not exist name the parameter at fault.
@@ -429,6 +430,9 @@ fn invalid_configuration_is_reported_by_name() {
     }
     for v in [0, 5, 16, u32::MAX] {
         expect_error(&MsxParams { channels: v, ..base }, "channels");
+    }
+    for v in [-0.5, 1.0, 3.0, f64::NAN, f64::INFINITY] {
+        expect_error(&MsxParams { model: MSX_MODEL_AUTO, auto_tolerance: v, ..base }, "auto_tolerance");
     }
     // The boundaries are accepted.
     for max_bounces in [0, 1, MSX_DEFAULT_MAX_BOUNCES, MSX_MAX_BOUNCES_LIMIT] {

@@ -19,19 +19,22 @@ fn combos() -> Vec<(u32, u32, u32, u32)> {
             MSX_MODEL_HEITZ,
             MSX_MODEL_INVARIANCE,
             MSX_MODEL_COMPENSATED,
+            MSX_MODEL_AUTO,
         ] {
             v.push((MSX_SURFACE_CONDUCTOR, dist, model, MSX_ESTIMATOR_PT));
         }
         v.push((MSX_SURFACE_CONDUCTOR, dist, MSX_MODEL_UNCORRELATED, MSX_ESTIMATOR_BDPT));
         v.push((MSX_SURFACE_CONDUCTOR, dist, MSX_MODEL_CORRELATED, MSX_ESTIMATOR_BDPT));
-        for model in [MSX_MODEL_SINGLE, MSX_MODEL_UNCORRELATED, MSX_MODEL_CORRELATED, MSX_MODEL_HEITZ, MSX_MODEL_INVARIANCE, MSX_MODEL_COMPENSATED] {
+        for model in [MSX_MODEL_SINGLE, MSX_MODEL_UNCORRELATED, MSX_MODEL_CORRELATED, MSX_MODEL_HEITZ, MSX_MODEL_INVARIANCE, MSX_MODEL_COMPENSATED, MSX_MODEL_AUTO] {
             v.push((MSX_SURFACE_DIELECTRIC, dist, model, MSX_ESTIMATOR_PT));
         }
+        v.push((MSX_SURFACE_CONDUCTOR, dist, MSX_MODEL_AUTO, MSX_ESTIMATOR_BDPT));
         for surface in [MSX_SURFACE_DIELECTRIC, MSX_SURFACE_DIFFUSE] {
+            v.push((surface, dist, MSX_MODEL_AUTO, MSX_ESTIMATOR_BDPT));
             v.push((surface, dist, MSX_MODEL_UNCORRELATED, MSX_ESTIMATOR_BDPT));
             v.push((surface, dist, MSX_MODEL_CORRELATED, MSX_ESTIMATOR_BDPT));
         }
-        for model in [MSX_MODEL_UNCORRELATED, MSX_MODEL_CORRELATED, MSX_MODEL_HEITZ, MSX_MODEL_INVARIANCE] {
+        for model in [MSX_MODEL_UNCORRELATED, MSX_MODEL_CORRELATED, MSX_MODEL_HEITZ, MSX_MODEL_INVARIANCE, MSX_MODEL_AUTO] {
             v.push((MSX_SURFACE_DIFFUSE, dist, model, MSX_ESTIMATOR_PT));
         }
     }
@@ -48,7 +51,7 @@ fn every_model_surface_distribution_is_total() {
     let mut rng = Sampler::new(2024);
     let mut calls = 0usize;
     for (surface, distribution, model, estimator) in combos() {
-        let params = MsxParams { surface, distribution, model, estimator, max_bounces: 0, channels: 3, seed: 7 };
+        let params = MsxParams { surface, distribution, model, estimator, max_bounces: 0, channels: 3, seed: 7, auto_tolerance: 0.0 };
         let mut h: *mut MsxBsdf = ptr::null_mut();
         let mut err = [0 as std::os::raw::c_char; 256];
         let rc = msx_bsdf_new(&params, &mut h, err.as_mut_ptr(), err.len());

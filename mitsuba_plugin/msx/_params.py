@@ -27,8 +27,9 @@ MODELS = {
     "invariance": lib.MSX_MODEL_INVARIANCE,
     "fastmsx": lib.MSX_MODEL_FASTMSX,
     "compensated": lib.MSX_MODEL_COMPENSATED,
+    "auto": lib.MSX_MODEL_AUTO,
 }
-MODELS_PLANNED = ("auto",)
+MODELS_PLANNED = ()
 
 ESTIMATORS = {"pt": lib.MSX_ESTIMATOR_PT, "bdpt": lib.MSX_ESTIMATOR_BDPT}
 ESTIMATORS_PLANNED = ()
@@ -39,7 +40,7 @@ SURFACE_PARAMS = {
     "dielectric": ("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"),
     "diffuse": ("reflectance",),
 }
-COMMON_PARAMS = "surface, distribution, alpha, alpha_u, alpha_v, model, estimator, max_bounces, seed"
+COMMON_PARAMS = "surface, distribution, alpha, alpha_u, alpha_v, model, estimator, max_bounces, seed, auto_tolerance"
 
 MAX_BOUNCES_LIMIT = lib.MSX_MAX_BOUNCES_LIMIT
 SEED_LIMIT = 2**64
@@ -98,6 +99,19 @@ def _int(props, name, default, lo, hi):
             "%s: parameter '%s' must be an integer in [%d, %d] (got %r)" % (PLUGIN, name, lo, hi, value)
         )
     return value
+
+
+def _fraction(props, name, default):
+    """A float in the open interval (0, 1)."""
+    if not (name in props):
+        return default
+    value = props.get(name)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (0.0 < float(value) < 1.0):
+        raise MsxParameterError(
+            "%s: parameter '%s' must be a float in (0, 1), the fraction of the scattered energy model='auto' "
+            "may omit (got %r)" % (PLUGIN, name, value)
+        )
+    return float(value)
 
 
 def _check_alpha(mi, name, tex):
@@ -232,6 +246,11 @@ class Config:
         self.estimator = _choice(props, "estimator", "pt", ESTIMATORS, ESTIMATORS_PLANNED)
         self.max_bounces = _int(props, "max_bounces", 0, 1, MAX_BOUNCES_LIMIT)
         self.seed = _int(props, "seed", 0, 0, SEED_LIMIT - 1)
+        if ("auto_tolerance" in props) and self.model != "auto":
+            raise MsxParameterError(
+                "%s: parameter 'auto_tolerance' applies to model='auto' only (model is '%s')" % (PLUGIN, self.model)
+            )
+        self.auto_tolerance = _fraction(props, "auto_tolerance", lib.MSX_DEFAULT_AUTO_TOLERANCE)
 
     def _conductor(self, mi, props):
         material = props.get("material", "none") if ("material" in props) else "none"
@@ -259,5 +278,6 @@ class Config:
             "max_bounces": self.max_bounces,
             "channels": channels,
             "seed": self.seed,
+            "auto_tolerance": self.auto_tolerance if self.model == "auto" else 0.0,
         }
 

@@ -1,6 +1,7 @@
 //! The scattering models, each a small file to read beside its paper.
 
 pub mod albedo;
+pub mod auto;
 pub mod compensated;
 pub mod compensated_dielectric;
 pub mod fastmsx;

@@ -263,7 +263,7 @@ static void test_single_sample(const MsxBsdf *bsdf, const MsxMaterial *mat, int 
 }
 
 static void test_errors(void) {
-    MsxParams p = make_params(7); /* not a model */
+    MsxParams p = make_params(MSX_MODEL_AUTO + 1); /* not a model */
     MsxBsdf *out = NULL;
     char err[256];
     int32_t rc;

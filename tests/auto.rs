@@ -1,0 +1,227 @@
+//! `model="auto"` (models/auto.rs, DESIGN §6): it is exactly `correlated`
+//! truncated at the bounce cap the tables choose; the energy it omits stays
+//! within the tolerance, measured independently (fresh walks, off-grid
+//! points, real materials: copper, albedo 0.5, glass from both sides); smooth
+//! surfaces get the deterministic order-1 model; parameter errors.
+//!
+//! Statistical checks: |estimate − expected| ≤ z·σ (+ stated allowance), σ the
+//! Monte Carlo standard error, z the family-wise 3σ level of
+//! `common::family_sigmas`. Run with `--nocapture` for the measured values.
+
+mod common;
+
+use common::*;
+use glam::DVec3;
+use msx::models::auto::{self, TableSurface};
+use msx::rng::Sampler;
+use msx::{Bsdf, Config, Distribution, Estimator, Material, Model, Spectrum, Surface};
+use std::f64::consts::PI;
+
+const CU_ETA: [f64; 3] = [0.200438, 0.924033, 1.10221];
+const CU_K: [f64; 3] = [3.91295, 2.45285, 2.14219];
+
+fn bsdf(surface: Surface, distribution: Distribution, model: Model, max_bounces: u32, tolerance: f64) -> Bsdf {
+    Bsdf::new(Config { surface, distribution, model, max_bounces, tolerance, estimator: Estimator::Pt, channels: 3, seed: 7 }).unwrap()
+}
+
+/// Material of a surface: copper (conductor), glass of relative IOR `ior`
+/// (dielectric), albedo 0.5 (diffuse); Importance mode (energy conserving).
+fn material(surface: Surface, alpha_u: f64, alpha_v: f64, ior: f64) -> Material {
+    let mut m = Material::mirror(alpha_u);
+    m.alpha_v = alpha_v;
+    m.radiance = false;
+    match surface {
+        Surface::Conductor => {
+            m.eta = Spectrum([CU_ETA[0], CU_ETA[1], CU_ETA[2], 0.0]);
+            m.k = Spectrum([CU_K[0], CU_K[1], CU_K[2], 0.0]);
+        }
+        Surface::Dielectric => m.ior = ior,
+        Surface::Diffuse => m.reflectance = Spectrum::splat(0.5),
+    }
+    m
+}
+
+fn table_surface(s: Surface) -> TableSurface {
+    match s {
+        Surface::Conductor => TableSurface::Conductor,
+        Surface::Dielectric => TableSurface::Dielectric,
+        Surface::Diffuse => TableSurface::Diffuse,
+    }
+}
+
+fn cap(surface: Surface, dist: Distribution, m: &Material, wi: DVec3, tol: f64, max_bounces: u32) -> u32 {
+    let eta = if wi.z > 0.0 { m.ior } else { 1.0 / m.ior };
+    auto::bounce_cap(table_surface(surface), dist, m.alpha_u.max(m.alpha_v), wi.z.abs(), eta, tol, max_bounces)
+}
+
+const SURFACES: [Surface; 3] = [Surface::Conductor, Surface::Dielectric, Surface::Diffuse];
+const DISTS: [Distribution; 2] = [Distribution::Ggx, Distribution::Beckmann];
+
+/// auto(ω_i, ω_o) is bit-identical to correlated with max_bounces = the cap
+/// (same seed and key), for eval, pdf and sample.
+#[test]
+fn auto_is_truncated_correlated() {
+    let mut ck = Checker::new("auto == correlated truncated at the table's bounce cap (bit-identical)");
+    let mut rng = Sampler::new(1);
+    let mut caps = std::collections::BTreeMap::new();
+    for surface in SURFACES {
+        for dist in DISTS {
+            for _ in 0..150 {
+                let alpha = 10f64.powf(rng.gen_range(-2.5, 0.7));
+                let m = material(surface, alpha, alpha * rng.gen_range(0.5, 1.0), 1.5);
+                let below = surface == Surface::Dielectric && rng.next() < 0.5;
+                let wi = {
+                    let d = dir(rng.next().acos().min(1.55), 0.0);
+                    if below { DVec3::new(d.x, d.y, -d.z) } else { d }
+                };
+                let wo = {
+                    let d = dir(rng.next().acos().min(1.55), 2.0 * PI * rng.next());
+                    if surface == Surface::Dielectric && rng.next() < 0.5 { DVec3::new(d.x, d.y, -d.z) } else { d }
+                };
+                let k = cap(surface, dist, &m, wi, 0.01, 64);
+                *caps.entry(k).or_insert(0) += 1;
+                let a = bsdf(surface, dist, Model::Auto, 64, 0.01);
+                let c = bsdf(surface, dist, Model::Correlated, k, 0.01);
+                let key = rng.next().to_bits();
+                let same_eval = a.eval(&m, wi, wo, key).0 == c.eval(&m, wi, wo, key).0;
+                let same_pdf = a.pdf(&m, wi, wo) == c.pdf(&m, wi, wo);
+                let (s1, s2) = (rng.next(), (rng.next(), rng.next()));
+                let (x, y) = (a.sample(&m, wi, s1, s2), c.sample(&m, wi, s1, s2));
+                let same_sample = match (x, y) {
+                    (Some(x), Some(y)) => x.wo == y.wo && x.pdf == y.pdf && x.weight.0 == y.weight.0,
+                    (None, None) => true,
+                    _ => false,
+                };
+                ck.assert(&format!("{surface:?} {dist:?} α={alpha:.4} wi={wi:.3} cap {k}"), same_eval && same_pdf && same_sample);
+            }
+        }
+    }
+    println!("caps chosen (tolerance 1 %): {caps:?}");
+    ck.assert("more than one cap in use", caps.len() > 2);
+    ck.finish();
+}
+
+/// The energy auto omits, (E_full − E_auto)/E_full, measured with fresh walks of
+/// the full correlated sampler (its orders and weights: copper's Fresnel,
+/// albedo 0.5, glass), at points between the table nodes, is at most the
+/// tolerance (one-sided, z·σ).
+#[test]
+fn omitted_energy_within_tolerance() {
+    let mut ck = Checker::new("omitted energy of auto ≤ tolerance (independent walks, real materials)");
+    let n = 60_000;
+    let mut seed = 100u64;
+    let mut worst = (0.0f64, String::new());
+    for surface in SURFACES {
+        for dist in DISTS {
+            for &alpha in &[0.013, 0.07, 0.23, 0.61, 1.7] {
+                for &(mu, below) in &[(0.93f64, false), (0.41, false), (0.12, false), (0.63, true)] {
+                    if below && surface != Surface::Dielectric {
+                        continue;
+                    }
+                    for &tol in &[0.01, 0.05] {
+                        let m = material(surface, alpha, alpha, 1.5);
+                        let wi = {
+                            let d = dir(mu.acos(), 0.3);
+                            if below { DVec3::new(d.x, d.y, -d.z) } else { d }
+                        };
+                        let k = cap(surface, dist, &m, wi, tol, 64);
+                        let full = bsdf(surface, dist, Model::Correlated, 64, 0.01);
+                        // Ratio estimator of Σ w·[order > k] / Σ w over the full walks.
+                        seed += 1;
+                        let mut rng = Sampler::new(seed);
+                        let (mut sw, mut so, mut sww, mut soo, mut swo) = (0.0, 0.0, 0.0, 0.0, 0.0);
+                        for _ in 0..n {
+                            let (s1, s2) = (rng.next(), (rng.next(), rng.next()));
+                            let (w, omitted) = match full.sample(&m, wi, s1, s2) {
+                                Some(s) => {
+                                    let w = s.weight.0[0];
+                                    // The order of the sample: auto (cap k) returns the same
+                                    // sample iff the walk left within k bounces.
+                                    let a = bsdf(surface, dist, Model::Correlated, k, 0.01).sample(&m, wi, s1, s2);
+                                    (w, if a.is_some() { 0.0 } else { w })
+                                }
+                                None => (0.0, 0.0),
+                            };
+                            sw += w;
+                            so += omitted;
+                            sww += w * w;
+                            soo += omitted * omitted;
+                            swo += w * omitted;
+                        }
+                        let nf = n as f64;
+                        let (mw, mo) = (sw / nf, so / nf);
+                        let r = mo / mw;
+                        // Delta-method variance of the ratio of means.
+                        let (vw, vo, cwo) = (sww / nf - mw * mw, soo / nf - mo * mo, swo / nf - mw * mo);
+                        let var_r = (vo - 2.0 * r * cwo + r * r * vw) / (mw * mw * nf);
+                        let se = var_r.max(0.0).sqrt();
+                        let tag = format!("{surface:?} {dist:?} α={alpha} μ={mu}{} tol={tol}: cap {k}", if below { " (inside)" } else { "" });
+                        if r - tol > worst.0 {
+                            worst = (r - tol, tag.clone());
+                        }
+                        ck.at_most(&tag, (r, se), tol);
+                    }
+                }
+            }
+        }
+    }
+    println!("largest omitted − tolerance: {:.2e} ({})", worst.0, worst.1);
+    ck.finish();
+}
+
+/// Smooth surfaces: the cap is 1, and auto is the deterministic order-1 model
+/// (Walter 2007 with the height-correlated G2) — zero variance.
+#[test]
+fn smooth_surfaces_get_order_one() {
+    let mut ck = Checker::new("smooth surfaces: auto = deterministic order 1");
+    for surface in [Surface::Conductor, Surface::Dielectric] {
+        for dist in DISTS {
+            let m = material(surface, 0.01, 0.01, 1.5);
+            let a = bsdf(surface, dist, Model::Auto, 64, 0.01);
+            let c = bsdf(surface, dist, Model::Correlated, 64, 0.01);
+            let mut rng = Sampler::new(3);
+            for _ in 0..200 {
+                let wi = dir(rng.next().acos().min(1.3), 0.0);
+                let d = dir(rng.next().acos().min(1.3), 2.0 * PI * rng.next());
+                let wo = if surface == Surface::Dielectric && rng.next() < 0.5 { DVec3::new(d.x, d.y, -d.z) } else { d };
+                let k = cap(surface, dist, &m, wi, 0.01, 64);
+                let v1 = a.eval(&m, wi, wo, 1).0;
+                let v2 = a.eval(&m, wi, wo, 2).0;
+                let order1 = c.eval_orders(&m, wi, wo, 3, (1, 1)).0;
+                ck.assert(&format!("{surface:?} {dist:?} wi={wi:.3} wo={wo:.3}: cap {k}, {v1:?} vs order 1 {order1:?}"), k == 1 && v1 == v2 && v1 == order1);
+            }
+        }
+    }
+    ck.finish();
+}
+
+#[test]
+fn tolerance_is_validated() {
+    let mut ck = Checker::new("auto_tolerance validation");
+    for tol in [0.0, -0.1, 1.0, 2.0, f64::NAN, f64::INFINITY] {
+        let e = Bsdf::new(Config { model: Model::Auto, tolerance: tol, ..Config::default() }).err();
+        ck.assert(&format!("tolerance {tol} rejected naming auto_tolerance: {e:?}"), e.is_some_and(|e| e.parameter == "auto_tolerance"));
+    }
+    ck.assert("0.2 accepted", Bsdf::new(Config { model: Model::Auto, tolerance: 0.2, ..Config::default() }).is_ok());
+    // Through the C ABI: a tolerance with another model is an error naming it.
+    let mut p = msx::ffi::MsxParams {
+        surface: msx::ffi::MSX_SURFACE_CONDUCTOR,
+        distribution: msx::ffi::MSX_DISTRIBUTION_GGX,
+        model: msx::ffi::MSX_MODEL_CORRELATED,
+        estimator: msx::ffi::MSX_ESTIMATOR_PT,
+        max_bounces: 0,
+        channels: 3,
+        seed: 0,
+        auto_tolerance: 0.05,
+    };
+    let mut out: *mut msx::ffi::MsxBsdf = std::ptr::null_mut();
+    let mut err = [0 as std::os::raw::c_char; 256];
+    let rc = msx::ffi::msx_bsdf_new(&p, &mut out, err.as_mut_ptr(), err.len());
+    let msg = unsafe { std::ffi::CStr::from_ptr(err.as_ptr()) }.to_string_lossy().into_owned();
+    ck.assert(&format!("auto_tolerance with model correlated: rc {rc}, '{msg}'"), rc == msx::ffi::MSX_ERR_INVALID_PARAMETER && msg.contains("auto_tolerance"));
+    p.model = msx::ffi::MSX_MODEL_AUTO;
+    let rc = msx::ffi::msx_bsdf_new(&p, &mut out, err.as_mut_ptr(), err.len());
+    ck.assert("auto with auto_tolerance 0.05 accepted", rc == msx::ffi::MSX_OK && !out.is_null());
+    msx::ffi::msx_bsdf_free(out);
+    ck.finish();
+}

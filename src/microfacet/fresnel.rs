@@ -3,7 +3,13 @@
 
 /// Unpolarised Fresnel reflectance of a conductor with relative complex IOR
 /// η + ik at an incidence cosine `cos_i` (> 0). Exact (not Schlick): the
-/// classic closed form in terms of a² + b² with (a + ib)² = η̃² − sin²θ.
+/// classic closed form in terms of a² + b² with (a + ib)² = η̃² − sin²θ,
+///
+/// R_s = (t1 − t2)/(t1 + t2),  R_p = R_s·(t3 − t4)/(t3 + t4),
+///
+/// averaged as (R_s + R_p)/2 = (t1 − t2)·t3 / ((t1 + t2)(t3 + t4)): one
+/// division instead of two (the function runs per channel at every vertex of
+/// the random walks).
 #[inline]
 pub fn conductor(cos_i: f64, eta: f64, k: f64) -> f64 {
     let c2 = (cos_i * cos_i).min(1.0);
@@ -13,11 +19,9 @@ pub fn conductor(cos_i: f64, eta: f64, k: f64) -> f64 {
     let a = (0.5 * (a2b2 + t)).max(0.0).sqrt();
     let t1 = a2b2 + c2;
     let t2 = 2.0 * cos_i * a;
-    let rs = (t1 - t2) / (t1 + t2);
     let t3 = a2b2 * c2 + s2 * s2;
     let t4 = t2 * s2;
-    let rp = rs * (t3 - t4) / (t3 + t4);
-    let f = 0.5 * (rs + rp);
+    let f = (t1 - t2) * t3 / ((t1 + t2) * (t3 + t4));
     if f.is_finite() {
         f.clamp(0.0, 1.0)
     } else {

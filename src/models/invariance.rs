@@ -214,14 +214,14 @@ pub fn p_exit_with_bound(mf: &Microfacet, dirs: &[DVec3]) -> (f64, f64) {
 /// Small growable buffer of f64 that stays on the stack for short paths.
 #[derive(Clone)]
 struct Buf {
-    inline: [f64; 24],
+    inline: [f64; 8],
     heap: Vec<f64>,
     len: usize,
 }
 
 impl Buf {
     fn new() -> Self {
-        Buf { inline: [0.0; 24], heap: Vec::new(), len: 0 }
+        Buf { inline: [0.0; 8], heap: Vec::new(), len: 0 }
     }
     #[inline]
     fn push(&mut self, v: f64) {
@@ -234,6 +234,14 @@ impl Buf {
             self.heap.push(v);
         }
         self.len += 1;
+    }
+    /// Sets the length to `n`, every value 0.
+    fn fill_zero(&mut self, n: usize) {
+        self.len = 0;
+        self.heap.clear();
+        for _ in 0..n {
+            self.push(0.0);
+        }
     }
     #[inline]
     fn as_slice(&self) -> &[f64] {
@@ -258,15 +266,24 @@ impl Buf {
 /// the module docs. The state is normalised by the hit probability H_m of the
 /// history, so that the values stay O(1) for any path length:
 /// `exit_given_hits(Λ)` = p_exit(d_0..d_m, x)/H_m for an upward x with Λ(x) = Λ.
+///
+/// For an upward x the column p(·, x) follows from the state by
+/// c_a = p(a, x) (1 while the path is all downward: x follows d_{a−1}
+/// directly; 0 once it went up, d_a pointing up) and, for i = a−1 down to 0,
+///
+/// c_i = (L_i·c_{i+1} + g_i)/(L_i + Λ(x)),   g_i = Λ(d_m)·p(i, m)/H_m
+///
+/// (the recursion's second term; g = 0 while the path is all downward).
+/// With a single downward direction (the usual case) this is
+/// L_0/(L_0 + Λ(x)) for every m: given that they hit, the upward segments leave
+/// the height distribution of the first hit unchanged.
 #[derive(Clone)]
 pub struct MonotoneExit {
     /// L_i = |Λ(d_i)| of the downward directions d_0..d_{a−1}.
     down: Buf,
-    /// p(i, m)/H_{m} for i < a, valid once an upward direction was pushed.
-    col: Buf,
+    /// g_i for i < a, valid once an upward direction was pushed.
+    g: Buf,
     has_up: bool,
-    /// |Λ(d_m)| of the last direction.
-    l_last: f64,
     /// H_m = probability that d_0..d_m all hit (product of the continuations).
     hit: f64,
 }
@@ -276,7 +293,7 @@ impl MonotoneExit {
     pub fn new(l0: f64) -> Self {
         let mut down = Buf::new();
         down.push(l0);
-        MonotoneExit { down, col: Buf::new(), has_up: false, l_last: l0, hit: 1.0 }
+        MonotoneExit { down, g: Buf::new(), has_up: false, hit: 1.0 }
     }
 
     /// Whether an upward direction has been pushed (a further downward one
@@ -297,89 +314,93 @@ impl MonotoneExit {
             return false;
         }
         self.down.push(l);
-        self.l_last = l;
         true
     }
 
-    /// Column p(·, x)/H_m for a virtual upward direction x with Λ(x) = `lambda`,
-    /// evaluated without storing it; `store` writes it into `col`.
+    /// c_0 of the column p(·, x)/H_m for a virtual upward x with Λ(x) = `lambda`.
     #[inline]
-    fn column(&mut self, lambda: f64, store: bool) -> f64 {
-        let l_last = self.l_last;
-        let has_up = self.has_up;
-        let a = self.down.len;
-        // p(a, x): 1 when x follows d_{a−1} directly, else 0 (d_a points up).
-        let mut carry = if has_up { 0.0 } else { 1.0 };
-        for i in (0..a).rev() {
-            let li = self.down.as_slice()[i];
-            let prev = if has_up { l_last * self.col.as_slice()[i] } else { 0.0 };
-            carry = (li * carry + prev) / (li + lambda);
-            if store {
-                if has_up {
-                    self.col.as_mut_slice()[i] = carry;
-                } else {
-                    // first column: filled from the top, reversed below
-                    self.col.push(carry);
-                }
+    fn column(&self, lambda: f64) -> f64 {
+        let down = self.down.as_slice();
+        if self.has_up {
+            let g = self.g.as_slice();
+            let mut c = 0.0;
+            for i in (0..down.len()).rev() {
+                c = (down[i] * c + g[i]) / (down[i] + lambda);
             }
+            c
+        } else {
+            let mut c = 1.0;
+            for &li in down.iter().rev() {
+                c = li * c / (li + lambda);
+            }
+            c
         }
-        if store && !has_up {
-            self.col.as_mut_slice().reverse();
-        }
-        carry
     }
 
     /// p_exit(d_0..d_m, x)/H_m: the probability that the path leaves along the
     /// upward x (Λ(x) = `lambda` ≥ 0) given that d_0..d_m all hit.
     #[inline]
-    pub fn exit_given_hits(&mut self, lambda: f64) -> f64 {
-        self.column(lambda, false)
+    pub fn exit_given_hits(&self, lambda: f64) -> f64 {
+        self.column(lambda)
     }
 
     /// p_exit(d_0..d_m, x) = (Π_{i≤m}|Λ(d_i)|)·S_{m+1}(d_0..d_m, x).
-    pub fn exit_probability(&mut self, lambda: f64) -> f64 {
+    pub fn exit_probability(&self, lambda: f64) -> f64 {
         self.hit * self.exit_given_hits(lambda)
     }
 
     /// p_exit(d_0..d_m, y, x)/H_m for a virtual downward y with |Λ(y)| = `l_y`
     /// followed by the upward x with Λ(x) = `lambda_x` (0 on a path that
     /// already went up: y would make it non-monotone).
-    pub fn exit_via_down(&mut self, l_y: f64, lambda_x: f64) -> f64 {
+    pub fn exit_via_down(&self, l_y: f64, lambda_x: f64) -> f64 {
         if self.has_up {
             return 0.0;
         }
-        l_y / (l_y + lambda_x) * self.column(lambda_x, false)
+        l_y / (l_y + lambda_x) * self.column(lambda_x)
     }
 
     /// p_exit(d_0..d_m, y, x)/H_m for a virtual upward y with Λ(y) = `lambda_y`
     /// followed by the upward x with Λ(x) = `lambda_x`: the two columns in one
     /// O(a) pass, nothing stored.
     pub fn exit_via_up(&self, lambda_y: f64, lambda_x: f64) -> f64 {
-        let a = self.down.len;
         let down = self.down.as_slice();
-        let col = self.col.as_slice();
-        let mut carry_y = if self.has_up { 0.0 } else { 1.0 };
-        let mut carry_x = 0.0;
-        for i in (0..a).rev() {
+        let g = self.g.as_slice();
+        let mut c_y = if self.has_up { 0.0 } else { 1.0 };
+        let mut c_x = 0.0;
+        for i in (0..down.len()).rev() {
             let li = down[i];
-            let prev = if self.has_up { self.l_last * col[i] } else { 0.0 };
-            carry_y = (li * carry_y + prev) / (li + lambda_y);
-            carry_x = (li * carry_x + lambda_y * carry_y) / (li + lambda_x);
+            let gi = if self.has_up { g[i] } else { 0.0 };
+            c_y = (li * c_y + gi) / (li + lambda_y);
+            c_x = (li * c_x + lambda_y * c_y) / (li + lambda_x);
         }
-        carry_x
+        c_x
     }
 
     /// Appends an upward direction with Λ = `lambda` (finite, ≥ 0) and returns
     /// the conditional probability H_{m+1}/H_m that it hits the surface again.
     pub fn push_up(&mut self, lambda: f64) -> f64 {
-        self.column(lambda, true);
+        let a = self.down.len;
+        if !self.has_up {
+            self.g.fill_zero(a);
+        }
+        let down = self.down.as_slice();
+        let g = self.g.as_mut_slice();
+        // One pass: the new column c_i = p(i, m+1)/H_m (g ← Λ·c_i) and
+        // H_{m+1}/H_m = p(0, ẑ)/H_m with the new last direction (Λ(ẑ) = 0),
+        // whose column is z_i = z_{i+1} + Λ·c_i/L_i, z_a = 0.
+        let mut c = if self.has_up { 0.0 } else { 1.0 };
+        let mut cont = 0.0;
+        for i in (0..a).rev() {
+            let li = down[i];
+            c = (li * c + g[i]) / (li + lambda);
+            g[i] = lambda * c;
+            cont += g[i] / li;
+        }
         self.has_up = true;
-        self.l_last = lambda;
-        // H_{m+1}/H_m = p(0, ẑ)/H_m with the new last direction (Λ(ẑ) = 0).
-        let cont = self.column(0.0, false);
         if cont > 0.0 && cont.is_finite() {
-            for v in self.col.as_mut_slice() {
-                *v /= cont;
+            let r = 1.0 / cont;
+            for v in g.iter_mut() {
+                *v *= r;
             }
             self.hit *= cont;
         } else {
@@ -423,12 +444,15 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
         return Spectrum::ZERO;
     }
     let area_o = wo.z * (1.0 + lambda_o); // A(ω_o)
+    let pdf_scale_o = 0.25 / area_o;
     // The connection strategy exists for orders ≥ 2 only.
     let light = if last >= 2 { LightVertex::sample(mf, fresnel, wo, area_o, rng) } else { None };
     let l0 = mf.abs_lambda(-wi);
-    // w = −d_m with its projected area A(w) = |cos d_m|·|Λ(d_m)|.
+    // w = −d_m, and 1/(4 A(w)) with its projected area A(w) = |cos d_m|·|Λ(d_m)|:
+    // reflect_pdf(w, x) = D(h)/(4 A(w)) for every x the vertex scatters into
+    // (ω_o for the NEE, y for the connection, the walk's own sample).
     let mut w = wi;
-    let mut area = wi.z * l0;
+    let mut pdf_scale = 0.25 / (wi.z * l0);
     // Density with which the walk sampled d_m from −d_{m−1} (the forward
     // strategy's density in the MIS weight of the NEE at vertex m ≥ 1).
     let mut pdf_walk = 0.0;
@@ -440,12 +464,12 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
         if order >= opts.orders.0 {
             // NEE: v_m/L_m = D(h)/(4 A(−d_m)) = reflect_pdf(w, ω_o).
             let (d_h, cos_wh) = half_vector_d(mf, w, wo);
-            let mut value = d_h / (4.0 * area);
+            let mut value = d_h * pdf_scale;
             if j > 0 && value > 0.0 {
                 // Balance heuristic against the connection, which samples
                 // y = d_m as reflect_pdf(ω_o, −d_m): the same half vector,
                 // D(h)/(4 A(ω_o)).
-                let p_rev = d_h / (4.0 * area_o);
+                let p_rev = d_h * pdf_scale_o;
                 value *= pdf_walk / (pdf_walk + p_rev);
             }
             if value > 0.0 && value.is_finite() {
@@ -459,7 +483,7 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
         // Connection strategy for order + 1: d_{m+1} = y from the side of ω_o.
         if order + 1 >= opts.orders.0 {
             if let Some(light) = &light {
-                result += throughput * light.connect(mf, fresnel, &mut dp, w, area, lambda_o);
+                result += throughput * light.connect(mf, fresnel, &dp, w, pdf_scale, lambda_o);
             }
         }
         // Russian roulette on the weight carried so far (Π F · H_m), played
@@ -481,7 +505,7 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
         let d_next = reflect(w, m);
         throughput *= fresnel.eval(cos_wm);
         // m is the half vector of w and d_next: density D(m)/(4 A(w)).
-        pdf_walk = mf.d(m) / (4.0 * area);
+        pdf_walk = mf.d(m) * pdf_scale;
         let l_next;
         if d_next.z > 0.0 {
             l_next = mf.lambda(d_next);
@@ -500,7 +524,7 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
             }
         }
         w = -d_next;
-        area = d_next.z.abs() * l_next;
+        pdf_scale = 0.25 / (d_next.z.abs() * l_next);
     }
     result.sanitized()
 }
@@ -513,7 +537,7 @@ fn half_vector_d(mf: &Microfacet, w: DVec3, x: DVec3) -> (f64, f64) {
     if !(len > 0.0) {
         return (0.0, 0.0);
     }
-    let h = h / len;
+    let h = h * (1.0 / len);
     let c = w.dot(h);
     if !(c > 0.0) {
         return (0.0, 0.0);
@@ -557,13 +581,13 @@ impl LightVertex {
         Some(LightVertex { y, l_y, up, pdf, phase, fresnel: fresnel.eval(cos1) })
     }
 
-    /// The connection estimate at vertex m (w = −d_m, A(w) = `area`): the path
+    /// The connection estimate at vertex m (w = −d_m, `pdf_scale` = 1/(4 A(w))): the path
     /// d_0..d_m, y, ω_o weighted by the balance heuristic against the walk
     /// sampling y from the visible normals of w, divided by the density of
     /// d_1..d_m and by H_m (the caller multiplies by its throughput).
-    fn connect(&self, mf: &Microfacet, fresnel: &ConductorFresnel, dp: &mut MonotoneExit, w: DVec3, area: f64, lambda_o: f64) -> Spectrum {
+    fn connect(&self, mf: &Microfacet, fresnel: &ConductorFresnel, dp: &MonotoneExit, w: DVec3, pdf_scale: f64, lambda_o: f64) -> Spectrum {
         let (d_h, cos0) = half_vector_d(mf, w, self.y);
-        let p_fwd = d_h / (4.0 * area); // reflect_pdf(w, y): the walk's density of y
+        let p_fwd = d_h * pdf_scale; // reflect_pdf(w, y): the walk's density of y
         if !(p_fwd > 0.0) || !p_fwd.is_finite() {
             return Spectrum::ZERO;
         }

@@ -521,8 +521,11 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
         }
         let d_next = reflect(w, m);
         throughput *= fresnel.eval(cos_wm);
-        // m is the half vector of w and d_next: density D(m)/(4 A(w)).
-        pdf_walk = mf.d(m) * pdf_scale;
+        // m is the half vector of w and d_next: density D(m)/(4 A(w)), needed
+        // by the MIS weight of the next NEE while the connection serves it.
+        if order + 1 <= CONNECT_MAX_ORDER {
+            pdf_walk = mf.d(m) * pdf_scale;
+        }
         let l_next;
         if d_next.z > 0.0 {
             l_next = mf.lambda(d_next);

@@ -528,6 +528,16 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
         }
         let l_next;
         if d_next.z > 0.0 {
+            // Along the upward run z only grows (module docs: d'.z > d.z for
+            // every front-facing facet, and exactly so in floating point:
+            // d'.z = d.z + 2(w·m)m.z with w·m, m.z > 0). Once d.z ≥ ω_o.z no
+            // later vertex can reach ω_o: the NEE's half vector has
+            // h.z ∝ ω_o.z − d.z ≤ 0 (D = 0), and the connection's y has
+            // y.z < ω_o.z ≤ d.z (D = 0 again, or a downward y after an upward
+            // direction: non-monotone). Every further estimate is exactly 0.
+            if d_next.z >= wo.z {
+                break;
+            }
             l_next = mf.lambda(d_next);
             if !l_next.is_finite() {
                 break;

@@ -50,7 +50,7 @@
 //! product of the Fresnel terms (Cui Alg. 2 with the exact exit probability —
 //! the printed 1/|Λ(d_k)|, or G1(d_k) = 1/(1+Λ(d_k)), needs a weight ratio).
 
-use super::{russian_roulette, vertex_numbers, ConductorFresnel, WalkOptions};
+use super::{vertex_numbers, ConductorFresnel, WalkOptions};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
@@ -414,6 +414,32 @@ impl MonotoneExit {
 /// First vertex after whose NEE Russian roulette may end a walk.
 const RR_START: u32 = 1;
 
+/// Throughput (largest channel) above which the walk of `eval` surely goes on.
+/// Below it the roulette keeps the walk with probability throughput/RR_KEEP,
+/// so a survivor carries weight RR_KEEP. Heitz's rule (keep with probability
+/// equal to the throughput, RR_KEEP = 1) ends too many of the walks that can
+/// still reach ω_o once those that cannot are stopped exactly (see `eval`):
+/// at GGX α = 1, 1/2 lowers the variance per call by 6 % (off-specular) and
+/// 13 % (mirror) for ≈ 3 % more time.
+const RR_KEEP: f64 = 0.5;
+
+/// Russian roulette with [`RR_KEEP`]: false when the walk ends, otherwise the
+/// throughput is divided by the survival probability (unbiased).
+#[inline]
+fn roulette(throughput: &mut Spectrum, rng: &mut Sampler) -> bool {
+    let q = (throughput.max_value() / RR_KEEP).min(1.0);
+    if !(q > 0.0) {
+        return false;
+    }
+    if q < 1.0 {
+        if rng.next() >= q {
+            return false;
+        }
+        *throughput *= 1.0 / q;
+    }
+    true
+}
+
 /// Highest order estimated by the connection as well as by the walk's NEE.
 /// Beyond it the NEE alone is as good: at GGX α = 1 off-specular, connecting
 /// at every order leaves the variance per call as it is (+1 %; the shared y
@@ -508,10 +534,8 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
         // hit probability (a near-vertical upward d_m hits with probability
         // ∝ Λ(d_m) while its NEE phase value ∝ 1/Λ(d_m); a binary decision
         // before the NEE multiplies the variance of order 2 ≈ 2×).
-        if j >= RR_START {
-            if !russian_roulette(&mut throughput, rng) {
-                break;
-            }
+        if j >= RR_START && !roulette(&mut throughput, rng) {
+            break;
         }
         let (u1, u2) = rng.next2();
         let Some(m) = mf.sample_visible(w, u1, u2) else { break };
@@ -520,6 +544,17 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
             break;
         }
         let d_next = reflect(w, m);
+        // Along the upward run z only grows (module docs: d'.z > d.z for every
+        // front-facing facet, and exactly so in floating point:
+        // d'.z = d.z + 2(w·m)m.z with w·m, m.z > 0). Once an upward d.z ≥ ω_o.z
+        // no later vertex can reach ω_o: the NEE's half vector has
+        // h.z ∝ ω_o.z − d.z ≤ 0 (D = 0), and the connection's y has
+        // y.z ≤ ω_o.z ≤ d.z (D = 0 again, or a downward y after an upward
+        // direction: non-monotone). Every further estimate is exactly 0.
+        let up = d_next.z > 0.0;
+        if up && d_next.z >= wo.z {
+            break;
+        }
         throughput *= fresnel.eval(cos_wm);
         // m is the half vector of w and d_next: density D(m)/(4 A(w)), needed
         // by the MIS weight of the next NEE while the connection serves it.
@@ -527,17 +562,7 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
             pdf_walk = mf.d(m) * pdf_scale;
         }
         let l_next;
-        if d_next.z > 0.0 {
-            // Along the upward run z only grows (module docs: d'.z > d.z for
-            // every front-facing facet, and exactly so in floating point:
-            // d'.z = d.z + 2(w·m)m.z with w·m, m.z > 0). Once d.z ≥ ω_o.z no
-            // later vertex can reach ω_o: the NEE's half vector has
-            // h.z ∝ ω_o.z − d.z ≤ 0 (D = 0), and the connection's y has
-            // y.z < ω_o.z ≤ d.z (D = 0 again, or a downward y after an upward
-            // direction: non-monotone). Every further estimate is exactly 0.
-            if d_next.z >= wo.z {
-                break;
-            }
+        if up {
             l_next = mf.lambda(d_next);
             if !l_next.is_finite() {
                 break;

@@ -420,7 +420,7 @@ const RR_START: u32 = 1;
 /// equal to the throughput, RR_KEEP = 1) ends too many of the walks that can
 /// still reach ω_o once those that cannot are stopped exactly (see `eval`):
 /// at GGX α = 1, 1/2 lowers the variance per call by 6 % (off-specular) and
-/// 13 % (mirror) for ≈ 3 % more time.
+/// 13 % (mirror) for ≈ 5 % more time.
 const RR_KEEP: f64 = 0.5;
 
 /// Russian roulette with [`RR_KEEP`]: false when the walk ends, otherwise the
@@ -441,20 +441,12 @@ fn roulette(throughput: &mut Spectrum, rng: &mut Sampler) -> bool {
 }
 
 /// Highest order estimated by the connection as well as by the walk's NEE.
-/// Beyond it the NEE alone is as good: at GGX α = 1 off-specular, connecting
-/// at every order leaves the variance per call as it is (+1 %; the shared y
+/// Beyond it the NEE alone is better: at GGX α = 1 off-specular, connecting
+/// at every order raises the variance per call by 4 % (the shared y
 /// correlates the orders) and costs a D, a Fresnel term and an O(a) exit
-/// probability per vertex. Order 3 still pays (−10 % variance for ≈ 5 % time).
+/// probability per vertex. Order 3 still pays (−8 % variance for ≈ 5 % time).
 pub const CONNECT_MAX_ORDER: u32 = 3;
 
-/// MIS weight of strategy a against strategy b from the density ratio
-/// r = p_b/p_a: the balance heuristic 1/(1 + r). (The power heuristic,
-/// 1/(1 + r²), lowers the variance by 2 % at GGX α = 1 off-specular and raises
-/// it by 8 % at α = 0.5 grazing.)
-#[inline]
-fn mis_weight(r: f64) -> f64 {
-    1.0 / (1.0 + r)
-}
 
 /// One unbiased estimate of f(ω_i, ω_o)·cos θ_o of the invariance model,
 /// restricted to the orders `opts.orders` and at most `opts.max_bounces`
@@ -490,7 +482,7 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
     let pdf_scale_o = 0.25 / area_o;
     // The connection strategy serves orders 2..=CONNECT_MAX_ORDER.
     let connects = last >= 2 && opts.orders.0 <= CONNECT_MAX_ORDER;
-    let light = if connects { LightVertex::sample(mf, fresnel, wo, area_o, rng) } else { None };
+    let light = if connects { LightVertex::sample(mf, fresnel, wo, pdf_scale_o, rng) } else { None };
     let l0 = mf.abs_lambda(-wi);
     // w = −d_m, and 1/(4 A(w)) with its projected area A(w) = |cos d_m|·|Λ(d_m)|:
     // reflect_pdf(w, x) = D(h)/(4 A(w)) for every x the vertex scatters into
@@ -510,10 +502,13 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
             let (d_h, cos_wh) = half_vector_d(mf, w, wo);
             let mut value = d_h * pdf_scale;
             if j > 0 && order <= CONNECT_MAX_ORDER && value > 0.0 {
-                // MIS against the connection, which samples y = d_m as
-                // reflect_pdf(ω_o, −d_m): the same half vector, D(h)/(4 A(ω_o)).
+                // Balance heuristic against the connection, which samples
+                // y = d_m as reflect_pdf(ω_o, −d_m): the same half vector,
+                // D(h)/(4 A(ω_o)). (The power heuristic lowers the variance
+                // by 2 % at GGX α = 1 off-specular and raises it by 8 % at
+                // α = 0.5 grazing.)
                 let p_rev = d_h * pdf_scale_o;
-                value *= mis_weight(p_rev / pdf_walk);
+                value *= pdf_walk / (pdf_walk + p_rev);
             }
             if value > 0.0 && value.is_finite() {
                 value *= dp.exit_given_hits(lambda_o);
@@ -617,7 +612,8 @@ struct LightVertex {
 }
 
 impl LightVertex {
-    fn sample(mf: &Microfacet, fresnel: &ConductorFresnel, wo: DVec3, area_o: f64, rng: &mut Sampler) -> Option<Self> {
+    /// `pdf_scale_o` = 1/(4 A(ω_o)).
+    fn sample(mf: &Microfacet, fresnel: &ConductorFresnel, wo: DVec3, pdf_scale_o: f64, rng: &mut Sampler) -> Option<Self> {
         let (u1, u2) = rng.next2();
         let m = mf.sample_visible(wo, u1, u2)?;
         let cos1 = wo.dot(m);
@@ -629,7 +625,7 @@ impl LightVertex {
         let l_y = if up { mf.lambda(y) } else { mf.abs_lambda(y) };
         let area_y = y.z.abs() * l_y; // A(−y)
         let d_m = mf.d(m);
-        let (pdf, phase) = (d_m / (4.0 * area_o), d_m / (4.0 * area_y));
+        let (pdf, phase) = (d_m * pdf_scale_o, 0.25 * d_m / area_y);
         if !(pdf > 0.0) || !(phase > 0.0) || !pdf.is_finite() || !phase.is_finite() || !l_y.is_finite() {
             return None;
         }
@@ -648,9 +644,8 @@ impl LightVertex {
         }
         let exit = if self.up { dp.exit_via_up(self.l_y, lambda_o) } else { dp.exit_via_down(self.l_y, lambda_o) };
         // F_m F_y · reflect_pdf(w, y)·reflect_pdf(−y, ω_o)·exit / p_y, times
-        // the MIS weight of the connection against the walk's p_fwd.
-        let r = p_fwd / self.pdf;
-        let value = r * self.phase * exit * mis_weight(r);
+        // the balance heuristic p_y/(p_fwd + p_y) against the walk.
+        let value = p_fwd * self.phase * exit / (p_fwd + self.pdf);
         if !(value > 0.0) || !value.is_finite() {
             return Spectrum::ZERO;
         }

@@ -39,11 +39,14 @@
 //! normal (density v_j/(F_j·L_j)); the NEE at vertex m towards ω_o then weighs
 //! Π_{j≤m}F_j · D(h)/(4A(−d_m)) · p_exit(d_0..d_m, ω_o). The walk carries the
 //! conditional hit probabilities H_{m}/H_{m−1} in its throughput and plays
-//! Russian roulette on it (after the vertex's estimates), so its length is
-//! distributed like Heitz's walk while the heights are integrated out exactly.
-//! For orders 2 and 3 the last inner direction is also sampled from the side
-//! of ω_o and the two strategies are combined with the balance heuristic (a
-//! one-vertex light subpath; closed form because the model is position-free).
+//! Russian roulette on it after the vertex's estimates (sure survival while the
+//! weight is ≥ 1/2, `RR_KEEP`); the heights are integrated out exactly. The
+//! walk stops as soon as an upward direction is at least as steep as ω_o:
+//! z only grows along the upward run, so no later vertex can reach ω_o (their
+//! estimates are exactly 0; not a truncation). For orders 2 and 3 the last
+//! inner direction is also sampled from the side of ω_o and the two strategies
+//! are combined with the balance heuristic (a one-vertex light subpath, one
+//! per call; closed form because the model is position-free).
 //! `sample`: the same walk with exit
 //! probability 1 − H_m/H_{m−1} at each upward direction; the sampling density
 //! is then exactly the path contribution divided by Π F, so the weight is the
@@ -423,7 +426,7 @@ const RR_START: u32 = 1;
 /// 13 % (mirror) for ≈ 5 % more time.
 const RR_KEEP: f64 = 0.5;
 
-/// Russian roulette with [`RR_KEEP`]: false when the walk ends, otherwise the
+/// Russian roulette with `RR_KEEP`: false when the walk ends, otherwise the
 /// throughput is divided by the survival probability (unbiased).
 #[inline]
 fn roulette(throughput: &mut Spectrum, rng: &mut Sampler) -> bool {
@@ -461,7 +464,7 @@ pub const CONNECT_MAX_ORDER: u32 = 3;
 /// the second removes most of the variance off-specular, where the NEE phase
 /// value at the last vertex peaks (order-2 variance ÷2.5–4 at GGX α = 0.5–1).
 ///
-/// One y serves every order ([`LightVertex`]): each order's connection is
+/// One y serves both connected orders (`LightVertex`): each order's connection is
 /// unbiased for any y drawn from its density, independently of the walk, so
 /// reusing it only correlates the orders. A fresh y per connection lowers the
 /// variance by ≈ 6 % (GGX α = 1, off-specular) for ≈ 15–30 % more time per call

@@ -448,7 +448,7 @@ fn roulette(throughput: &mut Spectrum, rng: &mut Sampler) -> bool {
 /// at every order raises the variance per call by 4 % (the shared y
 /// correlates the orders) and costs a D, a Fresnel term and an O(a) exit
 /// probability per vertex. Order 3 still pays (−8 % variance for ≈ 5 % time).
-pub const CONNECT_MAX_ORDER: u32 = 3;
+const CONNECT_MAX_ORDER: u32 = 3;
 
 
 /// One unbiased estimate of f(ω_i, ω_o)·cos θ_o of the invariance model,
@@ -456,7 +456,7 @@ pub const CONNECT_MAX_ORDER: u32 = 3;
 /// vertices (`opts.segments` is ignored). Order 1 is deterministic:
 /// F·D·G2/(4 cos θ_i) with G2 = 1/(1 + Λ(ω_i) + Λ(ω_o)).
 ///
-/// Orders 2 ≤ k ≤ [`CONNECT_MAX_ORDER`] combine two strategies for the last
+/// Orders 2 ≤ k ≤ `CONNECT_MAX_ORDER` (3) combine two strategies for the last
 /// inner direction d_{k−1} with the balance heuristic: the walk's own sample
 /// (visible normals of −d_{k−2}, closed by NEE at vertex k−1) and a connection
 /// from vertex k−2 to d_{k−1} = y = −(ω_o reflected about a visible normal of

@@ -52,6 +52,12 @@
 //! is then exactly the path contribution divided by Π F, so the weight is the
 //! product of the Fresnel terms (Cui Alg. 2 with the exact exit probability —
 //! the printed 1/|Λ(d_k)|, or G1(d_k) = 1/(1+Λ(d_k)), needs a weight ratio).
+//!
+//! **Efficiency** of `eval` against Heitz's walk (`benches/models.rs`, copper,
+//! GGX; 1/(variance per call × time per call), one run at commit bedc5ec):
+//! off-specular 6.1× at α = 0.5 and 3.5× at α = 1 (variance 5.5× and 3.2×
+//! lower, 0.89× and 0.92× the time per call); grazing 21× / 7.8×; mirror
+//! 3.2× / 1.9×.
 
 use super::{vertex_numbers, ConductorFresnel, WalkOptions};
 use crate::microfacet::{reflect, Microfacet};

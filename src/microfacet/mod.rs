@@ -123,15 +123,19 @@ impl Microfacet {
         }
         let (ax, ay) = (self.alpha_u, self.alpha_v);
         let z2 = m.z * m.z;
-        let sx = m.x / ax;
-        let sy = m.y / ay;
         let v = match self.dist {
             Distribution::Beckmann => {
+                let sx = m.x / ax;
+                let sy = m.y / ay;
                 (-(sx * sx + sy * sy) / z2).exp() / (std::f64::consts::PI * ax * ay * z2 * z2)
             }
             Distribution::Ggx => {
-                let t = sx * sx + sy * sy + z2;
-                1.0 / (std::f64::consts::PI * ax * ay * t * t)
+                // 1/(π α_u α_v t²) with t = (m_x/α_u)² + (m_y/α_v)² + m_z²,
+                // scaled by (α_u α_v)² to need one division: u = t·(α_u α_v)².
+                let (ax2, ay2) = (ax * ax, ay * ay);
+                let u = m.x * m.x * ay2 + m.y * m.y * ax2 + z2 * ax2 * ay2;
+                let a = ax * ay;
+                a * a * a / (std::f64::consts::PI * u * u)
             }
         };
         if v.is_finite() {

@@ -100,10 +100,7 @@ impl ConductorFresnel {
         if self.mirror {
             return Spectrum::ONE;
         }
-        let mut out = Spectrum::ZERO;
-        for c in 0..self.channels {
-            out.0[c] = fresnel::conductor(cos_i, self.eta.0[c], self.k.0[c]);
-        }
-        out
+        let f = fresnel::conductor4(cos_i, &self.eta.0, &self.k.0);
+        Spectrum(std::array::from_fn(|c| if c < self.channels { f[c] } else { 0.0 }))
     }
 }

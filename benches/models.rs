@@ -388,7 +388,14 @@ fn plain_speed_table(set: &Set) {
         .map(|(surface, v)| Cell { surface, label: v.label(), bsdf: v.bsdf(), ns: [[0.0; 2]; 2] })
         .collect();
     let mut key = 0u64;
-    for _ in 0..ROUNDS {
+    // Round 0 is a warm-up (tables that models build on first use, caches),
+    // not counted.
+    for round in 0..=ROUNDS {
+        if round == 1 {
+            for cell in cells.iter_mut() {
+                cell.ns = [[0.0; 2]; 2];
+            }
+        }
         for cell in cells.iter_mut() {
             let wo = if cell.surface == Surface::Dielectric { &set.wo_dielectric } else { &set.wo };
             let bdpt = cell.label.ends_with("-bdpt");
@@ -435,6 +442,41 @@ fn plain_speed_table(set: &Set) {
     }
 }
 
+/// `auto` against the model it approximates (`correlated`) across roughness:
+/// ns per eval over the fixed set, interleaved rounds after a warm-up round.
+fn auto_speed_table(set: &Set) {
+    const ROUNDS: usize = 100;
+    const AUTO_ALPHAS: [f64; 5] = [0.02, 0.05, 0.1, 0.3, 1.0];
+    println!("\n== auto vs correlated: ns per eval over the same {N_SET} pairs, {ROUNDS} interleaved rounds ==");
+    println!("{:<11} {:>6} {:>11} {:>9} {:>11}", "surface", "alpha", "correlated", "auto", "auto/corr");
+    for surface in SURFACES {
+        let wo = if surface == Surface::Dielectric { &set.wo_dielectric } else { &set.wo };
+        let models = [Model::Correlated, Model::Auto]
+            .map(|model| Variant { surface, model, estimator: Estimator::Pt }.bsdf());
+        for alpha in AUTO_ALPHAS {
+            let mat = material(surface, alpha);
+            let mut ns = [0.0f64; 2];
+            let mut key = 0u64;
+            for round in 0..=ROUNDS {
+                for (m, bsdf) in models.iter().enumerate() {
+                    let t0 = Instant::now();
+                    let mut acc = 0.0;
+                    for i in 0..N_SET {
+                        key = key.wrapping_add(1);
+                        acc += bsdf.eval(black_box(&mat), black_box(set.wi[i]), black_box(wo[i]), key).0[0];
+                    }
+                    black_box(acc);
+                    if round > 0 {
+                        ns[m] += t0.elapsed().as_nanos() as f64;
+                    }
+                }
+            }
+            let calls = (ROUNDS * N_SET) as f64;
+            println!("{:<11} {:>6} {:>11.1} {:>9.1} {:>10.2}x", surface.name(), alpha, ns[0] / calls, ns[1] / calls, ns[1] / ns[0]);
+        }
+    }
+}
+
 /// The plain tables run only under `cargo bench` (which passes `--bench`):
 /// not for `--list`, not in criterion's test mode (`cargo test --benches`),
 /// not with MSX_BENCH_NO_TABLES set.
@@ -468,6 +510,7 @@ fn main() {
     }
     let t0 = Instant::now();
     plain_speed_table(&set);
+    auto_speed_table(&set);
     println!(
         "\n{N_VAR} eval calls per cell, distinct keys, models of a cell interleaved in chunks of {CHUNK}; one run.\n\
          eff = 1/(var·ns); eff/heitz, eff/corr: relative to Heitz's random walk and to posfree correlated PT of the\n\

@@ -76,11 +76,6 @@
 #define MSX_ALPHA_MAX 1e4
 
 /*
- Tail values stored per cell: T_1 … T_K.
- */
-#define K_TABLE 24
-
-/*
  Default tolerance: 1 % of the scattered energy may be omitted.
  */
 #define DEFAULT_TOLERANCE 0.01
@@ -123,8 +118,8 @@ typedef struct MsxParams {
    */
   uint64_t seed;
   /*
-   MSX_MODEL_AUTO only: fraction of the scattered energy the bounce
-   truncation may omit, in (0, 1) (0 = MSX_DEFAULT_AUTO_TOLERANCE)
+   MSX_MODEL_AUTO only: fraction of the scattered energy that evaluating
+   single scattering alone may omit, in (0, 1) (0 = MSX_DEFAULT_AUTO_TOLERANCE)
    */
   double auto_tolerance;
 } MsxParams;

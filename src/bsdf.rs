@@ -32,8 +32,8 @@ pub enum Model {
     Invariance,
     FastMsx,
     Compensated,
-    /// `correlated` truncated per call after the fewest bounces whose omitted
-    /// energy is under `Config::tolerance` (models/auto.rs).
+    /// `correlated`, reduced per call to its analytic order 1 where the
+    /// multiply scattered energy is under `Config::tolerance` (models/auto.rs).
     Auto,
 }
 
@@ -107,7 +107,7 @@ pub struct Config {
     pub max_bounces: u32,
     pub channels: usize,
     pub seed: u64,
-    /// `auto` only: fraction of the scattered energy the truncation may omit.
+    /// `auto` only: fraction of the scattered energy order 1 alone may omit.
     pub tolerance: f64,
 }
 
@@ -187,6 +187,8 @@ pub struct BsdfSample {
 #[derive(Clone, Debug)]
 pub struct Bsdf {
     cfg: Config,
+    /// `auto`: where order 1 alone is within the configured tolerance.
+    auto_rule: Option<std::sync::Arc<auto::OrderOneRule>>,
 }
 
 fn finite_unit(v: DVec3) -> Option<DVec3> {
@@ -247,7 +249,15 @@ impl Bsdf {
                 message: format!("must be 1..={MAX_BOUNCES_LIMIT}, got {}", cfg.max_bounces),
             });
         }
-        Ok(Bsdf { cfg })
+        let auto_rule = (cfg.model == Model::Auto).then(|| {
+            let surface = match cfg.surface {
+                Surface::Conductor => auto::TableSurface::Conductor,
+                Surface::Dielectric => auto::TableSurface::Dielectric,
+                Surface::Diffuse => auto::TableSurface::Diffuse,
+            };
+            std::sync::Arc::new(auto::OrderOneRule::new(surface, cfg.distribution, cfg.tolerance))
+        });
+        Ok(Bsdf { cfg, auto_rule })
     }
 
     pub fn config(&self) -> &Config {
@@ -263,20 +273,17 @@ impl Bsdf {
     }
 
     /// The model a call runs and its bounce cap: the configured ones, except
-    /// that `auto` runs `correlated` with the cap of models/auto.rs for this
-    /// call's roughness, incidence and IOR.
+    /// that `auto` runs `correlated`, with one bounce where models/auto.rs
+    /// finds order 1 alone within the tolerance for this call's roughness,
+    /// incidence and IOR.
     fn resolve(&self, mat: &Material, wi: DVec3) -> (Model, u32) {
-        if self.cfg.model != Model::Auto {
-            return (self.cfg.model, self.cfg.max_bounces);
-        }
-        let (surface, eta) = match self.cfg.surface {
-            Surface::Conductor => (auto::TableSurface::Conductor, 1.0),
-            Surface::Dielectric => (auto::TableSurface::Dielectric, if wi.z > 0.0 { mat.ior } else { 1.0 / mat.ior }),
-            Surface::Diffuse => (auto::TableSurface::Diffuse, 1.0),
+        let Some(rule) = &self.auto_rule else { return (self.cfg.model, self.cfg.max_bounces) };
+        let eta = match self.cfg.surface {
+            Surface::Dielectric if wi.z > 0.0 => mat.ior,
+            Surface::Dielectric => 1.0 / mat.ior,
+            _ => 1.0,
         };
-        let alpha = mat.alpha_u.max(mat.alpha_v);
-        let cap = auto::bounce_cap(surface, self.cfg.distribution, alpha, wi.z.abs(), eta, self.cfg.tolerance, self.cfg.max_bounces);
-        (Model::Correlated, cap)
+        (Model::Correlated, rule.cap(mat.alpha_u.max(mat.alpha_v), wi.z.abs(), eta, self.cfg.max_bounces))
     }
 
     /// Walk options of `model` (segment terms of the position-free models;

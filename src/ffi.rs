@@ -76,8 +76,8 @@ pub struct MsxParams {
     pub channels: u32,
     /// Decorrelates / reproduces the stochastic estimates
     pub seed: u64,
-    /// MSX_MODEL_AUTO only: fraction of the scattered energy the bounce
-    /// truncation may omit, in (0, 1) (0 = MSX_DEFAULT_AUTO_TOLERANCE)
+    /// MSX_MODEL_AUTO only: fraction of the scattered energy that evaluating
+    /// single scattering alone may omit, in (0, 1) (0 = MSX_DEFAULT_AUTO_TOLERANCE)
     pub auto_tolerance: f64,
 }
 

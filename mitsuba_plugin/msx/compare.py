@@ -22,6 +22,8 @@ SCENES = {
                        MODELS + ("heitz", "invariance", "fastmsx", "compensated")),
     "fig01_dielectric_sphere": ("Wang 2022 Fig. 1 (c, d): rough dielectric, GGX α = 1, bk7", "roughdielectric",
                                 MODELS + ("heitz", "invariance")),
+    "roughness_ramp": ("Copper, GGX α = 0.02, 0.05, 0.1, 0.3, 1 (top to bottom): where model='auto' drops the walk",
+                       None, MODELS + ("auto",)),
 }
 
 

@@ -59,7 +59,7 @@
 //! lower, 0.89× and 0.92× the time per call); grazing 21× / 7.8×; mirror
 //! 3.2× / 1.9×.
 
-use super::{vertex_numbers, ConductorFresnel, WalkOptions};
+use super::{russian_roulette_keep, vertex_numbers, ConductorFresnel, WalkOptions};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
@@ -432,22 +432,6 @@ const RR_START: u32 = 1;
 /// 13 % (mirror) for ≈ 5 % more time.
 const RR_KEEP: f64 = 0.5;
 
-/// Russian roulette with `RR_KEEP`: false when the walk ends, otherwise the
-/// throughput is divided by the survival probability (unbiased).
-#[inline]
-fn roulette(throughput: &mut Spectrum, rng: &mut Sampler) -> bool {
-    let q = (throughput.max_value() / RR_KEEP).min(1.0);
-    if !(q > 0.0) {
-        return false;
-    }
-    if q < 1.0 {
-        if rng.next() >= q {
-            return false;
-        }
-        *throughput *= 1.0 / q;
-    }
-    true
-}
 
 /// Highest order estimated by the connection as well as by the walk's NEE.
 /// Beyond it the NEE alone is better: at GGX α = 1 off-specular, connecting
@@ -538,7 +522,7 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
         // hit probability (a near-vertical upward d_m hits with probability
         // ∝ Λ(d_m) while its NEE phase value ∝ 1/Λ(d_m); a binary decision
         // before the NEE multiplies the variance of order 2 ≈ 2×).
-        if j >= RR_START && !roulette(&mut throughput, rng) {
+        if j >= RR_START && !russian_roulette_keep(&mut throughput, rng, RR_KEEP) {
             break;
         }
         let (u1, u2) = rng.next2();

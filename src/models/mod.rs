@@ -27,7 +27,15 @@ use crate::spectrum::Spectrum;
 /// throughput by the survival probability (unbiased).
 #[inline]
 pub fn russian_roulette(throughput: &mut Spectrum, rng: &mut Sampler) -> bool {
-    let q = throughput.max_value().min(1.0);
+    russian_roulette_keep(throughput, rng, 1.0)
+}
+
+/// Russian roulette that keeps a path surely while its largest channel is
+/// ≥ `keep` and otherwise survives with probability max/keep (unbiased: the
+/// throughput is divided by it).
+#[inline]
+pub fn russian_roulette_keep(throughput: &mut Spectrum, rng: &mut Sampler, keep: f64) -> bool {
+    let q = (throughput.max_value() / keep).min(1.0);
     if !(q > 0.0) {
         return false;
     }

@@ -560,3 +560,16 @@ impl DielectricProposal {
         p
     }
 }
+
+/// Dielectric reciprocity (Heitz 2016 §4.4.2, Walter 2007): with a = eval(ω_i,
+/// ω_o) and b = eval(ω_o, ω_i) (each f·|cos| of its outgoing direction, with
+/// its standard error), returns the two sides that must agree: f(i,o)/η_o² and
+/// f(o,i)/η_i² in Importance mode, η_o² f(i,o) and η_i² f(o,i) in Radiance
+/// mode, η the absolute IOR of each direction's side (outside 1, inside `eta`).
+pub fn dielectric_reciprocal_pair(a: (f64, f64), b: (f64, f64), wi: DVec3, wo: DVec3, eta: f64, radiance: bool) -> ((f64, f64), (f64, f64)) {
+    let ior = |w: DVec3| if w.z > 0.0 { 1.0 } else { eta };
+    let (ni, no) = (ior(wi), ior(wo));
+    let (sa, sb) = if radiance { (no * no, ni * ni) } else { (1.0 / (no * no), 1.0 / (ni * ni)) };
+    let (ka, kb) = (sa / wo.z.abs(), sb / wi.z.abs());
+    ((a.0 * ka, a.1 * ka), (b.0 * kb, b.1 * kb))
+}

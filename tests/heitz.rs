@@ -278,28 +278,6 @@ fn furnace_dielectric() {
 // ---------------------------------------------------------------------------
 // §4.4.3 Order 1 = single scattering with the height-correlated G2.
 
-/// Walter 2007 reflection, F·D·G2/(4|cos θ_i|), G2 = 1/(1 + Λ(ω_i) + Λ(ω_o)) in
-/// the local frame of the side of ω_i (F(c) the Fresnel at ω_i·h).
-fn walter_reflection(mf: &Microfacet, wi_l: DVec3, wo_l: DVec3, f: impl Fn(f64) -> f64) -> f64 {
-    let h = (wi_l + wo_l).normalize();
-    let g2 = 1.0 / (1.0 + mf.lambda(wi_l) + mf.lambda(wo_l));
-    f(wi_l.dot(h)) * mf.d(h) * g2 / (4.0 * wi_l.z)
-}
-
-/// Walter 2007 transmission times |cos θ_o| with a given G (local frame of ω_i's
-/// side, relative IOR `e`): |ωi·h||ωo·h| e² (1−F) D G / (|cos θi| (ωi·h + e ωo·h)²).
-fn walter_transmission(mf: &Microfacet, wi_l: DVec3, wo_l: DVec3, e: f64, g: f64) -> f64 {
-    let mut h = -(wi_l + wo_l * e).normalize();
-    if h.z < 0.0 {
-        h = -h;
-    }
-    let (ci, co) = (wi_l.dot(h), wo_l.dot(h));
-    if !(ci > 0.0 && co < 0.0) {
-        return 0.0;
-    }
-    let f = fresnel::dielectric(ci, e);
-    ci * (-co) * e * e * (1.0 - f) * mf.d(h) * g / (wi_l.z * (ci + e * co).powi(2))
-}
 
 fn mean_eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, o: &WalkOptions, n: usize, seed: u64, channel: usize) -> (f64, f64) {
     let mut rng = Sampler::new(seed);

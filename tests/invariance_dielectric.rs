@@ -211,27 +211,13 @@ fn walter_g2(mf: &Microfacet, eta: f64, wi: DVec3, wo: DVec3) -> f64 {
     let outside = wi.z > 0.0;
     let (wi_l, wo_l) = if outside { (wi, wo) } else { (-wi, -wo) };
     let e = if outside { eta } else { 1.0 / eta };
-    let li = mf.lambda(wi_l);
     if wo_l.z > 0.0 {
-        let h = (wi_l + wo_l).normalize();
-        let f = fresnel::dielectric(wi_l.dot(h), e);
-        f * mf.d(h) / (4.0 * wi_l.z * (1.0 + li + mf.lambda(wo_l)))
+        walter_reflection(mf, wi_l, wo_l, |c| fresnel::dielectric(c, e))
     } else {
-        let mut h = -(wi_l + wo_l * e).normalize();
-        if h.z < 0.0 {
-            h = -h;
-        }
-        let (ci, co) = (wi_l.dot(h), wo_l.dot(h));
-        if !(ci > 0.0 && co < 0.0) {
-            return 0.0;
-        }
-        let f = fresnel::dielectric(ci, e);
-        let l = 1.0 + li;
-        let lo = mf.lambda(-wo_l);
         // G2 = G1(ω_i)·P(exit | hit) = (1/L)·L·B(L, 1+Λ_o') = B(1+Λ_i, 1+Λ_o') (Pinel).
+        let (l, lo) = (1.0 + mf.lambda(wi_l), mf.lambda(-wo_l));
         let g2 = (libm::lgamma(l) + libm::lgamma(1.0 + lo) - libm::lgamma(l + 1.0 + lo)).exp();
-        let denom = ci + e * co;
-        e * e * (1.0 - f) * mf.d(h) * ci * (-co) * g2 / (wi_l.z * denom * denom)
+        walter_transmission(mf, wi_l, wo_l, e, g2)
     }
 }
 

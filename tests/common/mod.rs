@@ -573,3 +573,26 @@ pub fn dielectric_reciprocal_pair(a: (f64, f64), b: (f64, f64), wi: DVec3, wo: D
     let (ka, kb) = (sa / wo.z.abs(), sb / wi.z.abs());
     ((a.0 * ka, a.1 * ka), (b.0 * kb, b.1 * kb))
 }
+
+/// Walter 2007 reflection, F·D·G2/(4|cos θ_i|), G2 = 1/(1 + Λ(ω_i) + Λ(ω_o)) in
+/// the local frame of the side of ω_i (F(c) the Fresnel at ω_i·h).
+pub fn walter_reflection(mf: &Microfacet, wi_l: DVec3, wo_l: DVec3, f: impl Fn(f64) -> f64) -> f64 {
+    let h = (wi_l + wo_l).normalize();
+    let g2 = 1.0 / (1.0 + mf.lambda(wi_l) + mf.lambda(wo_l));
+    f(wi_l.dot(h)) * mf.d(h) * g2 / (4.0 * wi_l.z)
+}
+
+/// Walter 2007 transmission times |cos θ_o| with a given G (local frame of ω_i's
+/// side, relative IOR `e`): |ωi·h||ωo·h| e² (1−F) D G / (|cos θi| (ωi·h + e ωo·h)²).
+pub fn walter_transmission(mf: &Microfacet, wi_l: DVec3, wo_l: DVec3, e: f64, g: f64) -> f64 {
+    let mut h = -(wi_l + wo_l * e).normalize();
+    if h.z < 0.0 {
+        h = -h;
+    }
+    let (ci, co) = (wi_l.dot(h), wo_l.dot(h));
+    if !(ci > 0.0 && co < 0.0) {
+        return 0.0;
+    }
+    let f = msx::microfacet::fresnel::dielectric(ci, e);
+    ci * (-co) * e * e * (1.0 - f) * mf.d(h) * g / (wi_l.z * (ci + e * co).powi(2))
+}

@@ -52,7 +52,7 @@ def main():
 
     import numpy as np
 
-    from msx.cli import render_scene
+    from msx._render import render_scene
 
     models = ("correlated", "auto")
     rows = []

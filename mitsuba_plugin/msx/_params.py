@@ -154,7 +154,7 @@ def conductor_ior(mi, material):
         raise MsxParameterError(
             "%s: unknown conductor for parameter 'material': '%s' (use one of Mitsuba's names such as "
             "'Cu', 'Au', 'Ag', 'Al', 'Cr', 'W', 'Ni', or 'none' for a perfect mirror; Mitsuba said: %s)"
-            % (PLUGIN, material, str(e).splitlines()[-1] if str(e) else e)
+            % (PLUGIN, material, _mitsuba_reason(e))
         ) from None
     cb = _Collect.make(mi)
     ref.traverse(cb)
@@ -179,18 +179,39 @@ def dielectric_ior(mi, props):
         elif not isinstance(value, str):
             raise MsxParameterError("%s: parameter '%s' must be a float or a string (got %r)" % (PLUGIN, name, value))
         args[name] = value
+    if _same_ior(args["int_ior"], args["ext_ior"]):
+        raise MsxParameterError(
+            "%s: parameters 'int_ior' and 'ext_ior' must differ (both are %r): a dielectric with the same index "
+            "of refraction on both sides does not scatter" % (PLUGIN, args["int_ior"])
+        )
     try:
         ref = mi.load_dict(args)
     except Exception as e:
         raise MsxParameterError(
-            "%s: invalid 'int_ior'/'ext_ior' (%r, %r): use an IOR > 0 or one of Mitsuba's names such as "
-            "'bk7', 'water', 'air', 'diamond' (Mitsuba said: %s)"
-            % (PLUGIN, args["int_ior"], args["ext_ior"], str(e).splitlines()[-1] if str(e) else e)
+            "%s: invalid 'int_ior'/'ext_ior' (%r, %r): Mitsuba says: %s; use two different positive IORs or "
+            "Mitsuba's names such as 'bk7', 'water', 'air', 'diamond'"
+            % (PLUGIN, args["int_ior"], args["ext_ior"], _mitsuba_reason(e))
         ) from None
     eta = float(mi.traverse(ref)["eta"])
     if not (math.isfinite(eta) and eta > 0.0):
         raise MsxParameterError("%s: 'int_ior'/'ext_ior' give a relative IOR %r; it must be > 0" % (PLUGIN, eta))
     return eta
+
+
+def _mitsuba_reason(error):
+    """The last line of a Mitsuba exception without its "[file.cpp:N]" / "[Plugin]" prefixes."""
+    import re
+
+    text = str(error).strip().splitlines()[-1] if str(error).strip() else repr(error)
+    text = re.sub(r"^.*failed to instantiate [^:]*:\s*", "", text)
+    return re.sub(r"^(\[[\w.:]+\]\s*)+", "", text)
+
+
+def _same_ior(a, b):
+    """True if two IOR values (floats or Mitsuba's names) are the same number."""
+    if isinstance(a, str) or isinstance(b, str):
+        return a == b
+    return float(a) == float(b)
 
 
 class Config:

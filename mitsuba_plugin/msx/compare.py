@@ -43,7 +43,7 @@ def _stats(left_chunks, right_chunks):
 def run(args):
     import numpy as np
 
-    from .cli import render_scene, write_image
+    from ._render import render_scene, write_image
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,249 @@
+"""Rendering for the command line: one scene, its samples split into chunks
+rendered by worker processes and averaged.
+
+Scalar variants run one render thread per process when the BSDF is the
+Python class (Python BSDFs serialise on the GIL), so the CLI parallelises
+over processes: each chunk is a render with its own seed, and the chunks are
+averaged weighted by their sample counts.
+
+Failure handling (the reason this module exists): a scene that fails to load,
+a worker that dies and Ctrl-C all end the run at once with one clear line
+(:class:`RenderError`) instead of a pool that respawns failing workers.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import re
+import signal
+import sys
+import time
+from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
+
+DEFAULT_VARIANT = "scalar_rgb"
+
+
+class RenderError(Exception):
+    """A render could not run; the message is one line for the user."""
+
+
+# Mitsuba reports a failed plugin constructor as "[parser.cpp:N] At FILE (line L, col C): failed to
+# instantiate … plugin …: Traceback … \nSomeError: message"; the user needs FILE:L and the message.
+_AT_LOCATION = re.compile(r"At (.+?) \(line (\d+), col \d+\)")
+_EXCEPTION_PREFIX = re.compile(r"^(?:[A-Za-z_][\w.]*(?:Error|Exception)): ")
+
+
+def one_line(error: BaseException) -> str:
+    """The user-facing one-line form of an exception raised while loading or rendering a scene."""
+    text = str(error).strip()
+    if not text:
+        return type(error).__name__
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    last = lines[-1]
+    message = _EXCEPTION_PREFIX.sub("", last) if len(lines) > 1 else _EXCEPTION_PREFIX.sub("", lines[0])
+    # Mitsuba's own messages start with "[file.cpp:line] "; keep only the text.
+    message = re.sub(r"^\[[\w.]+:\d+\]\s*", "", message)
+    at = _AT_LOCATION.search(text)
+    if at and at.group(1) not in message:
+        message = f"{at.group(1)}:{at.group(2)}: {message}"
+    return message
+
+
+# ----------------------------------------------------------------- progress
+
+
+class Progress:
+    """Progress of one render: an updating line on a terminal, plain lines otherwise."""
+
+    def __init__(self, label: str, total: int, enabled: bool = True, stream=None):
+        self.label, self.total, self.enabled = label, total, enabled
+        self.stream = stream or sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.t0 = time.perf_counter()
+
+    def update(self, done: int):
+        if not self.enabled:
+            return
+        el = time.perf_counter() - self.t0
+        eta = el / done * (self.total - done) if done else float("nan")
+        eta_s = f", ETA {eta:5.1f} s" if done and done < self.total else ""
+        line = f"{self.label}: {done}/{self.total} chunks, {el:5.1f} s{eta_s}"
+        if self.tty:
+            self.stream.write("\r" + line + " " * 8)
+            if done == self.total:
+                self.stream.write("\n")
+        elif done > 0:
+            self.stream.write(line + "\n")
+        self.stream.flush()
+
+    def close(self):
+        if self.enabled and self.tty:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+# ----------------------------------------------------------------- workers
+
+_scenes: dict = {}  # per process: (variant, path, params) -> loaded scene
+
+
+def setup_variant(variant: str):
+    """Sets the Mitsuba variant and registers msx_posfree (LLVM: evaluated mode on)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    try:
+        mi.set_variant(variant)
+    except Exception as e:
+        raise RenderError(f"unknown or unavailable Mitsuba variant '{variant}' ({one_line(e)})") from None
+    if variant.startswith("scalar"):
+        dr.set_thread_count(1)
+    import msx
+
+    msx.register()
+    if variant.startswith("llvm_"):
+        # Native code cannot run in drjit's symbolic kernels.
+        msx.evaluated_mode().enable()
+    return mi
+
+
+def _load(variant: str, scene: str, params: dict):
+    key = (variant, scene, tuple(sorted(params.items())))
+    if key not in _scenes:
+        mi = setup_variant(variant)
+        try:
+            _scenes[key] = mi.load_file(scene, **params)
+        except Exception as e:
+            raise RenderError(one_line(e)) from None
+    return _scenes[key]
+
+
+def _render_chunk(variant: str, scene: str, params: dict, seed: int, spp: int):
+    """One chunk: (seed, spp, image, seconds). Every failure becomes a RenderError (picklable, one line)."""
+    import mitsuba as mi
+    import numpy as np
+
+    s = _load(variant, scene, params)
+    t0 = time.perf_counter()
+    try:
+        img = mi.render(s, seed=seed, spp=spp)
+    except Exception as e:
+        raise RenderError(f"{Path(scene).name}: render failed: {one_line(e)}") from None
+    return seed, spp, np.array(img, dtype=np.float64), time.perf_counter() - t0
+
+
+def _worker_init():
+    # Ctrl-C reaches the whole process group: the parent stops the workers itself.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _stop(executor: ProcessPoolExecutor):
+    """Ends the workers now (running chunks included)."""
+    procs = list(getattr(executor, "_processes", {}).values())
+    executor.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    for p in procs:
+        p.join(timeout=5)
+        if p.is_alive():
+            p.kill()
+
+
+def _exit_codes(executor: ProcessPoolExecutor):
+    return sorted({p.exitcode for p in getattr(executor, "_processes", {}).values() if p.exitcode not in (None, 0)})
+
+
+def _chunks(spp: int, n: int):
+    n = max(1, min(n, spp))
+    base, extra = divmod(spp, n)
+    return [base + (1 if k < extra else 0) for k in range(n)]
+
+
+def render_chunks(scene: str, tasks, *, variant: str, params: dict, workers: int, on_result):
+    """Renders the (seed, spp) `tasks` of `scene`, calling `on_result(chunk)` as each finishes.
+
+    The first failure (scene load, render, a dying worker, Ctrl-C) stops every
+    worker and raises: RenderError, or KeyboardInterrupt."""
+    if workers <= 1 or len(tasks) <= 1:
+        for seed, spp in tasks:
+            on_result(_render_chunk(variant, scene, params, seed, spp))
+        return
+    ctx = mp.get_context("spawn")
+    executor = ProcessPoolExecutor(min(workers, len(tasks)), mp_context=ctx, initializer=_worker_init)
+    try:
+        pending = {executor.submit(_render_chunk, variant, scene, params, seed, spp) for seed, spp in tasks}
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_EXCEPTION)
+            for f in done:
+                on_result(f.result())  # re-raises the worker's RenderError
+    except BrokenProcessPool:
+        codes = _exit_codes(executor)
+        how = f" (exit code {', '.join(map(str, codes))})" if codes else ""
+        _stop(executor)
+        raise RenderError(f"{Path(scene).name}: a render worker process died{how}") from None
+    except BaseException:
+        _stop(executor)
+        raise
+    executor.shutdown(wait=True)
+
+
+def render_scene(scene: str, *, variant: str = DEFAULT_VARIANT, spp: int | None = None, params: dict | None = None,
+                 workers: int = 1, seed: int = 0, chunks: int | None = None, progress: bool = True, label: str = ""):
+    """Renders `scene`; returns (image as float64 array [H, W, C], [(spp, image)] per chunk, wall seconds).
+
+    The samples are split into `chunks` renders with distinct seeds (default
+    max(workers, 4)), run on `workers` processes and averaged (weighted by
+    spp). The chunk seeds depend only on `seed` and the chunk index, so the
+    same call gives the same image whatever `workers` is."""
+    import numpy as np
+
+    if not os.path.exists(scene):
+        raise RenderError(f"scene file not found: {scene}")
+    params = {k: str(v) for k, v in (params or {}).items()}
+    if spp is None:
+        spp = int(params.get("spp", 16))
+    if spp < 1:
+        raise RenderError(f"spp must be ≥ 1 (got {spp})")
+    params["spp"] = str(spp)
+    counts = _chunks(spp, chunks or max(workers, 4))
+    tasks = [(seed * 1000 + k, c) for k, c in enumerate(counts)]
+    results = []
+    bar = Progress(label or Path(scene).name, len(tasks), progress)
+    t0 = time.perf_counter()
+
+    def collect(r):
+        results.append(r)
+        bar.update(len(results))
+
+    try:
+        render_chunks(scene, tasks, variant=variant, params=params, workers=workers, on_result=collect)
+    except BaseException:
+        bar.close()
+        raise
+    wall = time.perf_counter() - t0
+    results.sort(key=lambda r: r[0])
+    total = sum(r[1] for r in results)
+    image = sum(r[2] * r[1] for r in results) / total
+    if not np.all(np.isfinite(image)):
+        raise RenderError(f"non-finite pixels in the render of {scene}")
+    return image, [(r[1], r[2]) for r in results], wall
+
+
+def write_image(path: Path, image, variant: str = DEFAULT_VARIANT):
+    """Writes an EXR (linear) and a PNG (sRGB) next to each other."""
+    import mitsuba as mi
+    import numpy as np
+
+    if mi.variant() is None:
+        mi.set_variant(variant)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arr = np.ascontiguousarray(image, dtype=np.float32)
+    fmt = mi.Bitmap.PixelFormat.RGB if arr.ndim == 3 and arr.shape[-1] == 3 else mi.Bitmap.PixelFormat.Y
+    bmp = mi.Bitmap(arr, pixel_format=fmt)
+    bmp.write(str(path.with_suffix(".exr")))
+    bmp.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True).write(str(path.with_suffix(".png")))

@@ -125,6 +125,18 @@ typedef struct MsxParams {
 } MsxParams;
 
 /*
+ Process-wide counts of what the C ABI had to clean before returning:
+ output values that were NaN or ±Inf (including finite values that overflow
+ `float`), negative values, and panics caught at the boundary. All three
+ stay 0 unless the core has a defect; they only ever grow.
+ */
+typedef struct MsxDiagnostics {
+  uint64_t nonfinite;
+  uint64_t negative;
+  uint64_t panics;
+} MsxDiagnostics;
+
+/*
  Per-channel values; channels beyond `MsxParams::channels` are zero.
  */
 typedef struct MsxSpectrum {
@@ -272,6 +284,11 @@ void msx_bsdf_free(struct MsxBsdf *bsdf);
  Library version as a static NUL-terminated string.
  */
 const char *msx_version(void);
+
+/*
+ Reads the diagnostic counters (see `MsxDiagnostics`).
+ */
+struct MsxDiagnostics msx_diagnostics(void);
 
 /*
  f(ω_i, ω_o)·|cos θ_o| per channel (Mitsuba's `eval`). `key` is any 64-bit

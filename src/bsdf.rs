@@ -175,6 +175,62 @@ impl Material {
     }
 }
 
+/// Largest conductor η and k, dielectric IOR (and smallest: its inverse) and
+/// tint accepted per call; values beyond are clamped. No real material comes
+/// near; the bound keeps products of these values finite.
+const MATERIAL_VALUE_MAX: f64 = 1e4;
+
+/// |η − 1| up to which a dielectric counts as index-matched (no scattering).
+const INDEX_MATCHED: f64 = 1e-6;
+
+impl Material {
+    /// This call's values made safe for the models (docs/conventions.md): None
+    /// if a value the surface uses is NaN or infinite (the call then returns
+    /// zero); tints clamped into [0, MATERIAL_VALUE_MAX], the diffuse albedo
+    /// into [0, 1] (above 1 a walk would gain energy at every bounce), η and k
+    /// into [0, MATERIAL_VALUE_MAX] and the IOR into
+    /// [1/MATERIAL_VALUE_MAX, MATERIAL_VALUE_MAX]. α is clamped by
+    /// `Microfacet::new`. Only the first `channels` channels are read.
+    fn usable(&self, surface: Surface, channels: usize) -> Option<Material> {
+        let finite = |s: &Spectrum| s.0[..channels].iter().all(|v| v.is_finite());
+        let clamp = |s: Spectrum, hi: f64| Spectrum(s.0.map(|v| v.clamp(0.0, hi)));
+        if !(self.alpha_u.is_finite() && self.alpha_v.is_finite()) {
+            return None;
+        }
+        let mut m = *self;
+        match surface {
+            Surface::Conductor => {
+                if !(finite(&m.eta) && finite(&m.k) && finite(&m.specular_reflectance)) {
+                    return None;
+                }
+                m.eta = clamp(m.eta, MATERIAL_VALUE_MAX);
+                m.k = clamp(m.k, MATERIAL_VALUE_MAX);
+                m.specular_reflectance = clamp(m.specular_reflectance, MATERIAL_VALUE_MAX);
+            }
+            Surface::Dielectric => {
+                if !(m.ior.is_finite() && m.ior > 0.0 && finite(&m.specular_reflectance) && finite(&m.specular_transmittance)) {
+                    return None;
+                }
+                // An index-matched interface does not scatter: its transmission
+                // is a delta, which a rough BSDF cannot represent.
+                if (m.ior - 1.0).abs() <= INDEX_MATCHED {
+                    return None;
+                }
+                m.ior = m.ior.clamp(1.0 / MATERIAL_VALUE_MAX, MATERIAL_VALUE_MAX);
+                m.specular_reflectance = clamp(m.specular_reflectance, MATERIAL_VALUE_MAX);
+                m.specular_transmittance = clamp(m.specular_transmittance, MATERIAL_VALUE_MAX);
+            }
+            Surface::Diffuse => {
+                if !finite(&m.reflectance) {
+                    return None;
+                }
+                m.reflectance = clamp(m.reflectance, 1.0);
+            }
+        }
+        Some(m)
+    }
+}
+
 /// Result of `sample`: direction, the pdf reported for MIS, and the weight
 /// f·cos θ_o / p (unbiased for the multiple-scattering models).
 #[derive(Clone, Copy, Debug)]
@@ -309,6 +365,8 @@ impl Bsdf {
     /// in this sense: they return their whole value when order 1 is included.
     pub fn eval_orders(&self, mat: &Material, wi: DVec3, wo: DVec3, key: u64, orders: (u32, u32)) -> Spectrum {
         let (Some(wi), Some(wo)) = (finite_unit(wi), finite_unit(wo)) else { return Spectrum::ZERO };
+        let Some(mat) = mat.usable(self.cfg.surface, self.cfg.channels) else { return Spectrum::ZERO };
+        let mat = &mat;
         if orders.0 > orders.1 {
             return Spectrum::ZERO;
         }
@@ -365,7 +423,7 @@ impl Bsdf {
                 _ => Spectrum::ZERO,
             },
         };
-        value.sanitized()
+        value
     }
 
     /// Mitsuba's tints: specular_reflectance on reflection, specular_transmittance on transmission.
@@ -385,6 +443,8 @@ impl Bsdf {
     /// [`diffuse_fraction`] (Heitz 2016); a cosine lobe for the diffuse microsurface.
     pub fn pdf(&self, mat: &Material, wi: DVec3, wo: DVec3) -> f64 {
         let (Some(wi), Some(wo)) = (finite_unit(wi), finite_unit(wo)) else { return 0.0 };
+        let Some(mat) = mat.usable(self.cfg.surface, self.cfg.channels) else { return 0.0 };
+        let mat = &mat;
         let mf = self.microfacet(mat);
         let (model, _) = self.resolve(mat, wi);
         let p = match self.cfg.surface {
@@ -417,11 +477,7 @@ impl Bsdf {
                 }
             }
         };
-        if p.is_finite() && p > 0.0 {
-            p
-        } else {
-            0.0
-        }
+        p
     }
 
     /// MIS density of the conductor random walks: the exact density of leaving
@@ -452,6 +508,7 @@ impl Bsdf {
     /// draw their further numbers from a stream seeded by them and `seed`.
     pub fn sample(&self, mat: &Material, wi: DVec3, sample1: f64, sample2: (f64, f64)) -> Option<BsdfSample> {
         let wi = finite_unit(wi)?;
+        let mat = &mat.usable(self.cfg.surface, self.cfg.channels)?;
         let clamp01 = |u: f64| if u.is_finite() { u.clamp(0.0, 1.0 - f64::EPSILON / 2.0) } else { 0.5 };
         let (s1, u1, u2) = (clamp01(sample1), clamp01(sample2.0), clamp01(sample2.1));
         let mf = self.microfacet(mat);
@@ -512,10 +569,8 @@ impl Bsdf {
                 (wo, self.pdf(mat, wi, wo), w)
             }
         };
-        let weight = weight.sanitized();
-        if !(pdf > 0.0) || !pdf.is_finite() || !wo.is_finite() {
-            return None;
-        }
+        // Raw values: the C ABI rejects a sample whose pdf is not > 0 and
+        // counts any non-finite or negative value (docs/conventions.md).
         Some(BsdfSample { wo, pdf, weight })
     }
 }

@@ -11,6 +11,7 @@ use crate::spectrum::{Spectrum, MAX_CHANNELS};
 use glam::DVec3;
 use std::os::raw::c_char;
 use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::atomic::{AtomicU64, Ordering};
 
 pub const MSX_OK: i32 = 0;
 pub const MSX_ERR_INVALID_PARAMETER: i32 = 1;
@@ -321,6 +322,7 @@ pub extern "C" fn msx_bsdf_new(params: *const MsxParams, out: *mut *mut MsxBsdf,
         }
     }));
     result.unwrap_or_else(|_| {
+        caught_panic();
         write_error(err, err_len, "internal error (panic) in msx_bsdf_new");
         MSX_ERR_PANIC
     })
@@ -332,10 +334,14 @@ pub extern "C" fn msx_bsdf_free(bsdf: *mut MsxBsdf) {
     if bsdf.is_null() {
         return;
     }
-    let _ = catch_unwind(AssertUnwindSafe(|| {
+    if catch_unwind(AssertUnwindSafe(|| {
         // SAFETY: the pointer came from Box::into_raw in msx_bsdf_new.
         drop(unsafe { Box::from_raw(bsdf) });
-    }));
+    }))
+    .is_err()
+    {
+        caught_panic();
+    }
 }
 
 /// Library version as a static NUL-terminated string.
@@ -366,22 +372,87 @@ fn material(m: &MsxMaterial) -> Material {
     }
 }
 
+// ------------------------------------------------------------ diagnostics
+//
+// The one place where values are cleaned for the renderer (docs/conventions.md):
+// every output goes through `out_f32`, which replaces a non-finite or negative
+// value by 0 and counts it. The models themselves must never produce such
+// values; tests assert that these counters stay 0.
+
+static RAW_NONFINITE: AtomicU64 = AtomicU64::new(0);
+static RAW_NEGATIVE: AtomicU64 = AtomicU64::new(0);
+static PANICS: AtomicU64 = AtomicU64::new(0);
+
+/// Process-wide counts of what the C ABI had to clean before returning:
+/// output values that were NaN or ±Inf (including finite values that overflow
+/// `float`), negative values, and panics caught at the boundary. All three
+/// stay 0 unless the core has a defect; they only ever grow.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default)]
+pub struct MsxDiagnostics {
+    pub nonfinite: u64,
+    pub negative: u64,
+    pub panics: u64,
+}
+
+/// Reads the diagnostic counters (see `MsxDiagnostics`).
+#[no_mangle]
+pub extern "C" fn msx_diagnostics() -> MsxDiagnostics {
+    MsxDiagnostics {
+        nonfinite: RAW_NONFINITE.load(Ordering::Relaxed),
+        negative: RAW_NEGATIVE.load(Ordering::Relaxed),
+        panics: PANICS.load(Ordering::Relaxed),
+    }
+}
+
+fn caught_panic() {
+    PANICS.fetch_add(1, Ordering::Relaxed);
+}
+
+/// A value for the renderer: non-finite (after the conversion to f32) and
+/// negative values become 0 and are counted.
+fn out_f32(x: f64) -> f32 {
+    let y = x as f32;
+    if !y.is_finite() {
+        RAW_NONFINITE.fetch_add(1, Ordering::Relaxed);
+        0.0
+    } else if y < 0.0 {
+        RAW_NEGATIVE.fetch_add(1, Ordering::Relaxed);
+        0.0
+    } else {
+        y
+    }
+}
+
 fn out_spectrum(s: Spectrum, channels: usize) -> MsxSpectrum {
-    let s = s.sanitized();
     let mut v = [0.0f32; 4];
     for c in 0..channels.min(MAX_CHANNELS) {
-        let x = s.0[c] as f32;
-        v[c] = if x.is_finite() && x > 0.0 { x } else { 0.0 };
+        v[c] = out_f32(s.0[c]);
     }
     MsxSpectrum { v }
 }
 
-fn out_f32(x: f64) -> f32 {
-    let x = x as f32;
-    if x.is_finite() && x > 0.0 {
-        x
+/// A sampled direction for the renderer, or None (counted) if not finite.
+fn out_direction(wo: DVec3) -> Option<[f32; 3]> {
+    let v = [wo.x as f32, wo.y as f32, wo.z as f32];
+    if v.iter().all(|x| x.is_finite()) {
+        Some(v)
     } else {
-        0.0
+        RAW_NONFINITE.fetch_add(1, Ordering::Relaxed);
+        None
+    }
+}
+
+/// A sample for the renderer: valid when its pdf is > 0 and its direction
+/// finite; its weight cleaned like every output.
+fn out_sample(s: Option<crate::bsdf::BsdfSample>, channels: usize) -> MsxSample {
+    let Some(s) = s else { return MsxSample::default() };
+    let pdf = out_f32(s.pdf);
+    match out_direction(s.wo) {
+        Some([x, y, z]) if pdf > 0.0 => {
+            MsxSample { wo: MsxVec3 { x, y, z }, pdf, weight: out_spectrum(s.weight, channels), valid: 1 }
+        }
+        _ => MsxSample::default(),
     }
 }
 
@@ -393,7 +464,10 @@ fn with_bsdf<T>(bsdf: *const MsxBsdf, mat: *const MsxMaterial, fallback: T, f: i
     }
     // SAFETY: non-null pointers from the caller; the handle is immutable.
     let (b, m) = unsafe { (&(*bsdf).bsdf, material(&*mat)) };
-    catch_unwind(AssertUnwindSafe(|| f(b, m))).unwrap_or(fallback)
+    catch_unwind(AssertUnwindSafe(|| f(b, m))).unwrap_or_else(|_| {
+        caught_panic();
+        fallback
+    })
 }
 
 /// f(ω_i, ω_o)·|cos θ_o| per channel (Mitsuba's `eval`). `key` is any 64-bit
@@ -438,17 +512,8 @@ pub extern "C" fn msx_eval_pdf(bsdf: *const MsxBsdf, mat: *const MsxMaterial, wi
 /// Samples ω_o from Mitsuba's `sample1` and `sample2` (in [0, 1)).
 #[no_mangle]
 pub extern "C" fn msx_sample(bsdf: *const MsxBsdf, mat: *const MsxMaterial, wi: MsxVec3, sample1: f32, u: f32, v: f32) -> MsxSample {
-    with_bsdf(bsdf, mat, MsxSample::default(), |b, m| match b.sample(&m, vec3(wi), sample1 as f64, (u as f64, v as f64)) {
-        Some(s) => {
-            let pdf = out_f32(s.pdf);
-            let wo = MsxVec3 { x: s.wo.x as f32, y: s.wo.y as f32, z: s.wo.z as f32 };
-            if pdf > 0.0 && wo.x.is_finite() && wo.y.is_finite() && wo.z.is_finite() {
-                MsxSample { wo, pdf, weight: out_spectrum(s.weight, b.config().channels), valid: 1 }
-            } else {
-                MsxSample::default()
-            }
-        }
-        None => MsxSample::default(),
+    with_bsdf(bsdf, mat, MsxSample::default(), |b, m| {
+        out_sample(b.sample(&m, vec3(wi), sample1 as f64, (u as f64, v as f64)), b.config().channels)
     })
 }
 
@@ -599,17 +664,10 @@ fn run_lane(b: &Bsdf, inp: &Inputs, out: OutPtrs, key: u64, op: Op, i: usize) {
             let (v, p) = b.eval_pdf(&mat, wi, Inputs::dir(&inp.wo, i), lane_key);
             (out_spectrum(v, channels), out_f32(p), [0.0; 3])
         }
-        Op::Sample => match b.sample(&mat, wi, inp.s1.get(i) as f64, (inp.s2[0].get(i) as f64, inp.s2[1].get(i) as f64)) {
-            Some(s) => {
-                let wo = [s.wo.x as f32, s.wo.y as f32, s.wo.z as f32];
-                if wo.iter().all(|x| x.is_finite()) && out_f32(s.pdf) > 0.0 {
-                    (out_spectrum(s.weight, channels), out_f32(s.pdf), wo)
-                } else {
-                    (MsxSpectrum::default(), 0.0, [0.0; 3])
-                }
-            }
-            None => (MsxSpectrum::default(), 0.0, [0.0; 3]),
-        },
+        Op::Sample => {
+            let s = out_sample(b.sample(&mat, wi, inp.s1.get(i) as f64, (inp.s2[0].get(i) as f64, inp.s2[1].get(i) as f64)), channels);
+            (s.weight, s.pdf, [s.wo.x, s.wo.y, s.wo.z])
+        }
     };
     // SAFETY: see OutPtrs::put.
     unsafe {
@@ -668,6 +726,7 @@ fn run_batch(bsdf: *const MsxBsdf, input: *const MsxBatchIn, output: *const MsxB
         MSX_OK
     }));
     result.unwrap_or_else(|_| {
+        caught_panic();
         write_error(err, err_len, "internal error (panic) in a batched call");
         MSX_ERR_PANIC
     })

@@ -27,12 +27,6 @@ impl Spectrum {
     pub fn is_finite(&self) -> bool {
         self.0.iter().all(|v| v.is_finite())
     }
-
-    /// Replaces NaN, infinite and negative channels with zero (the renderer
-    /// must never receive them).
-    pub fn sanitized(self) -> Self {
-        self.map(|v| if v.is_finite() && v > 0.0 { v } else { 0.0 })
-    }
 }
 
 impl Add for Spectrum {

@@ -5,6 +5,8 @@
 //! and a message naming the parameter; results are deterministic in
 //! (inputs, seed, key); batched calls equal per-call calls lane by lane.
 
+mod common;
+
 use msx::ffi::*;
 use std::cell::Cell;
 use std::collections::HashSet;
@@ -218,6 +220,7 @@ fn bad_alphas() -> Vec<f32> {
 
 #[test]
 fn bad_directions_and_roughness_are_harmless() {
+    let diag = msx_diagnostics();
     let dirs = bad_directions();
     for model in MODELS {
         for dist in DISTRIBUTIONS {
@@ -238,10 +241,12 @@ fn bad_directions_and_roughness_are_harmless() {
             }
         }
     }
+    common::assert_no_raw_defects(diag, "bad_directions_and_roughness_are_harmless");
 }
 
 #[test]
 fn bad_ior_and_reflectance_are_harmless() {
+    let diag = msx_diagnostics();
     let nan = f32::NAN;
     let inf = f32::INFINITY;
     let iors: Vec<(&str, [f32; 4], [f32; 4])> = vec![
@@ -280,10 +285,12 @@ fn bad_ior_and_reflectance_are_harmless() {
             }
         }
     }
+    common::assert_no_raw_defects(diag, "bad_ior_and_reflectance_are_harmless");
 }
 
 #[test]
 fn bad_sample_values_are_harmless() {
+    let diag = msx_diagnostics();
     let values = [f32::NAN, -1.0, -0.0, 0.0, 1.0, 1.5, 2.0, f32::INFINITY, f32::NEG_INFINITY, f32::MAX, 1e-45, 0.999_999_94];
     for model in MODELS {
         for dist in DISTRIBUTIONS {
@@ -303,6 +310,7 @@ fn bad_sample_values_are_harmless() {
             }
         }
     }
+    common::assert_no_raw_defects(diag, "bad_sample_values_are_harmless");
 }
 
 // ------------------------------------------------------------ null pointers
@@ -313,6 +321,7 @@ fn message(err: &[c_char]) -> String {
 
 #[test]
 fn null_pointers_everywhere() {
+    let diag = msx_diagnostics();
     no_panic("null pointers", || {
         let p = params(MSX_MODEL_CORRELATED, MSX_DISTRIBUTION_GGX);
         let mut out: *mut MsxBsdf = ptr::null_mut();
@@ -393,6 +402,7 @@ fn null_pointers_everywhere() {
             assert_eq!(val, [-7.0; 4], "{name}: n = 0 must not write");
         }
     });
+    common::assert_no_raw_defects(diag, "null_pointers_everywhere");
 }
 
 // ------------------------------------------------------------ invalid configuration
@@ -456,6 +466,7 @@ fn invalid_configuration_is_reported_by_name() {
 
 #[test]
 fn random_sweep_all_outputs_finite_and_nonnegative() {
+    let diag = msx_diagnostics();
     let mut rng = Rng(0x5eed_0001);
     let n_per_config = 3000;
     let mut valid_samples = 0usize;
@@ -506,6 +517,7 @@ fn random_sweep_all_outputs_finite_and_nonnegative() {
     println!("random sweep: {valid_samples}/{total_samples} valid samples");
     assert!(valid_samples > total_samples / 2, "too few valid samples: {valid_samples}/{total_samples}");
     assert!(pdf_mismatch.is_empty(), "{} pdf mismatches, e.g.\n{}", pdf_mismatch.len(), pdf_mismatch[..pdf_mismatch.len().min(5)].join("\n"));
+    common::assert_no_raw_defects(diag, "random_sweep_all_outputs_finite_and_nonnegative");
 }
 
 // ------------------------------------------------------------ determinism
@@ -750,22 +762,26 @@ fn batch_equals_per_call(model: u32, dist: u32, n: usize, key: u64) {
 
 #[test]
 fn batches_equal_per_call_small() {
+    let diag = msx_diagnostics();
     for model in MODELS {
         for dist in DISTRIBUTIONS {
             batch_equals_per_call(model, dist, 1, 5);
             batch_equals_per_call(model, dist, 333, u64::MAX - 100); // key + i wraps
         }
     }
+    common::assert_no_raw_defects(diag, "batches_equal_per_call_small");
 }
 
 #[test]
 fn batches_equal_per_call_threaded() {
+    let diag = msx_diagnostics();
     // Above 2 × 2048 lanes the batch is split over worker threads (when the
     // machine has more than one core); lane i must still use key + i.
     for model in MODELS {
         batch_equals_per_call(model, MSX_DISTRIBUTION_GGX, 4096 * 2 + 123, 42);
     }
     batch_equals_per_call(MSX_MODEL_CORRELATED, MSX_DISTRIBUTION_BECKMANN, 5000, 7);
+    common::assert_no_raw_defects(diag, "batches_equal_per_call_threaded");
 }
 
 #[test]

@@ -5,6 +5,8 @@
 //! out NaN, infinite or negative; valid samples have unit ω_o and pdf > 0.
 //! Fixed seed.
 
+mod common;
+
 use msx::ffi::*;
 use msx::rng::Sampler;
 use std::ptr;
@@ -48,6 +50,7 @@ fn ok(x: f32) -> bool {
 
 #[test]
 fn every_model_surface_distribution_is_total() {
+    let diag = msx_diagnostics();
     let mut rng = Sampler::new(2024);
     let mut calls = 0usize;
     for (surface, distribution, model, estimator) in combos() {
@@ -100,4 +103,5 @@ fn every_model_surface_distribution_is_total() {
         msx_bsdf_free(h);
     }
     println!("{calls} ABI calls, all finite and non-negative");
+    common::assert_no_raw_defects(diag, "every_model_surface_distribution_is_total");
 }

@@ -14,7 +14,8 @@ the hit and forwards each BSDF call to the C ABI (``include/msx.h``).
 
 __version__ = "0.1.0"
 
-__all__ = ["register", "registered_variants", "native_version", "evaluated_mode", "check_fallback", "__version__"]
+__all__ = ["register", "registered_variants", "native_version", "diagnostics", "evaluated_mode", "check_fallback",
+           "__version__"]
 
 # Variants for which msx_posfree has been registered in this process.
 _REGISTERED = {}
@@ -25,6 +26,17 @@ def native_version():
     from ._native import ffi, lib
 
     return ffi.string(lib.msx_version()).decode()
+
+
+def diagnostics():
+    """Process-wide counters of the Rust core's C ABI: output values it had to
+    clean before returning them to Mitsuba (``nonfinite``: NaN or ±Inf,
+    ``negative``) and panics it caught (``panics``). All stay 0 unless the core
+    has a defect (docs/conventions.md); the tests assert on them."""
+    from ._native import lib
+
+    d = lib.msx_diagnostics()
+    return {"nonfinite": int(d.nonfinite), "negative": int(d.negative), "panics": int(d.panics)}
 
 
 def registered_variants():

@@ -247,3 +247,14 @@ def write_image(path: Path, image, variant: str = DEFAULT_VARIANT):
     bmp = mi.Bitmap(arr, pixel_format=fmt)
     bmp.write(str(path.with_suffix(".exr")))
     bmp.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True).write(str(path.with_suffix(".png")))
+
+
+def scenes_dir() -> Path:
+    """The scene files: shipped inside the installed package (``msx/scenes``),
+    or the repository's ``scenes/`` when running from a checkout (editable install)."""
+    here = Path(__file__).resolve().parent
+    for candidate in (here / "scenes", here.parent.parent / "scenes"):
+        if (candidate / "fig09_copper_sphere.xml").exists():
+            return candidate
+    raise RenderError("the scene files were not found (neither in the installed package nor in a checkout); "
+                      "pass --scenes DIR")

@@ -43,7 +43,7 @@ def _stats(left_chunks, right_chunks):
 def run(args):
     import numpy as np
 
-    from ._render import render_scene, write_image
+    from ._render import RenderError, render_scene, scenes_dir, write_image
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -53,9 +53,9 @@ def run(args):
     opts = dict(variant=args.variant, spp=args.spp, workers=args.workers, seed=args.seed)
     for scene, (title, reference, models) in SCENES.items():
         in_one = reference is None
-        path = Path(args.scenes) / f"{scene}.xml"
+        path = Path(args.scenes or scenes_dir()) / f"{scene}.xml"
         if not path.exists():
-            raise SystemExit(f"scene not found: {path} (run from the repository root or pass --scenes)")
+            raise RenderError(f"scene not found: {path}")
         if not in_one:
             ref, ref_chunks, _ = render_scene(str(path), params={"bsdf": reference},
                                               label=f"{scene} [{reference}]", **opts)

@@ -407,7 +407,7 @@ pub fn eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, opts: &W
     if let Mat::Dielectric { eta, radiance } = mat {
         sum *= radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0);
     }
-    sum.sanitized()
+    sum
 }
 
 /// Heitz's eval walk (NEE towards ω_o at every vertex) from `state` on: the
@@ -536,7 +536,7 @@ pub fn sample(
     if !weight.is_finite() {
         return None;
     }
-    Some((wo, weight.sanitized(), order))
+    Some((wo, weight, order))
 }
 
 /// Heitz's sampling walk from `state` on (see [`sample`]); `first` drives the

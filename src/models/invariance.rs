@@ -569,7 +569,7 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
         w = -d_next;
         pdf_scale = 0.25 / (d_next.z.abs() * l_next);
     }
-    result.sanitized()
+    result
 }
 
 /// (D(h), w·h) for the half vector h of w and x; (0, 0) when w does not see h.
@@ -693,7 +693,7 @@ pub fn sample(
                 if order < opts.orders.0 || !d_next.is_finite() {
                     return None;
                 }
-                return Some((d_next, weight.sanitized(), order));
+                return Some((d_next, weight, order));
             }
         } else {
             let l = mf.abs_lambda(d_next);

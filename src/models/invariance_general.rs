@@ -248,7 +248,7 @@ pub fn eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, opts: &W
         }
         w = -d;
     }
-    result.sanitized()
+    result
 }
 
 /// Random-walk sampling of the invariance model on the diffuse microsurface:
@@ -288,7 +288,7 @@ pub fn sample(mf: &Microfacet, surf: &Microsurface, wi: DVec3, first: (f64, f64,
             if order < opts.orders.0 {
                 return None;
             }
-            return Some((d, weight.sanitized(), order));
+            return Some((d, weight, order));
         }
         if !(cont > 0.0) {
             return None;

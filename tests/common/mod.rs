@@ -596,3 +596,16 @@ pub fn walter_transmission(mf: &Microfacet, wi_l: DVec3, wo_l: DVec3, e: f64, g:
     let f = msx::microfacet::fresnel::dielectric(ci, e);
     ci * (-co) * e * e * (1.0 - f) * mf.d(h) * g / (wi_l.z * (ci + e * co).powi(2))
 }
+
+/// The C ABI's counters of cleaned outputs (`msx_diagnostics`) must not have
+/// grown since `before`: the core produced no NaN, ±Inf or negative value
+/// and no panic was caught. Counters are process-wide; every test of a
+/// binary must keep them at 0, so a concurrent test cannot mask a defect.
+pub fn assert_no_raw_defects(before: msx::ffi::MsxDiagnostics, what: &str) {
+    let after = msx::ffi::msx_diagnostics();
+    let (nf, neg, pan) = (after.nonfinite - before.nonfinite, after.negative - before.negative, after.panics - before.panics);
+    assert!(
+        nf == 0 && neg == 0 && pan == 0,
+        "{what}: the C ABI cleaned {nf} non-finite and {neg} negative raw values and caught {pan} panics"
+    );
+}

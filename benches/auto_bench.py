@@ -1,6 +1,6 @@
 """model="auto" vs the converged model it approximates (`correlated`): the
 render time saved at equal error, on the comparison scenes and the roughness
-ramp (DESIGN §6).
+ramp (README.md, model table).
 
 For each scene: a reference image of `correlated` at --ref-spp; then
 --repeats rounds, each rendering `correlated` and `auto` at --spp with the

@@ -120,7 +120,7 @@ def test_a_dying_worker_ends_the_run(tmp_path):
         pytest.fail("the run went on after a worker died")
     print(f"\n[worker killed] exit {p.returncode} after {time.perf_counter() - t0:.2f} s: {err.strip()!r}")
     assert p.returncode == 1
-    assert "a render worker process died (exit code -9)" in err and "Traceback" not in err
+    assert "a render worker process died" in err and "Traceback" not in err
     assert not any(_alive(k) for k in kids)
 
 

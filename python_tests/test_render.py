@@ -27,7 +27,7 @@ def scene_dict(mi, bsdf):
 def render(mi, bsdf, seed=0):
     import drjit as dr
 
-    dr.set_thread_count(1)  # Python BSDFs serialize on the GIL (INTEGRATION.md)
+    dr.set_thread_count(1)  # Python BSDFs serialize on the GIL (docs/mitsuba.md)
     scene = mi.load_dict(scene_dict(mi, bsdf))
     return np.array(mi.render(scene, seed=seed), dtype=np.float64)
 

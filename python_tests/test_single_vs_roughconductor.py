@@ -1,4 +1,4 @@
-"""model="single" must equal Mitsuba's roughconductor (DESIGN.md §2, §5).
+"""model="single" must equal Mitsuba's roughconductor (README.md's parameter table, docs/paper-notes.md).
 
 Mitsuba computes in float32, the Rust core in float64. Where Mitsuba's own
 float32 arithmetic is ill-conditioned the two legitimately differ by more

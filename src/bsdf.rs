@@ -68,7 +68,7 @@ impl Model {
     }
 }
 
-/// Models implemented for a surface (DESIGN.md §2), in the order of the docs.
+/// Models implemented for a surface (README.md's parameter table), in the order of the docs.
 pub fn models_for(surface: Surface) -> &'static [Model] {
     match surface {
         Surface::Conductor => &[

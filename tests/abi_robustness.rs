@@ -503,7 +503,7 @@ fn random_sweep_all_outputs_finite_and_nonnegative() {
                 if s.valid == 1 {
                     valid_samples += 1;
                     // `pdf` must agree with the pdf that `sample` reports
-                    // (DESIGN.md §4), up to the float rounding of wo; only
+                    // (docs/conventions.md), up to the float rounding of wo; only
                     // checked where that rounding cannot matter.
                     let p = msx_pdf(h.0, &m, wi, s.wo);
                     let smooth = au.min(av) >= 0.05 && wi.z > 0.2 && s.wo.z > 0.2;

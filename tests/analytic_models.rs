@@ -1,7 +1,7 @@
 //! Fast-MSX (Rosales 2023) and energy compensation (Turquin 2019 + Kulla-Conty
 //! 2017): the analytic comparison rows. Neither is energy conserving by
 //! construction in general, so their furnace albedo is measured and printed
-//! (DESIGN/issue: "report their measured albedo"); what is asserted is what
+//! (their measured albedo is reported); what is asserted is what
 //! they promise: Fast-MSX = single + a non-negative second-bounce lobe (its
 //! albedo exceeds 1 at low and moderate roughness: printed, see the notes), the
 //! compensation table equals an independent Monte Carlo estimate of the

@@ -1,4 +1,4 @@
-//! Proof that `include/msx.h` is consumable from C (DESIGN.md §7): compiles
+//! Proof that `include/msx.h` is consumable from C (docs/testing.md): compiles
 //! `tests/c/consumer.c` with the `cc` crate (outside a build script, so the
 //! target, host, optimisation level and output directory are set by hand),
 //! links it against the staticlib `libmsx.a`, runs it and checks that it

@@ -1,4 +1,4 @@
-"""Parsing and validation of ``msx_posfree`` scene parameters (DESIGN.md §2).
+"""Parsing and validation of ``msx_posfree`` scene parameters (README.md's parameter table).
 
 Everything here runs once per BSDF instance at scene load; errors name the
 parameter and the allowed values.

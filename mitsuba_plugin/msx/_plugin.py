@@ -102,7 +102,7 @@ def make_bsdf_class(mi, variant):
         LOBE_BITS = int(LOBES)
 
         class MsxPosfree(mi.BSDF):
-            """Multiple-scattering microfacet conductor (DESIGN.md §2)."""
+            """Multiple-scattering microfacet conductor (README.md's parameter table)."""
 
             def __init__(self, props):
                 mi.BSDF.__init__(self, props)

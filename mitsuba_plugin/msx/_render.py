@@ -154,7 +154,9 @@ def _stop(executor: ProcessPoolExecutor):
 
 
 def _exit_codes(executor: ProcessPoolExecutor):
-    return sorted({p.exitcode for p in getattr(executor, "_processes", {}).values() if p.exitcode not in (None, 0)})
+    """Exit codes of dead workers, without the SIGTERM the executor sends to the others when the pool breaks."""
+    return sorted({p.exitcode for p in getattr(executor, "_processes", {}).values()
+                   if p.exitcode not in (None, 0, -signal.SIGTERM)})
 
 
 def _chunks(spp: int, n: int):

@@ -1,6 +1,6 @@
 //! Beckmann specifics: Λ through erfc (no 1 + erf cancellation) and visible
 //! slope sampling for incident directions on the whole sphere, inverting the
-//! marginal CDF in log space below the horizon (DESIGN.md §5).
+//! marginal CDF in log space below the horizon (docs/paper-notes.md).
 
 use super::special::{erfc, erfcx, norm_inv, INV_SQRT_PI, SQRT_PI};
 use glam::DVec3;

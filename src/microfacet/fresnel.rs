@@ -124,8 +124,8 @@ mod tests {
     }
 }
 
-/// Dielectric Fresnel with Mitsuba 3's conventions (`fresnel` in
-/// mitsuba/render/fresnel.h): `eta` = η_int/η_ext of the interface and the sign
+/// Dielectric Fresnel with the conventions of Mitsuba 3's `fresnel()`:
+/// `eta` = η_int/η_ext of the interface and the sign
 /// of `cos_i` (measured against the normal that points to the exterior) tells
 /// the side. Returns (F, cos θ_t, η_it, η_ti): cos θ_t carries the sign opposite
 /// to `cos_i` (0 under total internal reflection, where F = 1), η_it is the

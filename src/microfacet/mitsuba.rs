@@ -1,5 +1,5 @@
 //! Mitsuba 3's own single-scattering conventions, reproduced so that
-//! `model="single"` equals the built-in `roughconductor` (DESIGN.md §2, §5):
+//! `model="single"` equals the built-in `roughconductor` (README.md's parameter table, docs/paper-notes.md):
 //!
 //! * the separable Smith term G = G1(ω_i)·G1(ω_o);
 //! * for Beckmann, Mitsuba's G1 is the rational approximation of Walter et

@@ -3,7 +3,7 @@
 //! and visible-normal (VNDF) sampling for incident directions on the whole
 //! sphere (from bounce 2 on, a random walk meets the surface from below).
 //!
-//! Conventions (DESIGN.md §4): local frame, z = macro normal. Λ(−ω) = −1 − Λ(ω),
+//! Conventions (docs/conventions.md): local frame, z = macro normal. Λ(−ω) = −1 − Λ(ω),
 //! so Λ ≥ 0 for upward and Λ ≤ −1 for downward directions.
 
 pub mod beckmann;

@@ -1,4 +1,4 @@
-//! `model="auto"` (DESIGN §6): model no more than a scene needs.
+//! `model="auto"` (README.md, model table): model no more than a scene needs.
 //!
 //! The converged model is the height-correlated position-free model
 //! (`correlated`, all orders). For smooth surfaces almost all of its energy is

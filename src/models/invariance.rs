@@ -1,5 +1,5 @@
 //! Multiple-bounce Smith microfacet BRDF from the invariance principle,
-//! Cui et al. 2023, for conductors, with the corrected readings of DESIGN.md §5.
+//! Cui et al. 2023, for conductors, with the corrected readings of docs/paper-notes.md.
 //!
 //! **Path contribution** (supplement eq. 1). A path d_0 = −ω_i, d_1, …, d_k = ω_o
 //! (directions follow the light) contributes (Π_{j<k} v_j)·S_k(d_0..d_k) to
@@ -81,7 +81,7 @@ fn lambdas(mf: &Microfacet, dirs: &[DVec3]) -> Vec<(f64, bool)> {
 }
 
 /// S_k of a direction sequence d_0..d_k with the complete invariance-principle
-/// recursion (DESIGN §5): O(k³) dynamic programming over sub-sequences.
+/// recursion (docs/paper-notes.md): O(k³) dynamic programming over sub-sequences.
 /// One direction (k = 0) gives S_0 = 1; an empty slice gives 0.
 pub fn segment_term(mf: &Microfacet, dirs: &[DVec3]) -> f64 {
     let n = dirs.len();

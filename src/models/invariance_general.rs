@@ -1,7 +1,7 @@
 //! The invariance-principle model (Cui et al. 2023) beyond conductors: the
 //! *diffuse* microsurface (Lambertian facets, Heitz 2016 §3.3), whose paths are
 //! not monotone in z (after a Lambertian bounce a direction can go up and the
-//! next one down again), so the complete S_k recursion of DESIGN §5 is needed.
+//! next one down again), so the complete S_k recursion of docs/paper-notes.md is needed.
 //!
 //! **Path contribution.** As in `invariance.rs`: a path d_0 = −ω_i, d_1, …,
 //! d_k = ω_o contributes (Π_{j<k} v_j)·S_k(d_0..d_k) to f·cos θ_o, with

@@ -1,5 +1,5 @@
 //! Position-free multiple scattering, Wang et al. 2022 (conductors), with the
-//! corrected readings of DESIGN.md §5.
+//! corrected readings of docs/paper-notes.md.
 //!
 //! A path is d_0 = −ω_i, b_0, d_1, …, b_{k−1}, d_k = ω_o (eq. 1): vertex terms
 //! v_j = F·D(h)/(4|cos d_j|) (eq. 2) and segment terms s_j = e_j·p_j.
@@ -152,7 +152,7 @@ pub(crate) fn pt_walk(
     result
 }
 
-/// Random-walk sampler (Wang §4.3 with the exit probabilities of DESIGN.md §5):
+/// Random-walk sampler (Wang §4.3 with the exit probabilities of docs/paper-notes.md):
 /// at each upward direction the walk leaves with probability 1 − continue_up,
 /// so that the weight is the product of the Fresnel terms. The first vertex
 /// uses the caller's (u_exit, u1, u2). Returns (ω_o, weight, order) or None.

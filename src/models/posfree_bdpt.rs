@@ -116,7 +116,7 @@ const LIG0: LightVertex = LightVertex { e: DVec3::ZERO, l: 0.0, area: 0.0, w: Sp
 /// Smith quantities of a direction d from one Λ evaluation:
 /// (L = |Λ(d)|, A(d), A(−d)), with A(d) = |cos d|·|Λ(−d)| and A(−d) = |cos d|·L.
 /// Λ of the upward direction with the same slope, u ≥ 0, gives |Λ(d)| = u
-/// (d up) or 1 + u (d down) without cancellation (DESIGN.md §5).
+/// (d up) or 1 + u (d down) without cancellation (docs/paper-notes.md).
 #[inline]
 pub(crate) fn smith(mf: &Microfacet, d: DVec3) -> (f64, f64, f64) {
     let u = mf.lambda(DVec3::new(d.x, d.y, d.z.abs()));

@@ -1,6 +1,6 @@
 //! Position-free multiple scattering through a rough dielectric interface,
 //! Wang et al. 2022 §3.2–3.4 (vertex terms eqs. 2–3, uncorrelated segment terms
-//! eqs. 12–14, height-correlated eqs. 19–23), with the readings of DESIGN.md §5.
+//! eqs. 12–14, height-correlated eqs. 19–23), with the readings of docs/paper-notes.md.
 //!
 //! **Sides and frames.** `eta` = η_int/η_ext; the exterior is above the macro
 //! surface (z > 0). The walk tracks the medium the light travels in and works in
@@ -10,13 +10,13 @@
 //! GGX and Beckmann, anisotropic too), and its relative IOR is η_f = η_t/η_i
 //! (η outside, 1/η inside). So each vertex is the conductor vertex of
 //! `posfree.rs` plus a refraction branch; a refraction switches the frame, i.e.
-//! negates the travel direction d. This is DESIGN §5's rule: a direction
+//! negates the travel direction d. This is the rule of docs/paper-notes.md: a direction
 //! travelling outside exits upward with G1(d), inside it exits downward with
 //! G1(−d); otherwise it hits the surface again.
 //!
 //! **Vertex terms** (current frame, w = −d_j, d = d_{j+1} before any frame switch):
 //! reflection v = F·D(h)/(4|w_z|), h = (w + d)/‖w + d‖ (eq. 2, eq. 11's
-//! denominator); transmission (eq. 3 with the half vector of DESIGN §5)
+//! denominator); transmission (eq. 3 with the half vector of docs/paper-notes.md)
 //! v = |w·h_t||d·h_t|·η_f²(1−F)·D(h_t) / (|w_z| (w·h_t + η_f d·h_t)²),
 //! h_t = −(w + η_f d)/‖·‖ oriented to the incident side (h_t.z > 0, w·h_t > 0,
 //! d·h_t < 0). F = F(w·h, η_f), 1 under total internal reflection.

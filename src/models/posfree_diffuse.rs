@@ -8,7 +8,7 @@
 //!   D_{−d_j}(m) = ⟨−d_j, m⟩⁺ D(m) / A(−d_j),   A(−d_j) = |cos d_j|·L_j,
 //! L_j = |Λ(d_j)|. For specular facets Wang's vertex term times the incident
 //! masking p_j = G1_dist(−d_j) = 1/L_j is exactly Heitz's phase function
-//! (DESIGN.md §5); the diffuse vertex term is defined the same way,
+//! (docs/paper-notes.md); the diffuse vertex term is defined the same way,
 //!   v_j = L_j · p(−d_j → d_{j+1})
 //!       = (a/π) ∫ ⟨d_{j+1}, m⟩⁺ ⟨−d_j, m⟩⁺ D(m) dm / |cos d_j|,
 //! the diffuse microfacet BRDF·cos θ_o without shadowing–masking, carrying

@@ -125,6 +125,22 @@ typedef struct MsxParams {
 } MsxParams;
 
 /*
+ Stability of Bitterli & d'Eon's p_exit (a diagnostic for the evaluation
+ report): relative error of its sum-of-exponentials form against the stable
+ invariance-principle form on up to `paths` conductor random-walk paths of
+ `vertices` bounces from an incident direction at `theta_i` radians, GGX or
+ Beckmann of roughness `alpha`.
+ */
+typedef struct MsxPexitStudy {
+  double median_rel_error;
+  double max_rel_error;
+  /*
+   Fraction of paths where the p_exit form is not finite (exact division by zero).
+   */
+  double nonfinite_fraction;
+} MsxPexitStudy;
+
+/*
  Process-wide counts of what the C ABI had to clean before returning:
  output values that were NaN or ±Inf (including finite values that overflow
  `float`), negative values, and panics caught at the boundary. All three
@@ -281,6 +297,16 @@ int32_t msx_bsdf_new(const struct MsxParams *params,
 void msx_bsdf_free(struct MsxBsdf *bsdf);
 
 /*
+ See `MsxPexitStudy`. Invalid arguments give all zeros.
+ */
+struct MsxPexitStudy msx_pexit_study(uint32_t distribution,
+                                     double alpha,
+                                     double theta_i,
+                                     uint32_t vertices,
+                                     uint32_t paths,
+                                     uint64_t seed);
+
+/*
  Library version as a static NUL-terminated string.
  */
 const char *msx_version(void);
@@ -347,6 +373,18 @@ int32_t msx_eval_batch(const struct MsxBsdf *bsdf,
                        const struct MsxBatchOut *output,
                        char *err,
                        size_t err_len);
+
+/*
+ Batched `msx_eval_orders`: writes `value` (per channel) for n lanes,
+ restricted to the scattering orders first..=last (1 = single scattering).
+ */
+int32_t msx_eval_orders_batch(const struct MsxBsdf *bsdf,
+                              const struct MsxBatchIn *input,
+                              uint32_t first,
+                              uint32_t last,
+                              const struct MsxBatchOut *output,
+                              char *err,
+                              size_t err_len);
 
 /*
  Batched `msx_pdf`: writes `pdf` for n lanes.

@@ -344,6 +344,45 @@ pub extern "C" fn msx_bsdf_free(bsdf: *mut MsxBsdf) {
     }
 }
 
+/// Stability of Bitterli & d'Eon's p_exit (a diagnostic for the evaluation
+/// report): relative error of its sum-of-exponentials form against the stable
+/// invariance-principle form on up to `paths` conductor random-walk paths of
+/// `vertices` bounces from an incident direction at `theta_i` radians, GGX or
+/// Beckmann of roughness `alpha`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default)]
+pub struct MsxPexitStudy {
+    pub median_rel_error: f64,
+    pub max_rel_error: f64,
+    /// Fraction of paths where the p_exit form is not finite (exact division by zero).
+    pub nonfinite_fraction: f64,
+}
+
+/// See `MsxPexitStudy`. Invalid arguments give all zeros.
+#[no_mangle]
+pub extern "C" fn msx_pexit_study(distribution: u32, alpha: f64, theta_i: f64, vertices: u32, paths: u32, seed: u64) -> MsxPexitStudy {
+    let dist = match distribution {
+        MSX_DISTRIBUTION_BECKMANN => Distribution::Beckmann,
+        MSX_DISTRIBUTION_GGX => Distribution::Ggx,
+        _ => return MsxPexitStudy::default(),
+    };
+    if !(alpha.is_finite() && alpha > 0.0 && theta_i.is_finite()) || vertices == 0 || vertices > 64 {
+        return MsxPexitStudy::default();
+    }
+    catch_unwind(AssertUnwindSafe(|| {
+        let mf = crate::microfacet::Microfacet::new(dist, alpha, alpha);
+        let wi = DVec3::new(theta_i.sin(), 0.0, theta_i.cos());
+        let mut rng = crate::rng::Sampler::new(seed);
+        let (median_rel_error, max_rel_error, nonfinite_fraction) =
+            crate::models::invariance::p_exit_error_study(&mf, wi, vertices as usize, paths as usize, &mut rng);
+        MsxPexitStudy { median_rel_error, max_rel_error, nonfinite_fraction }
+    }))
+    .unwrap_or_else(|_| {
+        caught_panic();
+        MsxPexitStudy::default()
+    })
+}
+
 /// Library version as a static NUL-terminated string.
 #[no_mangle]
 pub extern "C" fn msx_version() -> *const c_char {
@@ -521,7 +560,8 @@ pub extern "C" fn msx_sample(bsdf: *const MsxBsdf, mat: *const MsxMaterial, wi: 
 
 #[derive(Clone, Copy)]
 enum Op {
-    Eval,
+    /// `eval` restricted to the scattering orders first..=last (all: 1..=u32::MAX).
+    Eval(u32, u32),
     Pdf,
     EvalPdf,
     Sample,
@@ -658,7 +698,9 @@ fn run_lane(b: &Bsdf, inp: &Inputs, out: OutPtrs, key: u64, op: Op, i: usize) {
     let wi = Inputs::dir(&inp.wi, i);
     let lane_key = key.wrapping_add(i as u64);
     let (value, pdf, wo) = match op {
-        Op::Eval => (out_spectrum(b.eval(&mat, wi, Inputs::dir(&inp.wo, i), lane_key), channels), 0.0, [0.0; 3]),
+        Op::Eval(first, last) => {
+            (out_spectrum(b.eval_orders(&mat, wi, Inputs::dir(&inp.wo, i), lane_key, (first, last)), channels), 0.0, [0.0; 3])
+        }
         Op::Pdf => (MsxSpectrum::default(), out_f32(b.pdf(&mat, wi, Inputs::dir(&inp.wo, i))), [0.0; 3]),
         Op::EvalPdf => {
             let (v, p) = b.eval_pdf(&mat, wi, Inputs::dir(&inp.wo, i), lane_key);
@@ -735,7 +777,22 @@ fn run_batch(bsdf: *const MsxBsdf, input: *const MsxBatchIn, output: *const MsxB
 /// Batched `msx_eval`: writes `value` (per channel) for n lanes.
 #[no_mangle]
 pub extern "C" fn msx_eval_batch(bsdf: *const MsxBsdf, input: *const MsxBatchIn, output: *const MsxBatchOut, err: *mut c_char, err_len: usize) -> i32 {
-    run_batch(bsdf, input, output, Op::Eval, err, err_len)
+    run_batch(bsdf, input, output, Op::Eval(1, u32::MAX), err, err_len)
+}
+
+/// Batched `msx_eval_orders`: writes `value` (per channel) for n lanes,
+/// restricted to the scattering orders first..=last (1 = single scattering).
+#[no_mangle]
+pub extern "C" fn msx_eval_orders_batch(
+    bsdf: *const MsxBsdf,
+    input: *const MsxBatchIn,
+    first: u32,
+    last: u32,
+    output: *const MsxBatchOut,
+    err: *mut c_char,
+    err_len: usize,
+) -> i32 {
+    run_batch(bsdf, input, output, Op::Eval(first, last), err, err_len)
 }
 
 /// Batched `msx_pdf`: writes `pdf` for n lanes.

@@ -221,6 +221,50 @@ pub fn p_exit_with_bound(mf: &Microfacet, dirs: &[DVec3]) -> (f64, f64) {
     (p, err)
 }
 
+/// Relative error of Bitterli & d'Eon's p_exit ([`p_exit`]) against the stable
+/// form (Π|Λ|)·S_k on conductor random-walk paths with `k` vertices from ω_i
+/// (d_0 = −ω_i, each next direction a mirror reflection about a visible
+/// normal, last direction upward): where the p_exit form cancels. Returns
+/// (median relative error, largest finite one, fraction of non-finite results)
+/// over the paths drawn (up to `n` attempts; paths that leave earlier or end
+/// downward are skipped).
+pub fn p_exit_error_study(mf: &Microfacet, wi: DVec3, k: usize, n: usize, rng: &mut Sampler) -> (f64, f64, f64) {
+    let mut errors = Vec::with_capacity(n);
+    let mut nonfinite = 0usize;
+    for _ in 0..n {
+        let mut dirs = vec![-wi];
+        let mut w = wi;
+        for _ in 0..k {
+            let (u1, u2) = rng.next2();
+            let Some(m) = mf.sample_visible(w, u1, u2) else { break };
+            let d = reflect(w, m);
+            dirs.push(d);
+            w = -d;
+        }
+        if dirs.len() != k + 1 || dirs[k].z <= 0.0 {
+            continue;
+        }
+        let reference = dirs[..k].iter().map(|&d| mf.abs_lambda(d)).product::<f64>() * segment_term(mf, &dirs);
+        if !(reference > 0.0 && reference.is_finite()) {
+            continue;
+        }
+        let p = p_exit(mf, &dirs);
+        if p.is_finite() {
+            errors.push(((p - reference) / reference).abs());
+        } else {
+            nonfinite += 1;
+        }
+    }
+    let total = errors.len() + nonfinite;
+    if total == 0 {
+        return (0.0, 0.0, 0.0);
+    }
+    errors.sort_by(f64::total_cmp);
+    let median = errors.get(errors.len() / 2).copied().unwrap_or(f64::INFINITY);
+    let max = errors.last().copied().unwrap_or(f64::INFINITY);
+    (median, max, nonfinite as f64 / total as f64)
+}
+
 /// Small growable buffer of f64 that stays on the stack for short paths.
 #[derive(Clone)]
 struct Buf {

@@ -81,12 +81,12 @@ def build_parser():
 
     c = sub.add_parser("compare", help="render the paper comparisons side by side with Mitsuba's built-ins",
                        parents=[common])
+    c.add_argument("--quick", action="store_true", help="small settings: a first look in a few minutes (CI)")
     c.add_argument("--scenes", default=None, help="folder with the scene XMLs (default: the installed scenes)")
-    c.add_argument("--out", default="out", help="report folder")
-    c.add_argument("--spp", type=_positive("--spp"), default=32)
-    c.add_argument("--variant", default=DEFAULT_VARIANT)
-    c.add_argument("--workers", type=_positive("--workers"), default=workers)
-    c.add_argument("--seed", type=int, default=0)
+    c.add_argument("--out", default="out", help="report folder (index.html, CSVs, PNGs)")
+    c.add_argument("--variant", default=None,
+                   help="Mitsuba variant (default: the fastest available, llvm_ad_rgb if it works here)")
+    c.add_argument("--cache", default=None, help="folder of cached reference renders (default ~/.cache/msx)")
     c.set_defaults(func=cmd_compare)
     return p
 

@@ -1,134 +1,338 @@
-"""``msx compare``: the paper comparisons, side by side with Mitsuba's built-ins.
+"""``msx compare``: the evaluation — speed against accuracy.
 
-Left: Mitsuba's `roughconductor` (single scattering); right: `msx_posfree`.
-Fig. 9 holds both spheres in one scene (direct lighting only, so they do not
-interact); the furnace renders one sphere per image (another object would
-hide part of the environment) and the two renders are put side by side. For every model the report
-gives the right/left energy ratio with its Monte Carlo standard error (from
-the independent render chunks), images, difference images and a chart.
+Renders the paper scenes with every model × estimator and Mitsuba's built-ins,
+measures error against time against a converged Smith reference, maps where
+each model fails, draws the lobes and the energy curves, and writes
+``DIR/index.html`` (self-contained), ``results.csv``, ``atlas.csv``,
+``energy.csv`` and the PNGs. ``--quick`` is the small version (CI, a first
+look); the full run is the report's.
 """
 
 from __future__ import annotations
 
+import csv
 import math
+import os
+import platform
 import time
 from pathlib import Path
 
-MODELS = ("single", "uncorrelated", "correlated")
-# scene -> (title, reference BSDF or None if both spheres are in one scene, models)
-SCENES = {
-    "fig09_copper_sphere": ("Wang 2022 Fig. 9: copper, GGX α = 1, directional light", None, MODELS + ("heitz", "invariance")),
-    "furnace_sphere": ("White furnace: F = 1, GGX α = 1.5, uniform white environment", "roughconductor",
-                       MODELS + ("heitz", "invariance", "fastmsx", "compensated")),
-    "fig01_dielectric_sphere": ("Wang 2022 Fig. 1 (c, d): rough dielectric, GGX α = 1, bk7", "roughdielectric",
-                                MODELS + ("heitz", "invariance")),
-    "roughness_ramp": ("Copper, GGX α = 0.02, 0.05, 0.1, 0.3, 1 (top to bottom): where model='auto' drops the walk",
-                       None, MODELS + ("auto",)),
-}
+import numpy as np
 
+from ._render import RenderError, scenes_dir
+from .evaluation import atlas as atlas_mod
+from .evaluation import charts, common
+from .evaluation import energy as energy_mod
+from .evaluation import lobes as lobes_mod
+from .evaluation import renders
+from .evaluation.common import CONDUCTOR_ROWS, DIELECTRIC_ROWS, UNBIASED, row_label
 
-def _stats(left_chunks, right_chunks):
-    """Means of the left and right images, and of right − left over paired
-    chunks with its standard error."""
-    import numpy as np
-
-    lefts = np.array([float(np.mean(img)) for _, img in left_chunks])
-    rights = np.array([float(np.mean(img)) for _, img in right_chunks])
-    n = len(lefts)
-    diff = rights - lefts
-    se = float(np.std(diff, ddof=1) / math.sqrt(n)) if n > 1 else float("nan")
-    return float(lefts.mean()), float(rights.mean()), float(diff.mean()), se
+SWEEP_SCENES = [
+    renders.SweepScene("fig09_copper_sphere", "Wang 2022 Fig. 9: copper sphere, GGX α = 1, directional light (direct only)",
+                       "conductor", "roughconductor", CONDUCTOR_ROWS, "direct"),
+    renders.SweepScene("fig01_dielectric_slab", "Wang 2022 Fig. 1 (c, d): rough dielectric slab, GGX α = 1, directional lights (direct only)",
+                       "dielectric", "roughdielectric", DIELECTRIC_ROWS, "direct"),
+    renders.SweepScene("fig01_dielectric_sphere", "Rough dielectric sphere, GGX α = 1, environment + directional light, 16 bounces",
+                       "dielectric", "roughdielectric", DIELECTRIC_ROWS, "environment"),
+]
+# Side-by-side only (no sweep): (scene, title, built-in, models, spp scale)
+SIDE_SCENES = [
+    ("furnace_sphere", "White furnace: F = 1, GGX α = 1.5 — an energy-conserving BSDF vanishes (value 1)",
+     "roughconductor", ["single", "uncorrelated", "correlated", "heitz", "invariance", "auto", "compensated", "fastmsx"]),
+    ("roughness_ramp", "Copper, GGX α = 0.02, 0.05, 0.1, 0.3, 1 (top to bottom): where model='auto' drops the walk",
+     "roughconductor", ["single", "correlated", "auto", "invariance"]),
+]
 
 
 def run(args):
-    import numpy as np
-
-    from ._render import RenderError, render_scene, scenes_dir, write_image
-
+    t_start = time.perf_counter()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = []
-    montage = {}
-    t_start = time.perf_counter()
-    opts = dict(variant=args.variant, spp=args.spp, workers=args.workers, seed=args.seed)
-    for scene, (title, reference, models) in SCENES.items():
-        in_one = reference is None
-        path = Path(args.scenes or scenes_dir()) / f"{scene}.xml"
-        if not path.exists():
-            raise RenderError(f"scene not found: {path}")
-        if not in_one:
-            ref, ref_chunks, _ = render_scene(str(path), params={"bsdf": reference},
-                                              label=f"{scene} [{reference}]", **opts)
-        for model in models:
-            label = f"{scene} [{model}]"
-            img, chunks, wall = render_scene(str(path), params={"model": model}, label=label, **opts)
-            if in_one:
-                w = img.shape[1] // 2
-                halves = lambda cs, side: [(n, c[:, :w] if side == 0 else c[:, w:2 * w]) for n, c in cs]
-                left, right, diff, se = _stats(halves(chunks, 0), halves(chunks, 1))
-            else:
-                left, right, diff, se = _stats(ref_chunks, chunks)
-                img = np.concatenate([ref, img], axis=1)
-            write_image(out / f"{scene}_{model}", img, args.variant)
-            w = img.shape[1] // 2
-            d = np.abs(img[:, w:2 * w] - img[:, :w])
-            write_image(out / f"{scene}_{model}_absdiff", np.concatenate([d, d], axis=1), args.variant)
-            montage.setdefault(scene, []).append(img)
-            rows.append((scene, model, left, right, diff, se, wall))
+    variant, route = (args.variant, f"variant {args.variant} (chosen with --variant)") if args.variant else \
+        common.default_variant()
+    st = common.settings(args.quick, variant)
+    sdir = Path(args.scenes) if args.scenes else scenes_dir()
+    for s in SWEEP_SCENES:
+        if not (sdir / f"{s.name}.xml").exists():
+            raise RenderError(f"scene not found: {sdir / (s.name + '.xml')}")
+    cache = Path(args.cache) if args.cache else Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "msx"
+    stages = [f"sweep {s.name}" for s in SWEEP_SCENES] + ["side-by-side scenes", "stability atlas", "lobes",
+                                                          "energy curves", "report"]
+    prog = common.Progress(stages)
+    print(f"msx compare{' --quick' if st.quick else ''}: route {route}; report in {out}", flush=True)
 
-    for scene, imgs in montage.items():
-        write_image(out / f"{scene}_montage", np.concatenate(imgs, axis=0), args.variant)
+    renderer = renders.Renderer(variant, sdir)
+    results, scene_reports = [], []
+    for scene in SWEEP_SCENES:
+        prog.stage(f"sweep {scene.name}")
+        scene_reports.append(_sweep_scene(renderer, scene, st, cache, out, prog, results))
 
-    lines = [
-        "# msx compare",
-        "",
-        "Left sphere: Mitsuba `roughconductor`; right sphere: `msx_posfree` with the model in the row.",
-        f"{args.spp} spp, variant `{args.variant}`, {args.workers} worker process(es). "
-        "Energy = mean pixel value of each half; ± is one standard error over the independent render chunks.",
-        "With `single`, both halves are the same BSDF: the difference must be 0 within ~3 standard errors "
-        "(the furnace renders share their samples, so there it is float32 rounding only).",
-        "",
-        "| scene | model | left (built-in) | right (msx) | right/left | right − left | ± s.e. | |Δ|/s.e. | wall s |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for scene, model, left, right, diff, se, wall in rows:
-        z = abs(diff) / se if se > 0 else float("nan")
-        lines.append(f"| {scene} | {model} | {left:.5f} | {right:.5f} | {right / left:.4f} | {diff:+.5f} | {se:.5f} | {z:.1f} | {wall:.1f} |")
-    lines += ["", "Images: `<scene>_<model>.png/.exr`, `<scene>_<model>_absdiff.png` (|right − left|, mirrored), "
-              "`<scene>_montage.png` (one row per model, in the table's order)."]
-    for scene, (title, _, models) in SCENES.items():
-        lines += ["", f"## {scene}", "", title, "", f"![{scene}]({scene}_montage.png)"]
-    try:
-        import matplotlib
+    prog.stage("side-by-side scenes")
+    side_reports = [_side_scene(renderer, name, title, builtin, models, st, out, prog)
+                    for name, title, builtin, models in SIDE_SCENES]
+    renderer.release()
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+    prog.stage("stability atlas")
+    atlas_rows = atlas_mod.compute(st, progress=prog.update)
+    pexit = atlas_mod.pexit_map(st)
+    fails = atlas_mod.failures(atlas_rows)
+    stability_pngs = [charts.stability(out / f"stability_{s}.png", atlas_rows, s, st.atlas_alphas, st.atlas_thetas)
+                      for s in atlas_mod.SURFACES]
+    fast = [r for r in atlas_rows if r["model"] == "fastmsx"]
+    extras_png = charts.extras(out / "stability_extras.png", pexit, fast, st.atlas_alphas, st.atlas_thetas)
+    _write_csv(out / "atlas.csv", atlas_rows, ["model", "estimator", "surface", "alpha", "theta_i", "furnace_error",
+                                               "furnace_se", "rel_std", "nonfinite", "max_weight", "ns_per_call",
+                                               "energy"])
 
-        all_models = []
-        for r in rows:
-            if r[1] not in all_models:
-                all_models.append(r[1])
-        fig, ax = plt.subplots(figsize=(8, 3.4))
-        width = 0.8 / len(SCENES)
-        for i, scene in enumerate(SCENES):
-            sel = [r for r in rows if r[0] == scene]
-            xs = [all_models.index(r[1]) + width * i for r in sel]
-            ax.bar(xs, [r[3] / r[2] for r in sel], width=width * 0.95, yerr=[r[5] / r[2] for r in sel], label=scene)
-        ax.axhline(1.0, color="k", lw=0.8)
-        ax.set_xticks([k + 0.4 - width / 2 for k in range(len(all_models))], all_models)
-        ax.set_ylabel("energy: msx / Mitsuba built-in")
-        ax.legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(out / "energy_ratio.png", dpi=120)
-        lines += ["", "## Energy ratio", "", "![energy ratio](energy_ratio.png)"]
-    except ImportError:
-        lines += ["", "(matplotlib not installed: no chart)"]
-    lines += ["", f"Total time: {time.perf_counter() - t_start:.0f} s"]
-    (out / "report.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines[7:7 + len(rows) + 1]))
-    print(f"\nreport: {out / 'report.md'}")
-    # The furnace renders of `single` and roughconductor use the same seeds, hence
-    # the same samples: their difference is float32 rounding, not noise (1e-4 relative allowance).
-    bad = [r for r in rows if r[1] == "single" and abs(r[4]) > 4 * r[5] + 1e-4 * abs(r[2])]
+    prog.stage("lobes")
+    lobe_data = lobes_mod.compute(st, progress=prog.update)
+    lobe_pngs = [charts.lobes(out / f"lobes_{s}.png", s, lobe_data, lobes_mod.ORDERS) for s in lobes_mod.MODELS]
+
+    prog.stage("energy curves")
+    import mitsuba as mi
+
+    energy_rows = energy_mod.compute(st, energy_mod.copper_rgb(mi), progress=prog.update)
+    energy_png = charts.energy(out / "energy.png", energy_rows, energy_mod.THETAS)
+    _write_csv(out / "energy.csv", energy_rows, ["surface", "material", "model", "theta_i", "alpha", "part", "value", "se"])
+
+    prog.stage("report")
+    _write_csv(out / "results.csv", results, ["scene", "model", "estimator", "spp", "seconds", "rel_mse", "bias2",
+                                              "variance", "rel_mse_se", "unbiased"])
+    from .evaluation import report
+
+    checks = _physics_checks(scene_reports)
+    total = time.perf_counter() - t_start
+    html = report.page(dict(route=route, settings=st, scenes=scene_reports, side=side_reports, fails=fails,
+                            stability=stability_pngs, extras=extras_png, lobes=lobe_pngs, energy=energy_png,
+                            checks=checks, seconds=total, machine=f"{platform.machine()}, {os.cpu_count()} cores",
+                            out=out))
+    (out / "index.html").write_text(html)
+    print(f"\nreport: {out / 'index.html'} ({total:.0f} s)")
+    for c in checks:
+        print(f"  [{'ok' if c['ok'] else 'FAILED'}] {c['name']}: {c['detail']}")
+    bad = [c for c in checks if not c["ok"]]
     if bad:
-        raise SystemExit(f"model=single differs from roughconductor by more than 4 standard errors: {bad}")
+        raise RenderError(f"{len(bad)} physics check(s) failed: " + "; ".join(c["name"] for c in bad))
+
+
+# ---------------------------------------------------------------- sweep scenes
+
+
+def _sweep_scene(renderer, scene, st, cache, out, prog, results):
+    size = (st.size, st.size)
+    base = renderer.params(scene, ("single", "pt"), size)
+    mask = renderer.object_mask(scene.name, base)
+    data = renders.sweep(renderer, scene, st, progress=prog.update)
+    top = max(st.spps)
+
+    # The reference: the unbiased estimator with the lowest variance × time, at ref_factor × the top spp,
+    # doubled until its own noise is ≤ 1/10 of the smallest error plotted (or the cap is reached).
+    def efficiency(row):
+        im = data[row][top]
+        return renders.seed_variance(im.images, mask) * float(np.mean(im.seconds))
+
+    ref_row = min((r for r in scene.rows if r in UNBIASED), key=efficiency)
+    ref_spp = st.ref_factor * top
+    while True:
+        prog.update(0, ref_spp, f"reference ({row_label(ref_row)}, {ref_spp} spp)")
+        h1, h2, ref_seconds, cached = renders.reference(renderer, scene, size, ref_row, ref_spp, cache,
+                                                        progress=lambda d, t: prog.update(d, t, "reference spp"))
+        ref = 0.5 * (h1 + h2)
+        noise = renders.reference_noise(h1, h2, ref, mask)
+        stats = renders.statistics(scene, data, ref, noise, mask)
+        smallest = min(r["rel_mse"] for r in stats)
+        if noise <= smallest / 10 or ref_spp >= st.ref_max_factor * top:
+            break
+        ref_spp *= 2
+    results.extend(stats)
+
+    # Time to reach 1 % and 0.1 % relative MSE: rel_mse(t) = bias² + c/t, c from the measured variances.
+    table = []
+    for row in scene.rows:
+        rs = [r for r in stats if (r["model"], r["estimator"]) == row]
+        c = common.fit_variance_constant([r["seconds"] for r in rs], [r["variance"] for r in rs])
+        b2 = rs[-1]["bias2"]
+        table.append(dict(label=row_label(row), row=row, bias2=b2, c=c, top=rs[-1],
+                          t1=common.time_to_reach(1e-2, b2, c), t01=common.time_to_reach(1e-3, b2, c),
+                          unbiased=row in UNBIASED,
+                          slope=_slope([r["spp"] for r in rs], [r["variance"] for r in rs])))
+    # Speed target: the error heitz reaches at the top spp, and the time invariance needs for it.
+    h = next(t for t in table if t["row"] == ("heitz", "pt"))
+    target = h["top"]["rel_mse"]
+    speed = {}
+    for t in table:
+        if t["unbiased"]:
+            speed[t["label"]] = common.time_to_reach(target, t["bias2"], t["c"])
+    speed_ratio = speed.get("invariance", float("nan")) / h["top"]["seconds"]
+
+    # Images: converged (seed mean at the top spp) per row, side by side, and differences to the built-in.
+    means = {row: sum(data[row][top].images) / len(data[row][top].images) for row in scene.rows}
+    labels = [f"{row_label(r)}\n{_energy(means[r], mask):.4f}" for r in scene.rows]
+    grid_png = charts.image_grid(out / f"{scene.name}_models.png", [means[r] for r in scene.rows] + [ref], labels +
+                                 [f"reference ({row_label(ref_row)}, {ref_spp} spp)"], cols=6,
+                                 title=f"{scene.title}: {top} spp × {st.seeds} seeds per model (label: mean over the object)")
+    builtin = means[("builtin", "-")]
+    diff_png = charts.difference_grid(out / f"{scene.name}_diff.png", builtin,
+                                      [means[r] for r in scene.rows[1:]] + [ref],
+                                      [row_label(r) for r in scene.rows[1:]] + ["reference"], mask,
+                                      f"{scene.name}: model − built-in {scene.builtin} (same pixels)")
+    # Equal time: the budget of heitz at a middle spp; each row at the spp whose time is closest.
+    mid = st.spps[len(st.spps) // 2]
+    budget = float(np.mean(data[("heitz", "pt")][mid].seconds))
+    crops, crop_labels = [], []
+    for row in scene.rows:
+        spp = min(data[row], key=lambda s: abs(math.log(max(np.mean(data[row][s].seconds), 1e-9) / budget)))
+        img = data[row][spp].images[0]
+        crops.append(img)
+        crop_labels.append(f"{row_label(row)}: {spp} spp, {np.mean(data[row][spp].seconds):.2f} s\n"
+                           f"rel MSE {renders.rel_mse(img, ref, mask):.2e}")
+    ys, xs = np.nonzero(mask)
+    crop = ((ys.min(), ys.max() + 1), (xs.min(), xs.max() + 1)) if ys.size else None
+    crops_png = charts.image_grid(out / f"crops_{scene.name}.png", crops, crop_labels, cols=6, crop=crop,
+                                  title=f"Equal time ≈ {budget:.2f} s (heitz at {mid} spp), seed 0")
+    evt_png = charts.error_vs_time(out / f"error_vs_time_{scene.name}.png", scene.title, stats)
+    renders.write_exr(out / f"{scene.name}_reference.exr", ref)
+    return dict(scene=scene, stats=stats, table=table, ref=dict(row=ref_row, spp=ref_spp, noise=noise,
+                seconds=ref_seconds, cached=cached, smallest=smallest), mask_pixels=int(mask.sum()),
+                speed=dict(target=target, heitz_seconds=h["top"]["seconds"], invariance_seconds=speed.get("invariance"),
+                           ratio=speed_ratio, spp=top),
+                pngs=dict(evt=evt_png, models=grid_png, diff=diff_png, crops=crops_png),
+                means=means, data_top={r: data[r][top] for r in scene.rows}, data=data, mask=mask, reference=ref,
+                energy={row_label(r): _energy(means[r], mask) for r in scene.rows})
+
+
+def _slope(spps, variances):
+    x = np.log([s for s, v in zip(spps, variances) if v > 0])
+    y = np.log([v for v in variances if v > 0])
+    return float(np.polyfit(x, y, 1)[0]) if len(x) >= 2 else float("nan")
+
+
+def _energy(img, mask):
+    return float(img[mask].mean()) if mask.any() else float("nan")
+
+
+# ---------------------------------------------------------------- side-by-side scenes
+
+
+def _side_scene(renderer, name, title, builtin, models, st, out, prog):
+    spp = max(1, st.compare_spp)
+    path = renderer.scene_path(name)
+    import xml.etree.ElementTree as ET
+
+    root = ET.parse(path).getroot()
+    defaults = {d.get("name"): d.get("value") for d in root.iter("default")}
+    w, h = int(defaults.get("width", 128)), int(defaults.get("height", 128))
+    size = (max(8, int(w * st.compare_scale)), max(8, int(h * st.compare_scale)))
+    sizes = {"width": str(size[0]), "height": str(size[1])}
+    mask = renderer.object_mask(name, dict(sizes, bsdf="msx_posfree"))
+    rows = [("builtin", "-")] + [(m, "pt") for m in models]
+    images, seeds = {}, 4
+    for i, row in enumerate(rows):
+        params = renderer.params(name, row, builtin=builtin)
+        params.update(sizes)
+        renderer.warm_up(name, params)
+        imgs = [renderer.render(name, params, max(1, spp // seeds), seed=500 + k)[0] for k in range(seeds)]
+        images[row] = imgs
+        prog.update(i + 1, len(rows), f"{name} renders")
+    means = {r: sum(v) / len(v) for r, v in images.items()}
+    b = images[("builtin", "-")]
+    energy = []
+    for row in rows:
+        e = [float(im[mask].mean()) for im in images[row]]
+        eb = [float(im[mask].mean()) for im in b]
+        d = np.array(e) - np.array(eb)
+        energy.append(dict(label=row_label(row), value=float(np.mean(e)), builtin=float(np.mean(eb)),
+                           ratio=float(np.mean(e) / np.mean(eb)), se=float(d.std(ddof=1) / math.sqrt(len(d)))))
+    grid_png = charts.image_grid(out / f"{name}_models.png", [means[r] for r in rows],
+                                 [f"{row_label(r)}\n{e['value']:.4f}" for r, e in zip(rows, energy)], cols=min(len(rows), 5),
+                                 title=f"{title} ({spp} spp; label: mean over the object)")
+    diff_png = charts.difference_grid(out / f"{name}_diff.png", means[("builtin", "-")], [means[r] for r in rows[1:]],
+                                      [row_label(r) for r in rows[1:]], mask, f"{name}: model − built-in {builtin}")
+    renderer.release()
+    return dict(name=name, title=title, builtin=builtin, energy=energy, pngs=dict(models=grid_png, diff=diff_png),
+                spp=spp)
+
+
+# ---------------------------------------------------------------- physics checks
+
+
+BOOTSTRAP = 300  # resamplings of the object's pixels behind each check's standard error
+
+
+def _pixel_variance(images, mask):
+    """Per pixel (summed over channels, which share their noise): the unbiased variance of one render over
+    the seeds, and the seed mean per pixel and channel."""
+    n = len(images)
+    m = sum(images) / n
+    return (sum(((i - m)[mask]) ** 2 for i in images) / (n - 1)).sum(axis=1), m[mask]
+
+
+def _bootstrap_se(stat, size, seed):
+    """Standard error of stat(indices) over resamplings of the object's pixel values."""
+    rng = np.random.default_rng(seed)
+    vals = [stat(rng.integers(0, size, size)) for _ in range(BOOTSTRAP)]
+    return float(np.std(vals, ddof=1))
+
+
+def _same_within_noise(a, b, mask, seed):
+    """Two sets of renders of the same expectation: ratio of the squared difference of their seed means to
+    the variance that difference should have, its bootstrap standard error, and the 4σ limit."""
+    va, ma = _pixel_variance(a, mask)
+    vb, mb = _pixel_variance(b, mask)
+    d2 = ((ma - mb) ** 2).sum(axis=1)
+    e = va / len(a) + vb / len(b)
+    if not np.any(e > 0):  # deterministic on both sides: they must agree to rounding
+        return float(d2.sum()), 0.0, 0.0
+    ratio = lambda idx: float(d2[idx].sum() / max(e[idx].sum(), 1e-300))  # noqa: E731
+    r = ratio(np.arange(len(d2)))
+    se = _bootstrap_se(ratio, len(d2), seed)
+    return r, se, 1.0 + 4.0 * se
+
+
+def _variance_slope(by_spp, mask, seed):
+    """Log-log slope of the variance of one render against spp, and its bootstrap standard error."""
+    spps = sorted(by_spp)
+    per = [_pixel_variance(by_spp[s].images, mask)[0] for s in spps]
+    x = np.log(spps)
+    fit = lambda idx: float(np.polyfit(x, np.log([max(v[idx].mean(), 1e-300) for v in per]), 1)[0])  # noqa: E731
+    return fit(np.arange(len(per[0]))), _bootstrap_se(fit, len(per[0]), seed)
+
+
+def _physics_checks(scene_reports):
+    """Facts every run must show, each with a limit from its own standard error (bootstrap over the object's
+    pixels; 4σ)."""
+    checks = []
+    for k, rep in enumerate(scene_reports):
+        name = rep["scene"].name
+        top = rep["data_top"]
+        mask = rep["mask"]
+        r, se, lim = _same_within_noise(top[("heitz", "pt")].images, top[("invariance", "pt")].images, mask, 10 + k)
+        checks.append(dict(name=f"{name}: heitz = invariance within noise", ok=r <= lim,
+                           detail=f"squared difference of their converged images / its expected variance = {r:.2f} "
+                                  f"± {se:.2f} (limit {lim:.2f}; 1 = noise only)"))
+        r, se, lim = _same_within_noise(top[("single", "pt")].images, top[("builtin", "-")].images, mask, 20 + k)
+        if lim == 0.0:
+            ok, detail = r <= 1e-10, f"both deterministic here; summed squared difference {r:.2e}"
+        else:
+            ok, detail = r <= lim, f"squared difference / expected variance = {r:.2e} ± {se:.2e} (limit {lim:.2f})"
+        checks.append(dict(name=f"{name}: single = built-in {rep['scene'].builtin}", ok=ok, detail=detail))
+        for t in rep["table"]:
+            if t["unbiased"]:
+                slope, se = _variance_slope(rep["data"][t["row"]], mask, 30 + k)
+                checks.append(dict(name=f"{name}: {t['label']} variance ∝ 1/spp", ok=abs(slope + 1.0) <= 4.0 * se,
+                                   detail=f"log-log slope of the variance against spp {slope:.3f} ± {se:.3f} "
+                                          f"(expected −1; limit 4σ)"))
+        ref = rep["ref"]
+        checks.append(dict(name=f"{name}: reference noise ≤ 1/10 of the smallest plotted error",
+                           ok=ref["noise"] <= ref["smallest"] / 10,
+                           detail=f"reference ({row_label(ref['row'])}, {ref['spp']} spp) noise {ref['noise']:.2e}, "
+                                  f"smallest plotted rel MSE {ref['smallest']:.2e}"))
+    return checks
+
+
+def _write_csv(path, rows, columns):
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow(r)

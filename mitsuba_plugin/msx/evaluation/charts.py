@@ -1,0 +1,282 @@
+"""The report's charts (matplotlib, Agg backend). Each function writes one PNG
+and returns its path."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.colors import LogNorm, TwoSlopeNorm  # noqa: E402
+
+from .common import row_label  # noqa: E402
+
+STYLE = {
+    "built-in": dict(color="black", ls="--", marker="x"),
+    "single": dict(color="0.45", ls="-", marker="x"),
+    "uncorrelated": dict(color="tab:orange", ls="-", marker="o"),
+    "uncorrelated bdpt": dict(color="tab:orange", ls=":", marker="s"),
+    "correlated": dict(color="tab:blue", ls="-", marker="o"),
+    "correlated bdpt": dict(color="tab:blue", ls=":", marker="s"),
+    "heitz": dict(color="tab:red", ls="-", marker="^"),
+    "invariance": dict(color="tab:green", ls="-", marker="v"),
+    "auto": dict(color="tab:purple", ls="-", marker="d"),
+    "compensated": dict(color="tab:brown", ls="-", marker="P"),
+    "fastmsx": dict(color="tab:pink", ls="-", marker="*"),
+}
+
+
+def tonemap(img, exposure=1.0):
+    """Linear RGB to sRGB-encoded [0, 1] (clipped), for display."""
+    x = np.clip(img * exposure, 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+
+
+def error_vs_time(path, title, stats):
+    """Left: relative MSE against render seconds (log-log), one line per model × estimator, dashed at each
+    biased model's bias floor. Right: the split of the top-spp error into bias² and variance."""
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 5.2), gridspec_kw=dict(width_ratios=[1.5, 1]))
+    labels = []
+    for r in stats:
+        if r["label"] not in labels:
+            labels.append(r["label"])
+    for label in labels:
+        rs = sorted([r for r in stats if r["label"] == label], key=lambda r: r["spp"])
+        st = STYLE.get(label, {})
+        ax.plot([r["seconds"] for r in rs], [r["rel_mse"] for r in rs], label=label, lw=1.4, ms=4, **st)
+        b2 = rs[-1]["bias2"]
+        if not rs[-1]["unbiased"] and b2 > 0:
+            ax.axhline(b2, color=st.get("color", "k"), lw=0.6, ls=(0, (2, 4)), alpha=0.7)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("render seconds (this machine, this route)")
+    ax.set_ylabel("relative MSE over the object's pixels")
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    ax.legend(fontsize=7, ncol=2)
+    top = {}
+    for r in stats:
+        if r["label"] not in top or r["spp"] > top[r["label"]]["spp"]:
+            top[r["label"]] = r
+    xs = np.arange(len(labels))
+    b2 = [max(top[lb]["bias2"], 1e-12) for lb in labels]
+    var = [max(top[lb]["variance"] / 1.0, 1e-12) for lb in labels]
+    bx.bar(xs - 0.2, b2, 0.4, label="bias² (converged vs reference)", color="tab:red")
+    bx.bar(xs + 0.2, var, 0.4, label=f"variance of one render at {top[labels[0]]['spp']} spp", color="tab:blue")
+    bx.set_yscale("log")
+    bx.set_xticks(xs, labels, rotation=60, ha="right", fontsize=7)
+    bx.set_ylabel("relative error")
+    bx.legend(fontsize=7)
+    bx.grid(True, axis="y", which="both", lw=0.3, alpha=0.5)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def image_grid(path, images, labels, title=None, cols=None, exposure=1.0, crop=None):
+    """Tone-mapped images with their label under each."""
+    n = len(images)
+    cols = cols or n
+    rows = math.ceil(n / cols)
+    h, w = images[0].shape[:2]
+    if crop is not None:
+        (y0, y1), (x0, x1) = crop
+        images = [im[y0:y1, x0:x1] for im in images]
+        h, w = y1 - y0, x1 - x0
+    fig, axes = plt.subplots(rows, cols, figsize=(2.0 * cols * max(1.0, w / h), 2.7 * rows), squeeze=False)
+    for i, ax in enumerate(axes.ravel()):
+        ax.axis("off")
+        if i < n:
+            ax.imshow(tonemap(images[i], exposure), interpolation="nearest")
+            ax.text(0.5, -0.03, labels[i], transform=ax.transAxes, ha="center", va="top", fontsize=7)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def difference_grid(path, reference, images, labels, mask, title):
+    """(image − reference) on the same pixels, luminance, in false colour with one symmetric scale."""
+    lum = lambda im: im[..., :3] @ np.array([0.2126, 0.7152, 0.0722])  # noqa: E731
+    diffs = [np.where(mask, lum(im) - lum(reference), np.nan) for im in images]
+    finite = np.concatenate([d[np.isfinite(d)] for d in diffs]) if diffs else np.zeros(1)
+    lim = float(np.percentile(np.abs(finite), 99.5)) if finite.size else 1.0
+    lim = lim if lim > 0 else 1.0
+    n = len(images)
+    cols = min(n, 6)
+    rows = math.ceil(n / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(2.0 * cols + 0.8, 2.3 * rows), squeeze=False)
+    im = None
+    for i, ax in enumerate(axes.ravel()):
+        ax.axis("off")
+        if i < n:
+            im = ax.imshow(diffs[i], cmap="RdBu_r", norm=TwoSlopeNorm(0.0, -lim, lim), interpolation="nearest")
+            ax.text(0.5, -0.03, labels[i], transform=ax.transAxes, ha="center", va="top", fontsize=7)
+    if im is not None:
+        fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.8, label="luminance difference (object pixels)")
+    fig.suptitle(title, fontsize=9)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+METRICS = [("furnace_error", "furnace error |1 − E|", LogNorm(1e-3, 1.0)),
+           ("rel_std", "noise per call (rel. std)", LogNorm(1e-2, 10.0)),
+           ("max_weight", "largest contribution / mean", LogNorm(1.0, 1e3)),
+           ("ns_per_call", "ns per eval call", LogNorm(30.0, 1e4))]
+
+
+def stability(path, rows, surface, alphas, thetas):
+    """Heat maps over α × θ_i: one row per model, one column per metric; cells with raw non-finite values
+    are marked ×."""
+    models = []
+    for r in rows:
+        key = (r["model"], r["estimator"])
+        if r["surface"] == surface and key not in models:
+            models.append(key)
+    fig, axes = plt.subplots(len(models), len(METRICS), figsize=(3.1 * len(METRICS), 1.55 * len(models) + 0.8),
+                             squeeze=False)
+    ai = {a: i for i, a in enumerate(alphas)}
+    ti = {t: i for i, t in enumerate(thetas)}
+    for mi_, key in enumerate(models):
+        cells = [r for r in rows if r["surface"] == surface and (r["model"], r["estimator"]) == key]
+        for mj, (metric, name, norm) in enumerate(METRICS):
+            grid = np.full((len(alphas), len(thetas)), np.nan)
+            bad = []
+            for c in cells:
+                v = c[metric]
+                if metric == "rel_std" and v == 0:
+                    v = np.nan  # deterministic model: no noise
+                grid[ai[c["alpha"]], ti[c["theta_i"]]] = max(v, norm.vmin) if np.isfinite(v) else np.nan
+                if c["nonfinite"] > 0:
+                    bad.append((ti[c["theta_i"]], ai[c["alpha"]]))
+            ax = axes[mi_, mj]
+            im = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis", norm=norm)
+            for x, y in bad:
+                ax.text(x, y, "×", color="red", ha="center", va="center", fontsize=9)
+            ax.set_xticks(range(len(thetas)), [f"{t:g}" for t in thetas], fontsize=5)
+            ax.set_yticks(range(len(alphas)), [f"{a:.2g}" for a in alphas], fontsize=5)
+            if mi_ == 0:
+                ax.set_title(name, fontsize=8)
+            if mj == 0:
+                ax.set_ylabel(f"{row_label(key)}\nα", fontsize=7)
+            if mi_ == len(models) - 1:
+                ax.set_xlabel("θ_i (degrees)", fontsize=7)
+            fig.colorbar(im, ax=ax, fraction=0.05, pad=0.02).ax.tick_params(labelsize=5)
+    fig.suptitle(f"Stability atlas: {surface.replace('_', ' ')} (× = raw non-finite or negative values)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def extras(path, pexit, fastmsx_rows, alphas, thetas):
+    """Bitterli & d'Eon's p_exit cancellation (median relative error, 6 bounces) and Fast-MSX's signed
+    energy error E − 1, over α × θ_i."""
+    fig, axes = plt.subplots(1, 3, figsize=(14, 3.8))
+    for ax, dist in zip(axes[:2], ("ggx", "beckmann")):
+        grid, nonfinite = pexit[dist]
+        im = ax.imshow(np.maximum(grid, 1e-17), origin="lower", aspect="auto", cmap="magma",
+                       norm=LogNorm(1e-16, 1.0))
+        for i in range(grid.shape[0]):
+            for j in range(grid.shape[1]):
+                if nonfinite[i, j] > 0:
+                    ax.text(j, i, f"{nonfinite[i, j]:.0%}", color="cyan", ha="center", va="center", fontsize=6)
+        ax.set_title(f"p_exit (Bitterli & d'Eon), {dist}: median rel. error at 6 bounces\n"
+                     "(cyan: share of paths with a division by zero)", fontsize=8)
+        fig.colorbar(im, ax=ax)
+    grid = np.full((len(alphas), len(thetas)), np.nan)
+    for r in fastmsx_rows:
+        grid[alphas.index(r["alpha"]), thetas.index(r["theta_i"])] = r["energy"] - 1.0
+    lim = float(np.nanmax(np.abs(grid))) if np.isfinite(grid).any() else 1.0
+    im = axes[2].imshow(grid, origin="lower", aspect="auto", cmap="RdBu_r", norm=TwoSlopeNorm(0.0, -lim, lim))
+    axes[2].set_title("Fast-MSX: furnace energy E − 1 (red: gains energy, blue: loses)", fontsize=8)
+    fig.colorbar(im, ax=axes[2])
+    for ax in axes:
+        ax.set_xticks(range(len(thetas)), [f"{t:g}" for t in thetas], fontsize=6)
+        ax.set_yticks(range(len(alphas)), [f"{a:.2g}" for a in alphas], fontsize=6)
+        ax.set_xlabel("θ_i (degrees)", fontsize=7)
+        ax.set_ylabel("α", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def lobes(path, surface, data, orders):
+    """Polar charts of f·cos θ_o in the plane of incidence: rows = (α, θ_i) cases, columns = orders and
+    total; every model on each chart; E_r / E_t in the legend of the total."""
+    cases = sorted(k for k in data if k[0] == surface)
+    cols = [o for o, _ in orders] + ["total"]
+    fig = plt.figure(figsize=(3.0 * len(cols), 3.0 * len(cases)))
+    for i, key in enumerate(cases):
+        case = data[key]
+        th = case["theta_o"]
+        models = [m for m in case if m != "theta_o"]
+        for j, col in enumerate(cols):
+            ax = fig.add_subplot(len(cases), len(cols), i * len(cols) + j + 1, projection="polar")
+            ax.set_theta_zero_location("N")
+            for m in models:
+                v = case[m][col]
+                lab = f"{m} (E_r {case[m]['E_r']:.2f}, E_t {case[m]['E_t']:.2f})" if col == "total" else m
+                # Reflection: θ_o ∈ (−90°, 90°); transmission: θ_o + 180°. Each side drawn separately.
+                n = len(th) if surface != "dielectric" else len(th) // 2
+                ax.plot(th[:n], v[:n], lw=1.0, label=lab, **{k: STYLE.get(m, {}).get(k) for k in ("color",)})
+                if surface == "dielectric":
+                    ax.plot(th[n:], v[n:], lw=1.0, **{k: STYLE.get(m, {}).get(k) for k in ("color",)})
+            if surface != "dielectric":
+                ax.set_thetamin(-90)
+                ax.set_thetamax(90)
+            ax.tick_params(labelsize=5)
+            ax.set_title(f"{surface}, α {key[1]:g}, θ_i {key[2]:g} rad: order {col}", fontsize=7)
+            if col == "total":
+                ax.legend(fontsize=5, loc="lower left", bbox_to_anchor=(-0.25, -0.45))
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def energy(path, rows, thetas):
+    """Directional albedo against α per model: conductor F = 1, copper per RGB channel, dielectric."""
+    panels = [("conductor", "F=1", "E", "conductor, F = 1: albedo"),
+              ("conductor", "Cu", "R", "copper, R channel"), ("conductor", "Cu", "G", "copper, G channel"),
+              ("conductor", "Cu", "B", "copper, B channel"),
+              ("dielectric", "eta=1.5", "E_r+E_t", "dielectric η 1.5: E_r + E_t"),
+              ("dielectric", "eta=1.5", "E_t", "dielectric η 1.5: E_t")]
+    fig, axes = plt.subplots(len(panels), len(thetas), figsize=(4.2 * len(thetas), 2.6 * len(panels)), squeeze=False)
+    for i, (surface, material, part, name) in enumerate(panels):
+        sel = [r for r in rows if r["surface"] == surface and r["material"] == material]
+        models = []
+        for r in sel:
+            if r["model"] not in models:
+                models.append(r["model"])
+        for j, theta in enumerate(thetas):
+            ax = axes[i, j]
+            for m in models:
+                rs = [r for r in sel if r["model"] == m and r["theta_i"] == theta]
+                alphas = sorted({r["alpha"] for r in rs})
+                if part == "E_r+E_t":
+                    ys = [sum(r["value"] for r in rs if r["alpha"] == a) for a in alphas]
+                else:
+                    ys = [next(r["value"] for r in rs if r["alpha"] == a and r["part"] == part) for a in alphas]
+                ax.plot(alphas, ys, label=m, lw=1.2, color=STYLE.get(m, {}).get("color"), marker=".")
+            ax.set_xscale("log")
+            if part in ("E", "E_r+E_t"):
+                ax.axhline(1.0, color="k", lw=0.6)
+            ax.set_title(f"{name}, θ_i = {theta:g}°", fontsize=8)
+            ax.set_xlabel("α", fontsize=7)
+            ax.grid(True, lw=0.3)
+            if i == 0 and j == 0:
+                ax.legend(fontsize=6)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path

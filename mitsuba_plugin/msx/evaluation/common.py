@@ -1,0 +1,153 @@
+"""Settings, progress and small numerical helpers shared by the evaluation."""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# A model row of the evaluation: (model, estimator); model "builtin" is Mitsuba's own BSDF.
+Row = tuple
+
+CONDUCTOR_ROWS = [("builtin", "-"), ("single", "pt"), ("uncorrelated", "pt"), ("uncorrelated", "bdpt"),
+                  ("correlated", "pt"), ("correlated", "bdpt"), ("heitz", "pt"), ("invariance", "pt"),
+                  ("auto", "pt"), ("compensated", "pt"), ("fastmsx", "pt")]
+DIELECTRIC_ROWS = [r for r in CONDUCTOR_ROWS if r[0] != "fastmsx"]
+# Estimators of the Smith multiple-scattering BSDF itself (unbiased against the reference).
+UNBIASED = {("heitz", "pt"), ("invariance", "pt")}
+
+
+def row_label(row) -> str:
+    model, est = row
+    if model == "builtin":
+        return "built-in"
+    return model if est in ("pt", "-") else f"{model} {est}"
+
+
+@dataclass
+class Settings:
+    """What one run computes. `quick` is the CI / first-look size; the full run is the report's."""
+    quick: bool
+    size: int            # image width and height of the sweep scenes
+    spps: list           # the spp sweep
+    seeds: int           # independent renders per spp
+    ref_factor: int      # reference spp = ref_factor × max(spps), doubled until its noise is small enough
+    ref_max_factor: int
+    atlas_alphas: list
+    atlas_thetas: list   # degrees
+    atlas_calls: int     # furnace estimate per cell
+    atlas_repeat: tuple  # (fixed ω_o per cell, calls at each) for the noise per call
+    lobe_points: int     # θ_o samples per side
+    lobe_calls: int      # eval calls averaged per θ_o and order
+    lobe_alphas: list
+    energy_alphas: list
+    energy_calls: int
+    compare_spp: int     # side-by-side scenes (furnace, ramp)
+    compare_scale: float
+    variant: str = "scalar_rgb"
+    notes: list = field(default_factory=list)
+
+
+def settings(quick: bool, variant: str) -> Settings:
+    if quick:
+        return Settings(True, 40, [1, 2, 4, 8], 3, 16, 64, list(np.geomspace(1e-3, 4.0, 6)),
+                        [0.0, 30.0, 60.0, 75.0, 85.0, 89.9], 3000, (3, 300), 19, 150, [1.0],
+                        list(np.geomspace(0.02, 2.0, 6)), 3000, 8, 0.25, variant)
+    return Settings(False, 128, [1, 2, 4, 8, 16, 32, 64], 3, 16, 128, list(np.geomspace(1e-3, 4.0, 12)),
+                    [0.0, 15.0, 30.0, 45.0, 60.0, 70.0, 80.0, 85.0, 88.0, 89.9], 20000, (6, 2000), 61, 1500,
+                    [0.5, 1.0], list(np.geomspace(0.02, 2.0, 12)), 20000, 64, 1.0, variant)
+
+
+LLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
+
+
+def llvm_usable() -> str | None:
+    """None if llvm_ad_rgb renders here, else the reason (probed in a subprocess: a bad libLLVM can crash)."""
+    probe = ("import mitsuba as mi, drjit as dr\nmi.set_variant('llvm_ad_rgb')\n"
+             "x = dr.maximum(mi.Float([1.0, 2.0]), mi.Float([2.0, 1.0])) * 2\n"
+             "assert x.numpy().tolist() == [4.0, 4.0]\nprint('ok')\n")
+    try:
+        import mitsuba as mi
+
+        if "llvm_ad_rgb" not in mi.variants():
+            return "this Mitsuba build has no llvm_ad_rgb variant"
+        r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
+    except Exception as e:  # pragma: no cover
+        return f"LLVM probe failed: {e}"
+    if r.returncode != 0 or "ok" not in r.stdout:
+        return "llvm_ad_rgb unusable (needs libLLVM >= 19 and DRJIT_LIBLLVM_PATH)"
+    return None
+
+
+def default_variant() -> tuple[str, str]:
+    """The fastest route available here and why."""
+    if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(LLVM19):
+        os.environ["DRJIT_LIBLLVM_PATH"] = LLVM19  # read when drjit first starts its LLVM backend
+    why = llvm_usable()
+    if why is None:
+        return "llvm_ad_rgb", "LLVM variant, batched native calls (the fastest route of this installation)"
+    return "scalar_rgb", f"scalar variant, one Python BSDF call per sample ({why})"
+
+
+class Progress:
+    """Stage i of N and, inside a stage, done/total with an ETA; plain lines off a terminal."""
+
+    def __init__(self, stages, stream=None):
+        self.stages = list(stages)
+        self.stream = stream or sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.t0 = time.perf_counter()
+        self.index = 0
+        self.last_line = 0.0
+
+    def stage(self, name):
+        self.index = self.stages.index(name) + 1 if name in self.stages else self.index + 1
+        self.name = name
+        self.stage_t0 = time.perf_counter()
+        self._write(f"[{self.index}/{len(self.stages)}] {name} (elapsed {self.elapsed():.0f} s)", final=True)
+
+    def elapsed(self):
+        return time.perf_counter() - self.t0
+
+    def update(self, done, total, what=""):
+        now = time.perf_counter()
+        if not self.tty and done < total and now - self.last_line < 10.0:
+            return  # off a terminal: a line every 10 s at most
+        self.last_line = now
+        el = now - self.stage_t0
+        eta = f", stage ETA {el / done * (total - done):.0f} s" if 0 < done < total else ""
+        self._write(f"    {self.name}: {done}/{total} {what}{eta}", final=done >= total)
+
+    def _write(self, line, final):
+        if self.tty:
+            self.stream.write("\r" + line + " " * 10 + ("\n" if final else ""))
+        else:
+            self.stream.write(line + "\n")
+        self.stream.flush()
+
+
+def rel_mse(image, reference, mask):
+    """Relative MSE over the object's pixels: mean((I − R)²) / mean(R²), all channels."""
+    d = (image - reference)[mask]
+    r = reference[mask]
+    den = float(np.mean(r * r))
+    return float(np.mean(d * d)) / den if den > 0 else float("nan")
+
+
+def fit_variance_constant(times, variances):
+    """c of variance ≈ c / t (least squares in relative terms: c = mean(v·t))."""
+    vt = [v * t for v, t in zip(variances, times) if v > 0 and t > 0 and math.isfinite(v)]
+    return float(np.median(vt)) if vt else float("nan")
+
+
+def time_to_reach(target, bias2, c):
+    """Render seconds for rel MSE = target under rel_mse(t) = bias² + c/t (inf below the bias floor)."""
+    if not (math.isfinite(c) and c > 0):
+        return float("nan")
+    room = target - max(bias2, 0.0)
+    return c / room if room > 0 else float("inf")

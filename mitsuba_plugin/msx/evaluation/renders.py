@@ -1,0 +1,278 @@
+"""Renders of the evaluation: the sweep scenes, their Smith reference, the spp
+sweep of every model × estimator, object masks and the side-by-side scenes.
+
+All renders of a run happen in this process with one variant (the route the
+report names). Built-in BSDFs render in drjit's default mode; msx_posfree in
+LLVM variants inside ``msx.evaluated_mode()`` (native code cannot run in
+symbolic kernels), scalar variants on one render thread (the GIL). Seconds
+are the wall time of ``mi.render`` (scene loading and the first, compiling
+render excluded).
+"""
+
+from __future__ import annotations
+
+import gc
+import hashlib
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .common import UNBIASED, rel_mse, row_label
+
+
+@dataclass
+class SweepScene:
+    name: str           # scene file stem
+    title: str
+    surface: str        # conductor | dielectric
+    builtin: str        # Mitsuba's twin BSDF
+    rows: list          # (model, estimator) rows of the sweep
+    lighting: str
+
+
+@dataclass
+class Image:
+    """Renders of one row at one spp: one image per seed and the seconds each took."""
+    images: list
+    seconds: list
+
+
+# ---------------------------------------------------------------- rendering
+
+
+class Renderer:
+    """Loads the scenes of one variant and renders them, timing mi.render."""
+
+    def __init__(self, variant: str, scenes_dir: Path):
+        import drjit as dr
+        import mitsuba as mi
+
+        import msx
+
+        mi.set_variant(variant)
+        if variant.startswith("scalar"):
+            dr.set_thread_count(1)  # Python BSDFs serialise on the GIL: more threads only add contention
+        msx.register()
+        self.mi, self.dr, self.msx = mi, dr, msx
+        self.variant = variant
+        self.scenes_dir = Path(scenes_dir)
+        self._loaded = None  # (key, scene)
+
+    def scene_path(self, name):
+        return self.scenes_dir / f"{name}.xml"
+
+    def params(self, scene: SweepScene | str, row, size=None, builtin=None):
+        model, est = row
+        p = {}
+        if model == "builtin":
+            p["bsdf"] = builtin or (scene.builtin if isinstance(scene, SweepScene) else "roughconductor")
+        else:
+            p.update(bsdf="msx_posfree", model=model, estimator=est if est != "-" else "pt")
+        if size:
+            p["width"], p["height"] = str(size[0]), str(size[1])
+        return p
+
+    def _scene(self, name, params):
+        key = (name, tuple(sorted(params.items())))
+        if self._loaded is None or self._loaded[0] != key:
+            self._loaded = None
+            gc.collect()  # no live msx instance may remain when a built-in renders symbolically
+            self._loaded = (key, self.mi.load_file(str(self.scene_path(name)), **params))
+        return self._loaded[1]
+
+    def render(self, name, params, spp, seed):
+        """(image as float64 [H, W, 3], seconds of mi.render)."""
+        scene = self._scene(name, params)
+        msx_row = params.get("bsdf") == "msx_posfree"
+        ctx = self.msx.evaluated_mode() if (msx_row and self.variant.startswith("llvm")) else _Null()
+        with ctx:
+            t0 = time.perf_counter()
+            img = self.mi.render(scene, seed=seed, spp=spp)
+            arr = np.array(img, dtype=np.float64)
+            seconds = time.perf_counter() - t0
+        if not np.all(np.isfinite(arr)):
+            raise RuntimeError(f"non-finite pixels in {name} {params}")
+        return arr[..., :3], seconds
+
+    def warm_up(self, name, params):
+        """One tiny render: loads the scene and compiles its kernels outside the timed renders."""
+        self.render(name, params, 1, 10**6)
+
+    def release(self):
+        self._loaded = None
+        gc.collect()
+
+    def object_mask(self, name, params, sub=3):
+        """Pixels whose whole footprint (sub × sub rays) hits a surface with msx_posfree: the object's pixels."""
+        mi = self.mi
+        scene = self._scene(name, dict(params, bsdf="msx_posfree", model="single", estimator="pt"))
+        sensor = scene.sensors()[0]
+        film = sensor.film()
+        w, h = film.crop_size()
+        if self.variant.startswith("llvm"):
+            ys, xs, sy, sx = np.meshgrid(np.arange(h), np.arange(w), np.arange(sub), np.arange(sub), indexing="ij")
+            u = ((xs + (sx + 0.5) / sub) / w).ravel().astype(np.float32)
+            v = ((ys + (sy + 0.5) / sub) / h).ravel().astype(np.float32)
+            ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(mi.Float(u), mi.Float(v)), mi.Point2f(0.5, 0.5))
+            si = scene.ray_intersect(ray)
+            ours = mi.Bool(False)
+            for shape in scene.shapes():
+                if type(shape.bsdf()).__name__ == "MsxPosfree":
+                    ours = ours | (si.is_valid() & (si.shape == mi.ShapePtr(shape)))
+            hit = np.array(ours.numpy(), dtype=bool)
+            return hit.reshape(h, w, sub * sub).all(axis=2)
+        return self._mask_scalar(scene, w, h, sub)
+
+    def _mask_scalar(self, scene, w, h, sub):
+        mi = self.mi
+        sensor = scene.sensors()[0]
+        mask = np.ones((h, w), dtype=bool)
+        for y in range(h):
+            for x in range(w):
+                for j in range(sub * sub):
+                    sx, sy = (j % sub + 0.5) / sub, (j // sub + 0.5) / sub
+                    ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f((x + sx) / w, (y + sy) / h), mi.Point2f(0.5, 0.5))
+                    si = scene.ray_intersect(ray)
+                    if not (bool(si.is_valid()) and type(si.bsdf()).__name__ == "MsxPosfree"):
+                        mask[y, x] = False
+                        break
+        return mask
+
+
+class _Null:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+# ---------------------------------------------------------------- reference
+
+
+def _scene_text(path: Path) -> str:
+    """The scene file and every file it includes (the cache key depends on all of them)."""
+    text = path.read_text()
+    inc = path.parent / "include"
+    if inc.is_dir():
+        text += "".join(f.name + f.read_text() for f in sorted(inc.glob("*.xml")))
+    return text
+
+
+def reference_key(renderer: Renderer, name, params, spp, row):
+    import msx
+
+    blob = json.dumps({"scene": _scene_text(renderer.scene_path(name)), "params": params, "spp": spp,
+                       "row": list(row), "variant": renderer.variant, "version": msx.__version__,
+                       "native": msx.native_version()}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:24]
+
+
+def reference(renderer: Renderer, scene: SweepScene, size, row, spp, cache: Path, progress=None):
+    """The converged render of the Smith multiple-scattering BSDF (`row`, an unbiased estimator):
+    (image, per-pixel-mean noise as relative MSE, seconds, from_cache). Two independent halves give the
+    noise: var(mean) = MSE(h1, h2)/4 per pixel and channel."""
+    params = renderer.params(scene, row, size)
+    key = reference_key(renderer, scene.name, params, spp, row)
+    path = Path(cache) / f"reference-{scene.name}-{key}.npz"
+    if path.exists():
+        d = np.load(path)
+        return d["h1"], d["h2"], float(d["seconds"]), True
+    halves, seconds = [], 0.0
+    chunk = max(1, min(spp // 2, 256))
+    for half in range(2):
+        acc, done = None, 0
+        while done < spp // 2:
+            n = min(chunk, spp // 2 - done)
+            img, s = renderer.render(scene.name, params, n, seed=7_000_000 + half * 100_000 + done)
+            acc = img * n if acc is None else acc + img * n
+            done += n
+            seconds += s
+            if progress:
+                progress(half * (spp // 2) + done, spp)
+        halves.append(acc / done)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, h1=halves[0], h2=halves[1], seconds=seconds)
+    return halves[0], halves[1], seconds, False
+
+
+def reference_noise(h1, h2, ref, mask):
+    """Relative MSE of the mean of two halves due to its own noise."""
+    d = (h1 - h2)[mask]
+    return float(np.mean(d * d)) / 4.0 / float(np.mean(ref[mask] ** 2))
+
+
+# ---------------------------------------------------------------- sweep
+
+
+def sweep(renderer: Renderer, scene: SweepScene, st, progress=None):
+    """{row: {spp: Image}} over every row, spp and seed of the settings."""
+    size = (st.size, st.size)
+    out = {}
+    total = len(scene.rows) * len(st.spps) * st.seeds
+    done = 0
+    for index, row in enumerate(scene.rows):
+        params = renderer.params(scene, row, size)
+        renderer.warm_up(scene.name, params)
+        out[row] = {}
+        # Independent renders per row (a shared seed correlates the noise of two models), except that
+        # `single` shares the built-in's seeds: with the same samples the two images must be equal.
+        base = 0 if row[0] in ("builtin", "single") else 100_000 * index
+        for spp in st.spps:
+            imgs, secs = [], []
+            for k in range(st.seeds):
+                img, s = renderer.render(scene.name, params, spp, seed=base + 1000 * k + spp)
+                imgs.append(img)
+                secs.append(s)
+                done += 1
+                if progress:
+                    progress(done, total, f"renders ({row_label(row)}, {spp} spp)")
+            out[row][spp] = Image(imgs, secs)
+    renderer.release()
+    return out
+
+
+def statistics(scene: SweepScene, data, ref, ref_noise, mask):
+    """Per row and spp: rel MSE against the reference (mean over seeds), seconds (mean), variance (spread
+    over seeds, relative), and per row the bias² (its seed-mean at the top spp against the reference,
+    minus both noises)."""
+    rows = []
+    for row, by_spp in data.items():
+        spps = sorted(by_spp)
+        top = by_spp[spps[-1]]
+        n = len(top.images)
+        mean_top = sum(top.images) / n
+        var_top = seed_variance(top.images, mask, ref) / n
+        bias2 = rel_mse(mean_top, ref, mask) - var_top - ref_noise
+        for spp in spps:
+            im = by_spp[spp]
+            errs = [rel_mse(i, ref, mask) for i in im.images]
+            rows.append(dict(scene=scene.name, model=row[0], estimator=row[1], label=row_label(row), spp=spp,
+                             seconds=float(np.mean(im.seconds)), rel_mse=float(np.mean(errs)),
+                             rel_mse_se=float(np.std(errs, ddof=1) / math.sqrt(len(errs))) if len(errs) > 1 else 0.0,
+                             variance=seed_variance(im.images, mask, ref), bias2=bias2,
+                             unbiased=row in UNBIASED))
+    return rows
+
+
+def seed_variance(images, mask, reference=None):
+    """Relative variance of one render (per pixel and channel), from the spread over seeds, normalised like
+    rel_mse by mean(R²) of the reference (the seed mean's own square would carry its noise)."""
+    n = len(images)
+    if n < 2:
+        return float("nan")
+    m = sum(images) / n
+    d = sum(((i - m)[mask]) ** 2 for i in images) / (n - 1)
+    r = reference if reference is not None else m
+    return float(np.mean(d)) / float(np.mean(r[mask] ** 2))
+
+
+def write_exr(path, image):
+    """A linear RGB image as EXR (Mitsuba's Bitmap)."""
+    import mitsuba as mi
+
+    mi.Bitmap(np.ascontiguousarray(image, dtype=np.float32), pixel_format=mi.Bitmap.PixelFormat.RGB).write(str(path))

@@ -11,6 +11,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.ticker  # noqa: E402,F401
 from matplotlib.colors import LogNorm, TwoSlopeNorm  # noqa: E402
 
 from .common import row_label  # noqa: E402
@@ -215,7 +216,7 @@ def lobes(path, surface, data, orders):
     total; every model on each chart; E_r / E_t in the legend of the total."""
     cases = sorted(k for k in data if k[0] == surface)
     cols = [o for o, _ in orders] + ["total"]
-    fig = plt.figure(figsize=(3.0 * len(cols), 3.0 * len(cases)))
+    fig = plt.figure(figsize=(3.0 * len(cols) + 2.6, 3.0 * len(cases)))
     for i, key in enumerate(cases):
         case = data[key]
         th = case["theta_o"]
@@ -223,6 +224,7 @@ def lobes(path, surface, data, orders):
         for j, col in enumerate(cols):
             ax = fig.add_subplot(len(cases), len(cols), i * len(cols) + j + 1, projection="polar")
             ax.set_theta_zero_location("N")
+            ax.set_theta_direction(-1)  # ω_i comes from the left; the specular lobe lies to the right
             for m in models:
                 v = case[m][col]
                 lab = f"{m} (E_r {case[m]['E_r']:.2f}, E_t {case[m]['E_t']:.2f})" if col == "total" else m
@@ -235,9 +237,12 @@ def lobes(path, surface, data, orders):
                 ax.set_thetamin(-90)
                 ax.set_thetamax(90)
             ax.tick_params(labelsize=5)
-            ax.set_title(f"{surface}, α {key[1]:g}, θ_i {key[2]:g} rad: order {col}", fontsize=7)
+            ax.yaxis.set_major_locator(matplotlib.ticker.MaxNLocator(3))
+            ax.set_title(f"α {key[1]:g}, θ_i {key[2]:g} rad: {'order ' + col if col != 'total' else 'total'}",
+                         fontsize=7)
             if col == "total":
-                ax.legend(fontsize=5, loc="lower left", bbox_to_anchor=(-0.25, -0.45))
+                ax.legend(fontsize=5, loc="center left", bbox_to_anchor=(1.1, 0.5))
+    fig.suptitle(f"Lobes, {surface}: f·cos θ_o in the plane of incidence (radius), per scattering order", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)

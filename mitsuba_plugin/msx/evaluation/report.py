@@ -84,8 +84,9 @@ def _scene_section(rep):
     sp = rep["speed"]
     out = [f"<h3>{html.escape(sc.title)}</h3>"]
     out.append(_img(rep["pngs"]["evt"], f"error against time, {sc.name}"))
-    out.append(f'<p class="box">Reference: <b>{row_label(ref["row"])}</b> (the unbiased estimator with the lowest '
-               f"variance × time in the sweep) at {ref['spp']} spp, {_sec(ref['seconds'])}"
+    out.append(f'<p class="box">Reference: <b>{row_label(ref["row"])}</b> (Heitz\'s BSDF with the heights integrated '
+               f"out; its efficiency 1/(variance × time) in this sweep is {ref['efficiency_vs_heitz']:.2f} × heitz's) "
+               f"at {ref['spp']} spp, {_sec(ref['seconds'])}"
                f"{' (from the cache)' if ref['cached'] else ''}; its own noise, from two independent halves, "
                f"{_e(ref['noise'])} relative MSE = {ref['noise'] / ref['smallest']:.3f} × the smallest plotted error "
                f"({_e(ref['smallest'])}). Object pixels: {rep['mask_pixels']}.</p>")

@@ -58,7 +58,8 @@ def run(args):
     cache = Path(args.cache) if args.cache else Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "msx"
     stages = [f"sweep {s.name}" for s in SWEEP_SCENES] + ["side-by-side scenes", "stability atlas", "lobes",
                                                           "energy curves", "report"]
-    prog = common.Progress(stages)
+    # Shares of a run's time per stage (measured on the full and quick runs), for the run's ETA.
+    prog = common.Progress(stages, [0.12, 0.12, 0.3, 0.04, 0.25, 0.12, 0.04, 0.01])
     print(f"msx compare{' --quick' if st.quick else ''}: route {route}; report in {out}", flush=True)
 
     renderer = renders.Renderer(variant, sdir)

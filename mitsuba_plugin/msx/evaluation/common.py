@@ -95,10 +95,12 @@ def default_variant() -> tuple[str, str]:
 
 
 class Progress:
-    """Stage i of N and, inside a stage, done/total with an ETA; plain lines off a terminal."""
+    """Stage i of N and, inside a stage, done/total with the stage's ETA and the run's (from each stage's
+    share of a run's time, `weights`); plain lines off a terminal."""
 
-    def __init__(self, stages, stream=None):
+    def __init__(self, stages, weights=None, stream=None):
         self.stages = list(stages)
+        self.weights = list(weights or [1.0] * len(self.stages))
         self.stream = stream or sys.stderr
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.t0 = time.perf_counter()
@@ -120,7 +122,14 @@ class Progress:
             return  # off a terminal: a line every 10 s at most
         self.last_line = now
         el = now - self.stage_t0
-        eta = f", stage ETA {el / done * (total - done):.0f} s" if 0 < done < total else ""
+        eta = ""
+        if 0 < done < total:
+            left = el / done * (total - done)
+            i = self.index - 1
+            done_w = sum(self.weights[:i]) + self.weights[i] * done / total
+            rest_w = sum(self.weights) - done_w
+            run_left = self.elapsed() / done_w * rest_w if done_w > 0 else float("nan")
+            eta = f", stage ETA {left:.0f} s, run ETA {run_left:.0f} s"
         self._write(f"    {self.name}: {done}/{total} {what}{eta}", final=done >= total)
 
     def _write(self, line, final):

@@ -48,6 +48,22 @@ pub fn russian_roulette_keep(throughput: &mut Spectrum, rng: &mut Sampler, keep:
     true
 }
 
+/// [`russian_roulette_keep`] for a scalar throughput (≥ 0).
+#[inline]
+pub fn roulette_scalar(throughput: &mut f64, rng: &mut Sampler, keep: f64) -> bool {
+    let q = (*throughput / keep).min(1.0);
+    if !(q > 0.0) {
+        return false;
+    }
+    if q < 1.0 {
+        if rng.next() >= q {
+            return false;
+        }
+        *throughput /= q;
+    }
+    true
+}
+
 /// The three uniform numbers (u_choice, u1, u2) of vertex `j` of a sampled
 /// walk: the caller's (from Mitsuba's sample1/sample2) at the first vertex,
 /// the walk's own stream after it.

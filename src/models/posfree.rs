@@ -18,7 +18,7 @@
 //! v_j·p_j/F, so f/pdf of a path prefix is Π F_j·L_j·(p_j e_{j+1}), i.e. a
 //! product of Fresnel terms and the "continue" factors of the table times L_j.
 
-use super::{russian_roulette, vertex_numbers, ConductorFresnel, WalkOptions};
+use super::{russian_roulette_keep, vertex_numbers, ConductorFresnel, WalkOptions};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
@@ -145,7 +145,14 @@ pub(crate) fn pt_walk(
             l = mf.abs_lambda(d_next);
         }
         w = -d_next;
-        if j + 1 >= rr_start && !russian_roulette(&mut throughput, rng) {
+        // Roulette on what the next vertex's NEE will carry, not on the throughput alone: after a steep
+        // upward continuation the throughput holds the small factor continue_up ≈ Λ/(L_j + Λ), and the
+        // next NEE multiplies it back by last(Λ, Λ_o) ≈ 1/(Λ + Λ_o) — large when ω_o is near the normal
+        // too (Λ_o → 0). A roulette on the throughput alone would survive rarely and then carry the
+        // whole product: fireflies (docs/estimators.md). Surviving with probability
+        // min(1, throughput·max(1, last)) keeps each NEE bounded; any survival probability is unbiased.
+        let keep = 1.0 / segments.last(l, lambda_o).max(1.0);
+        if j + 1 >= rr_start && !russian_roulette_keep(&mut throughput, rng, keep) {
             break;
         }
     }

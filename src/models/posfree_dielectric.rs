@@ -63,7 +63,7 @@
 //! with G2 = 1/(1+Λ_i+Λ_o) (reflection) or B(1+Λ_i, 1+Λ_o) (transmission).
 
 use super::posfree::Segments;
-use super::WalkOptions;
+use super::{roulette_scalar, WalkOptions};
 use crate::microfacet::fresnel::dielectric_full;
 use crate::microfacet::{reflect, refract, Microfacet};
 use crate::rng::Sampler;
@@ -286,21 +286,14 @@ pub fn eval_pt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, 
             st.l = mf.abs_lambda(d);
         }
         st.w = -d;
-        if j + 1 >= RR_START {
-            let q = throughput.min(1.0);
-            if !(q > 0.0) {
-                break;
-            }
-            if q < 1.0 {
-                if rng.next() >= q {
-                    break;
-                }
-                throughput /= q;
-            }
+        // Roulette on what the next NEE will carry (see posfree::pt_walk and docs/estimators.md): its
+        // segment factor `last` is large after a steep upward continuation when ω_o is steep too.
+        let next = last(seg, false, st.l, lambda_o).max(last(seg, true, st.l, lambda_o));
+        if j + 1 >= RR_START && !roulette_scalar(&mut throughput, rng, 1.0 / next.max(1.0)) {
+            break;
         }
     }
-    let value = result * mode_scale(eta, radiance, wi, wo.z);
-    (if value.is_finite() && value > 0.0 { value } else { 0.0 }, is_reflection)
+    (result * mode_scale(eta, radiance, wi, wo.z), is_reflection)
 }
 
 /// Random-walk sampler: at each vertex m ~ D_w, reflect with probability F or

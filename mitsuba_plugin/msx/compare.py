@@ -200,7 +200,11 @@ def _sweep_scene(renderer, scene, st, cache, out, prog, results):
                 seconds=ref_seconds, cached=cached, smallest=smallest, efficiency_vs_heitz=eff_ratio),
                 mask_pixels=int(mask.sum()),
                 speed=dict(target=target, heitz_seconds=h["top"]["seconds"], invariance_seconds=speed.get("invariance"),
-                           ratio=speed_ratio, spp=top),
+                           ratio=speed_ratio, spp=top,
+                           single_seconds=next(t["top"]["seconds"] for t in table if t["row"] == ("single", "pt")),
+                           builtin_seconds=next(t["top"]["seconds"] for t in table if t["row"] == ("builtin", "-")),
+                           invariance_top_seconds=next(t["top"]["seconds"] for t in table
+                                                       if t["row"] == ("invariance", "pt"))),
                 pngs=dict(evt=evt_png, models=grid_png, diff=diff_png, crops=crops_png),
                 means=means, data_top={r: data[r][top] for r in scene.rows}, data=data, mask=mask, reference=ref,
                 energy={row_label(r): _energy(means[r], mask) for r in scene.rows})

@@ -59,7 +59,7 @@ def _which_model(scenes):
             unb = [t for t in finite if t["unbiased"]]
             best_u = min(unb, key=lambda t: t[key]) if unb else None
             never = [t["label"] for t in rows if t[key] == float("inf")]
-            out.append(f"<tr><td class=l>{sc.name}</td><td class=l>{sc.lighting}</td><td>{target:.0%}</td>"
+            out.append(f"<tr><td class=l>{sc.name}</td><td class=l>{sc.lighting}</td><td>{target * 100:g} %</td>"
                        f"<td class=l>{best['label'] if best else '—'}</td><td>{_sec(best[key]) if best else '—'}</td>"
                        f"<td class=l>{best_u['label'] if best_u else '—'}</td><td>{_sec(best_u[key]) if best_u else '—'}</td>"
                        f"<td class=l>{', '.join(never) or '—'}</td></tr>")
@@ -96,6 +96,18 @@ def _scene_section(rep):
                f"{_sec(sp['heitz_seconds'])}; invariance needs {_sec(sp['invariance_seconds'])} for the same error: "
                f"<b>{ratio:.2f} × heitz's time</b> (target ≤ 0.25: {verdict}"
                f"{'' if ratio <= 0.25 or not math.isfinite(ratio) else f', by {ratio / 0.25:.1f}×'}).</p>")
+    if sp.get("single_seconds"):
+        # Where the time goes: `single` costs what the route costs around any BSDF (ray tracing, the plugin's
+        # per-call overhead); what a model adds to it is its own cost.
+        own_h = sp["heitz_seconds"] - sp["single_seconds"]
+        own_i = sp["invariance_top_seconds"] - sp["single_seconds"]
+        share = own_i / sp["invariance_top_seconds"] if sp["invariance_top_seconds"] > 0 else float("nan")
+        own_ratio = sp["invariance_seconds"] * share / own_h if own_h > 0 else float("nan")
+        out.append(f'<p class="note">Where the time goes at {sp["spp"]} spp: <code>single</code> takes '
+                   f'{_sec(sp["single_seconds"])} in this route ({sp["single_seconds"] / sp["builtin_seconds"]:.1f} × '
+                   f"the built-in), which every model pays; beyond it heitz adds {_sec(own_h)} and invariance "
+                   f"{_sec(own_i)}. Counting only the models' own cost (the share of each render beyond "
+                   f"<code>single</code>), invariance would reach heitz's error in {own_ratio:.2f} × heitz's time.</p>")
     out.append("<table><tr><th class=l>model</th><th>bias²</th><th>variance at top spp</th><th>slope (var vs spp)</th>"
                "<th>time to 1 %</th><th>time to 0.1 %</th><th>seconds at top spp</th><th>mean over object</th></tr>")
     for t in rep["table"]:

@@ -59,7 +59,7 @@ def run(args):
     stages = [f"sweep {s.name}" for s in SWEEP_SCENES] + ["side-by-side scenes", "stability atlas", "lobes",
                                                           "energy curves", "report"]
     # Shares of a run's time per stage (measured on the full and quick runs), for the run's ETA.
-    prog = common.Progress(stages, [0.12, 0.12, 0.3, 0.04, 0.25, 0.12, 0.04, 0.01])
+    prog = common.Progress(stages, [0.08, 0.09, 0.62, 0.04, 0.14, 0.02, 0.01, 0.002])
     print(f"msx compare{' --quick' if st.quick else ''}: route {route}; report in {out}", flush=True)
 
     renderer = renders.Renderer(variant, sdir)

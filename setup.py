@@ -24,22 +24,17 @@ NATIVE = "msx._native"
 # scalars/structs so that each Python-side call crosses cffi exactly once
 # with cheap argument conversion (floats instead of struct construction).
 C_HELPERS = r"""
-/* Per-instance state: the BSDF handle, the cached material (used when no
-   texture varies) and the call counter that keys msx_eval* (decorrelates
-   successive calls; incremented atomically since cffi releases the GIL). */
+/* Per-instance state: the BSDF handle and the cached material (used when no
+   texture varies). */
 typedef struct MsxpyInst {
     const MsxBsdf *bsdf;
     MsxMaterial mat;
-    uint64_t key;
 } MsxpyInst;
 
 /* Flat result structs: one cdata attribute access per value. */
 typedef struct MsxpyEvalPdf { float v0, v1, v2, v3, pdf; } MsxpyEvalPdf;
 typedef struct MsxpySample { float x, y, z, pdf, w0, w1, w2, w3; uint32_t valid; } MsxpySample;
 
-static uint64_t msxpy_next_key(MsxpyInst *s) {
-    return __atomic_add_fetch(&s->key, 1, __ATOMIC_RELAXED);
-}
 static MsxpyEvalPdf msxpy_pack_eval_pdf(MsxEvalPdf r) {
     MsxpyEvalPdf o = { r.value.v[0], r.value.v[1], r.value.v[2], r.value.v[3], r.pdf };
     return o;
@@ -54,58 +49,41 @@ static MsxpySample msxpy_pack_sample(MsxSample r) {
     return o;
 }
 
-/* `_m` variants take the material evaluated at the hit; the others use the
-   cached one. */
-static MsxpyEvalPdf msxpy_eval_pdf_m(MsxpyInst *s, const MsxMaterial *m,
-        float wix, float wiy, float wiz, float wox, float woy, float woz) {
+/* `m` is the material evaluated at the hit, or NULL for the cached one. The
+   key of an evaluation comes from where it happens (hit position p and uv,
+   see msx_call_key), so estimates never depend on the order of the calls. */
+static MsxpyEvalPdf msxpy_eval_pdf(MsxpyInst *s, const MsxMaterial *m, float wix, float wiy, float wiz,
+        float wox, float woy, float woz, float px, float py, float pz, float u, float v) {
     MsxVec3 wi = { wix, wiy, wiz }, wo = { wox, woy, woz };
-    return msxpy_pack_eval_pdf(msx_eval_pdf(s->bsdf, m, wi, wo, msxpy_next_key(s)));
+    return msxpy_pack_eval_pdf(msx_eval_pdf(s->bsdf, m ? m : &s->mat, wi, wo, msx_call_key(px, py, pz, u, v)));
 }
-static MsxpyEvalPdf msxpy_eval_pdf(MsxpyInst *s,
-        float wix, float wiy, float wiz, float wox, float woy, float woz) {
-    return msxpy_eval_pdf_m(s, &s->mat, wix, wiy, wiz, wox, woy, woz);
-}
-static MsxpyEvalPdf msxpy_eval_m(MsxpyInst *s, const MsxMaterial *m,
-        float wix, float wiy, float wiz, float wox, float woy, float woz) {
+static MsxpyEvalPdf msxpy_eval(MsxpyInst *s, const MsxMaterial *m, float wix, float wiy, float wiz,
+        float wox, float woy, float woz, float px, float py, float pz, float u, float v) {
     MsxVec3 wi = { wix, wiy, wiz }, wo = { wox, woy, woz };
-    return msxpy_pack_eval(msx_eval(s->bsdf, m, wi, wo, msxpy_next_key(s)));
+    return msxpy_pack_eval(msx_eval(s->bsdf, m ? m : &s->mat, wi, wo, msx_call_key(px, py, pz, u, v)));
 }
-static MsxpyEvalPdf msxpy_eval(MsxpyInst *s,
-        float wix, float wiy, float wiz, float wox, float woy, float woz) {
-    return msxpy_eval_m(s, &s->mat, wix, wiy, wiz, wox, woy, woz);
-}
-static float msxpy_pdf_m(MsxpyInst *s, const MsxMaterial *m,
-        float wix, float wiy, float wiz, float wox, float woy, float woz) {
+static float msxpy_pdf(MsxpyInst *s, const MsxMaterial *m, float wix, float wiy, float wiz,
+        float wox, float woy, float woz) {
     MsxVec3 wi = { wix, wiy, wiz }, wo = { wox, woy, woz };
-    return msx_pdf(s->bsdf, m, wi, wo);
+    return msx_pdf(s->bsdf, m ? m : &s->mat, wi, wo);
 }
-static float msxpy_pdf(MsxpyInst *s,
-        float wix, float wiy, float wiz, float wox, float woy, float woz) {
-    return msxpy_pdf_m(s, &s->mat, wix, wiy, wiz, wox, woy, woz);
-}
-static MsxpySample msxpy_sample_m(MsxpyInst *s, const MsxMaterial *m,
-        float wix, float wiy, float wiz, float s1, float u, float v) {
+static MsxpySample msxpy_sample(MsxpyInst *s, const MsxMaterial *m, float wix, float wiy, float wiz,
+        float s1, float u, float v) {
     MsxVec3 wi = { wix, wiy, wiz };
-    return msxpy_pack_sample(msx_sample(s->bsdf, m, wi, s1, u, v));
-}
-static MsxpySample msxpy_sample(MsxpyInst *s,
-        float wix, float wiy, float wiz, float s1, float u, float v) {
-    return msxpy_sample_m(s, &s->mat, wix, wiy, wiz, s1, u, v);
+    return msxpy_pack_sample(msx_sample(s->bsdf, m ? m : &s->mat, wi, s1, u, v));
 }
 """
 
 C_HELPERS_CDEF = """
-typedef struct MsxpyInst { const MsxBsdf *bsdf; MsxMaterial mat; uint64_t key; } MsxpyInst;
+typedef struct MsxpyInst { const MsxBsdf *bsdf; MsxMaterial mat; } MsxpyInst;
 typedef struct MsxpyEvalPdf { float v0, v1, v2, v3, pdf; } MsxpyEvalPdf;
 typedef struct MsxpySample { float x, y, z, pdf, w0, w1, w2, w3; uint32_t valid; } MsxpySample;
-MsxpyEvalPdf msxpy_eval_pdf(MsxpyInst *, float, float, float, float, float, float);
-MsxpyEvalPdf msxpy_eval_pdf_m(MsxpyInst *, const MsxMaterial *, float, float, float, float, float, float);
-MsxpyEvalPdf msxpy_eval(MsxpyInst *, float, float, float, float, float, float);
-MsxpyEvalPdf msxpy_eval_m(MsxpyInst *, const MsxMaterial *, float, float, float, float, float, float);
-float msxpy_pdf(MsxpyInst *, float, float, float, float, float, float);
-float msxpy_pdf_m(MsxpyInst *, const MsxMaterial *, float, float, float, float, float, float);
-MsxpySample msxpy_sample(MsxpyInst *, float, float, float, float, float, float);
-MsxpySample msxpy_sample_m(MsxpyInst *, const MsxMaterial *, float, float, float, float, float, float);
+MsxpyEvalPdf msxpy_eval_pdf(MsxpyInst *, const MsxMaterial *, float, float, float, float, float, float,
+                            float, float, float, float, float);
+MsxpyEvalPdf msxpy_eval(MsxpyInst *, const MsxMaterial *, float, float, float, float, float, float,
+                        float, float, float, float, float);
+float msxpy_pdf(MsxpyInst *, const MsxMaterial *, float, float, float, float, float, float);
+MsxpySample msxpy_sample(MsxpyInst *, const MsxMaterial *, float, float, float, float, float, float);
 """
 
 _INT_DEFINE = re.compile(r"^#define\s+(MSX_\w+)\s+(-?(?:0x[0-9a-fA-F]+|\d+))[uUlL]*\s*$")
@@ -222,9 +200,11 @@ class BuildRustThenCffi(build_ext):
         super().run()
 
 
-class BuildPyWithScenes(build_py):
-    """Ships the scene files inside the package (``msx/scenes``), so that
-    ``msx compare`` works from an installed wheel, not only from a checkout."""
+class BuildPyWithData(build_py):
+    """Ships, inside the package: the scene files (``msx/scenes``), so that
+    ``msx compare`` works from an installed wheel, not only from a checkout;
+    and the native plugin's C++ source with the C header (``msx/native``),
+    which msx compiles on first use against the installed Mitsuba."""
 
     def run(self):
         super().run()
@@ -233,6 +213,10 @@ class BuildPyWithScenes(build_py):
             dst = os.path.join(self.build_lib, "msx", "scenes")
             shutil.rmtree(dst, ignore_errors=True)
             shutil.copytree(src, dst)
+        native = os.path.join(self.build_lib, "msx", "native")
+        os.makedirs(native, exist_ok=True)
+        shutil.copy2(os.path.join(ROOT, "native", "msx_mitsuba.cpp"), native)
+        shutil.copy2(HEADER, native)
 
 
 def long_description():
@@ -248,5 +232,5 @@ setup(
     long_description_content_type="text/markdown",
     # Sources are filled in by BuildRustThenCffi (generated by cffi).
     ext_modules=[Extension(NATIVE, sources=[])],
-    cmdclass={"build_ext": BuildRustThenCffi, "build_py": BuildPyWithScenes},
+    cmdclass={"build_ext": BuildRustThenCffi, "build_py": BuildPyWithData},
 )

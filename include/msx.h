@@ -256,9 +256,20 @@ typedef struct MsxBatchIn {
    */
   uint32_t mode;
   /*
-   Lane i uses key + i (see `msx_eval`)
+   Lane i uses key + i (see `msx_eval`), or, when `p` is given,
+   msx_call_key(p_i, uv_i) + key
    */
   uint64_t key;
+  /*
+   Optional hit position per lane (with `uv`): derives each lane's key from
+   where the call happens, so that a render does not depend on the order
+   of the lanes
+   */
+  struct MsxF32Array p[3];
+  /*
+   Optional hit uv per lane (see `p`)
+   */
+  struct MsxF32Array uv[2];
 } MsxBatchIn;
 
 /*
@@ -315,6 +326,14 @@ const char *msx_version(void);
  Reads the diagnostic counters (see `MsxDiagnostics`).
  */
 struct MsxDiagnostics msx_diagnostics(void);
+
+/*
+ The key of one BSDF call from where it happens: the hit position and uv
+ (two samples of a render never share them). Passing it as the `key` of
+ `msx_eval*` makes every estimate a function of its own inputs and the seed,
+ so that a render does not depend on thread scheduling or call order.
+ */
+uint64_t msx_call_key(float px, float py, float pz, float u, float v);
 
 /*
  f(ω_i, ω_o)·|cos θ_o| per channel (Mitsuba's `eval`). `key` is any 64-bit

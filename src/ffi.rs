@@ -189,8 +189,15 @@ pub struct MsxBatchIn {
     pub reflectance: [MsxF32Array; 4],
     /// MSX_MODE_RADIANCE or MSX_MODE_IMPORTANCE, for every lane
     pub mode: u32,
-    /// Lane i uses key + i (see `msx_eval`)
+    /// Lane i uses key + i (see `msx_eval`), or, when `p` is given,
+    /// msx_call_key(p_i, uv_i) + key
     pub key: u64,
+    /// Optional hit position per lane (with `uv`): derives each lane's key from
+    /// where the call happens, so that a render does not depend on the order
+    /// of the lanes
+    pub p: [MsxF32Array; 3],
+    /// Optional hit uv per lane (see `p`)
+    pub uv: [MsxF32Array; 2],
 }
 
 impl Default for MsxF32Array {
@@ -219,6 +226,8 @@ impl Default for MsxBatchIn {
             reflectance: [e; 4],
             mode: MSX_MODE_RADIANCE,
             key: 0,
+            p: [e; 3],
+            uv: [e; 2],
         }
     }
 }
@@ -509,6 +518,15 @@ fn with_bsdf<T>(bsdf: *const MsxBsdf, mat: *const MsxMaterial, fallback: T, f: i
     })
 }
 
+/// The key of one BSDF call from where it happens: the hit position and uv
+/// (two samples of a render never share them). Passing it as the `key` of
+/// `msx_eval*` makes every estimate a function of its own inputs and the seed,
+/// so that a render does not depend on thread scheduling or call order.
+#[no_mangle]
+pub extern "C" fn msx_call_key(px: f32, py: f32, pz: f32, u: f32, v: f32) -> u64 {
+    crate::rng::hash_words(&[px.to_bits() as u64, py.to_bits() as u64, pz.to_bits() as u64, u.to_bits() as u64, v.to_bits() as u64])
+}
+
 /// f(ω_i, ω_o)·|cos θ_o| per channel (Mitsuba's `eval`). `key` is any 64-bit
 /// value that decorrelates calls (e.g. a per-call counter); the result is a
 /// deterministic function of the inputs, the BSDF's seed and `key`.
@@ -601,6 +619,8 @@ fn reader(a: &MsxF32Array, n: usize, default: f32, name: &'static str) -> Result
 }
 
 struct Inputs {
+    /// Hit position and uv per lane, if given.
+    at: Option<([Reader; 3], [Reader; 2])>,
     wi: [Reader; 3],
     wo: [Reader; 3],
     s1: Reader,
@@ -621,7 +641,17 @@ fn inputs(b: &MsxBatchIn) -> Result<Inputs, String> {
     let r = |a: &MsxF32Array, d: f32, name| reader(a, n, d, name);
     let alpha_u = r(&b.alpha_u, 0.1, "alpha_u")?;
     let alpha_v = if b.alpha_v.ptr.is_null() || b.alpha_v.len == 0 { r(&b.alpha_u, 0.1, "alpha_u")? } else { r(&b.alpha_v, 0.1, "alpha_v")? };
+    let given = |a: &MsxF32Array| !a.ptr.is_null() && a.len > 0;
+    let at = if given(&b.p[0]) {
+        Some((
+            [r(&b.p[0], 0.0, "p.x")?, r(&b.p[1], 0.0, "p.y")?, r(&b.p[2], 0.0, "p.z")?],
+            [r(&b.uv[0], 0.0, "uv.x")?, r(&b.uv[1], 0.0, "uv.y")?],
+        ))
+    } else {
+        None
+    };
     Ok(Inputs {
+        at,
         wi: [r(&b.wi[0], 0.0, "wi.x")?, r(&b.wi[1], 0.0, "wi.y")?, r(&b.wi[2], 1.0, "wi.z")?],
         wo: [r(&b.wo[0], 0.0, "wo.x")?, r(&b.wo[1], 0.0, "wo.y")?, r(&b.wo[2], 1.0, "wo.z")?],
         s1: r(&b.sample1, 0.5, "sample1")?,
@@ -696,7 +726,10 @@ fn run_lane(b: &Bsdf, inp: &Inputs, out: OutPtrs, key: u64, op: Op, i: usize) {
     let channels = b.config().channels;
     let mat = inp.material(i);
     let wi = Inputs::dir(&inp.wi, i);
-    let lane_key = key.wrapping_add(i as u64);
+    let lane_key = match &inp.at {
+        Some((p, uv)) => msx_call_key(p[0].get(i), p[1].get(i), p[2].get(i), uv[0].get(i), uv[1].get(i)).wrapping_add(key),
+        None => key.wrapping_add(i as u64),
+    };
     let (value, pdf, wo) = match op {
         Op::Eval(first, last) => {
             (out_spectrum(b.eval_orders(&mat, wi, Inputs::dir(&inp.wo, i), lane_key, (first, last)), channels), 0.0, [0.0; 3])

@@ -246,6 +246,9 @@ fn batch(rng: &mut Rng, h: &Handle, n: usize) {
     let ior = push(mats.iter().map(|m| m.ior).collect());
     let st: [usize; 4] = std::array::from_fn(|c| push(mats.iter().map(|m| m.specular_transmittance[c]).collect()));
     let refl: [usize; 4] = std::array::from_fn(|c| push(mats.iter().map(|m| m.reflectance[c]).collect()));
+    let with_position = rng.f() < 0.5;
+    let pos: [usize; 3] = std::array::from_fn(|_| push((0..n).map(|_| value(rng, 1e-3, 1e3)).collect()));
+    let uv: [usize; 2] = std::array::from_fn(|_| push((0..n).map(|_| value(rng, 1e-6, 1.0)).collect()));
     let arr = |i: usize| MsxF32Array { ptr: cols[i].as_ptr(), len: n };
     let input = MsxBatchIn {
         n,
@@ -263,6 +266,9 @@ fn batch(rng: &mut Rng, h: &Handle, n: usize) {
         reflectance: refl.map(arr),
         mode: if rng.f() < 0.5 { MSX_MODE_RADIANCE } else { MSX_MODE_IMPORTANCE },
         key: rng.next_u64(),
+        // Half of the batches derive their lane keys from (adversarial) hit positions.
+        p: if with_position { pos.map(arr) } else { Default::default() },
+        uv: if with_position { uv.map(arr) } else { Default::default() },
     };
     let mut out: Vec<Vec<f32>> = (0..8).map(|_| vec![f32::NAN; n]).collect();
     let p = |v: &mut Vec<f32>| v.as_mut_ptr();

@@ -12,9 +12,11 @@ The math lives in a Rust library linked into the cffi extension
 the hit and forwards each BSDF call to the C ABI (``include/msx.h``).
 """
 
+import os
+
 __version__ = "0.1.0"
 
-__all__ = ["register", "registered_variants", "native_version", "diagnostics", "evaluated_mode", "check_fallback",
+__all__ = ["register", "backend", "registered_variants", "native_version", "diagnostics", "evaluated_mode", "check_fallback",
            "__version__"]
 
 # Variants for which msx_posfree has been registered in this process.
@@ -44,31 +46,73 @@ def registered_variants():
     return sorted(_REGISTERED)
 
 
-def register():
+def register(backend=None):
     """Register the ``msx_posfree`` BSDF for the current Mitsuba variant.
 
-    Idempotent: a second call for the same variant does nothing. A Python
-    BSDF class binds to the variant active when its class statement runs, so
-    the classes are created per variant. Returns the factory Mitsuba calls
-    (one class per surface kind, chosen from the ``surface`` property).
+    ``backend``: ``"native"`` (scalar variants: a C++ plugin calling the Rust
+    core directly — no Python per call, all render threads; compiled on first
+    use and cached, see ``_native_backend.py``), ``"python"`` (the Python
+    class; scalar variants one call per sample, LLVM variants one batched call
+    per wavefront), or ``None``/``"auto"`` (default; also ``MSX_BACKEND``):
+    native where it builds and passes its check, else Python, saying why once.
+    Idempotent per (variant, backend). Returns the factory Mitsuba calls.
     """
     import mitsuba as mi
 
     variant = mi.variant()
     if variant is None:
         raise RuntimeError("msx.register(): set a Mitsuba variant first, e.g. mi.set_variant('scalar_rgb')")
-    cls = _REGISTERED.get(variant)
-    if cls is not None:
-        return cls
-    if variant.startswith("llvm_"):
-        from ._plugin_llvm import make_bsdf_class
-    else:
-        from ._plugin import make_bsdf_class
+    backend = backend or os.environ.get("MSX_BACKEND") or "auto"
+    if backend not in ("auto", "native", "python"):
+        raise ValueError(f"msx.register(): unknown backend '{backend}'; use 'native', 'python' or 'auto'")
+    known = _REGISTERED.get(variant)
+    if known is not None and backend in ("auto", known[0]):
+        return known[1]
+    scalar = variant.startswith("scalar_")
+    if backend == "native" and not scalar:
+        raise RuntimeError(f"msx.register(backend='native'): the native back end exists for Mitsuba's scalar "
+                           f"variants only (current: {variant}); LLVM variants use batched native calls already")
+    factory, chosen = None, "python"
+    if scalar and backend in ("auto", "native") and "polarized" not in variant:
+        from ._native_backend import NativeUnavailable, make_factory
 
-    cls = make_bsdf_class(mi, variant)
-    mi.register_bsdf("msx_posfree", lambda props: cls(props))
-    _REGISTERED[variant] = cls
-    return cls
+        try:
+            factory, chosen = make_factory(mi), "native"
+        except NativeUnavailable as e:
+            if backend == "native":
+                raise RuntimeError(f"msx.register(backend='native'): {e}") from None
+            _warn_once(f"msx: the native back end is unavailable ({e}); using the Python back end "
+                       "(one Python call per BSDF call, one render thread)")
+    if factory is None:
+        if variant.startswith("llvm_"):
+            from ._plugin_llvm import make_bsdf_class
+        else:
+            from ._plugin import make_bsdf_class
+        cls = make_bsdf_class(mi, variant)
+        factory = cls
+    mi.register_bsdf("msx_posfree", lambda props: factory(props))
+    _REGISTERED[variant] = (chosen, factory)
+    return factory
+
+
+def backend():
+    """The back end of ``msx_posfree`` in the current variant (``"native"`` or ``"python"``), or None if
+    :func:`register` has not run for it."""
+    import mitsuba as mi
+
+    known = _REGISTERED.get(mi.variant())
+    return known[0] if known else None
+
+
+_WARNED = set()
+
+
+def _warn_once(message):
+    if message not in _WARNED:
+        _WARNED.add(message)
+        import warnings
+
+        warnings.warn(message, RuntimeWarning, stacklevel=3)
 
 
 def evaluated_mode():

@@ -50,10 +50,9 @@ def make_bsdf_class(mi, variant):
     DISC = mi.ParamFlags.Discontinuous
     spectral = bool(mi.is_spectral)
 
-    c_eval, c_eval_m = lib.msxpy_eval, lib.msxpy_eval_m
-    c_eval_pdf, c_eval_pdf_m = lib.msxpy_eval_pdf, lib.msxpy_eval_pdf_m
-    c_pdf, c_pdf_m = lib.msxpy_pdf, lib.msxpy_pdf_m
-    c_sample, c_sample_m = lib.msxpy_sample, lib.msxpy_sample_m
+    # The C helpers take the material evaluated at the hit, or NULL for the cached one.
+    c_eval, c_eval_pdf, c_pdf, c_sample = lib.msxpy_eval, lib.msxpy_eval_pdf, lib.msxpy_pdf, lib.msxpy_sample
+    NULL = ffi.NULL
     new = ffi.new
 
     # Result structs are flat (v0..v3 / w0..w3): one attribute access each.
@@ -124,12 +123,9 @@ def make_bsdf_class(mi, variant):
                 if rc != lib.MSX_OK:
                     raise MsxParameterError("%s: %s" % (PLUGIN, ffi.string(err).decode(errors="replace")))
                 self._h = ffi.gc(out[0], lib.msx_bsdf_free)
-                # Handle + cached material + the per-instance call counter that is
-                # passed as the `key` of msx_eval* (incremented in C per call: it
-                # decorrelates the stochastic estimates of successive calls).
+                # Handle + cached material. The key of msx_eval* comes from the hit (p, uv).
                 self._inst = new("MsxpyInst *")
                 self._inst.bsdf = self._h
-                self._inst.key = 0
                 self._refresh()
 
             # ------------------------------------------------------------ state
@@ -221,37 +217,32 @@ def make_bsdf_class(mi, variant):
             def eval(self, ctx, si, wo, active=True):
                 if not (active and ctx.type_mask & LOBE_BITS) or ctx.component not in COMPONENTS:
                     return ZERO
-                w = si.wi
-                if self._const:
-                    return value_of(c_eval(self._inst, w[0], w[1], w[2], wo[0], wo[1], wo[2]))
-                return value_of(c_eval_m(self._inst, self._material(si), w[0], w[1], w[2], wo[0], wo[1], wo[2]))
+                w, p, uv = si.wi, si.p, si.uv
+                m = NULL if self._const else self._material(si)
+                return value_of(c_eval(self._inst, m, w[0], w[1], w[2], wo[0], wo[1], wo[2], p[0], p[1], p[2],
+                                       uv[0], uv[1]))
 
             def pdf(self, ctx, si, wo, active=True):
                 if not (active and ctx.type_mask & LOBE_BITS) or ctx.component not in COMPONENTS:
                     return 0.0
                 w = si.wi
-                if self._const:
-                    return c_pdf(self._inst, w[0], w[1], w[2], wo[0], wo[1], wo[2])
-                return c_pdf_m(self._inst, self._material(si), w[0], w[1], w[2], wo[0], wo[1], wo[2])
+                m = NULL if self._const else self._material(si)
+                return c_pdf(self._inst, m, w[0], w[1], w[2], wo[0], wo[1], wo[2])
 
             def eval_pdf(self, ctx, si, wo, active=True):
                 if not (active and ctx.type_mask & LOBE_BITS) or ctx.component not in COMPONENTS:
                     return ZERO, 0.0
-                w = si.wi
-                if self._const:
-                    r = c_eval_pdf(self._inst, w[0], w[1], w[2], wo[0], wo[1], wo[2])
-                else:
-                    r = c_eval_pdf_m(self._inst, self._material(si), w[0], w[1], w[2], wo[0], wo[1], wo[2])
+                w, p, uv = si.wi, si.p, si.uv
+                m = NULL if self._const else self._material(si)
+                r = c_eval_pdf(self._inst, m, w[0], w[1], w[2], wo[0], wo[1], wo[2], p[0], p[1], p[2], uv[0], uv[1])
                 return value_of(r), r.pdf
 
             def sample(self, ctx, si, sample1, sample2, active=True):
                 if not (active and ctx.type_mask & LOBE_BITS) or ctx.component not in COMPONENTS:
                     return BSDFSample3f(), ZERO
                 w = si.wi
-                if self._const:
-                    r = c_sample(self._inst, w[0], w[1], w[2], sample1, sample2[0], sample2[1])
-                else:
-                    r = c_sample_m(self._inst, self._material(si), w[0], w[1], w[2], sample1, sample2[0], sample2[1])
+                m = NULL if self._const else self._material(si)
+                r = c_sample(self._inst, m, w[0], w[1], w[2], sample1, sample2[0], sample2[1])
                 bs = BSDFSample3f(SAMPLE_TEMPLATE)
                 if not r.valid:
                     return bs, ZERO  # pdf 0, zero weight
@@ -344,11 +335,12 @@ def make_bsdf_class(mi, variant):
 
             def eval_pdf(self, ctx, si, wo, active=True):
                 r_on, t_on = self._lobes(ctx)
-                w = si.wi
+                w, p, uv = si.wi, si.p, si.uv
                 reflect = w[2] * wo[2] > 0
                 if not active or not (r_on if reflect else t_on):
                     return ZERO, 0.0
-                r = c_eval_pdf_m(self._inst, self._mat_for(ctx, si), w[0], w[1], w[2], wo[0], wo[1], wo[2])
+                r = c_eval_pdf(self._inst, self._mat_for(ctx, si), w[0], w[1], w[2], wo[0], wo[1], wo[2],
+                               p[0], p[1], p[2], uv[0], uv[1])
                 return value_of(r), r.pdf
 
             def sample(self, ctx, si, sample1, sample2, active=True):
@@ -356,7 +348,7 @@ def make_bsdf_class(mi, variant):
                 if not (active and (r_on or t_on)):
                     return BSDFSample3f(), ZERO
                 w = si.wi
-                r = c_sample_m(self._inst, self._mat_for(ctx, si), w[0], w[1], w[2], sample1, sample2[0], sample2[1])
+                r = c_sample(self._inst, self._mat_for(ctx, si), w[0], w[1], w[2], sample1, sample2[0], sample2[1])
                 bs = BSDFSample3f(SAMPLE_TEMPLATE)
                 if not r.valid:
                     return bs, ZERO

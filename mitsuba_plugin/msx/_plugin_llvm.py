@@ -270,7 +270,6 @@ def make_bsdf_class(mi, variant):
                     raise MsxParameterError("%s: %s" % (PLUGIN, ffi.string(err).decode(errors="replace")))
                 self._h = ffi.gc(out[0], lib.msx_bsdf_free)
                 self._err = new("char[]", _ERR_LEN)
-                self._key = 0  # advanced by n per call (decorrelates the estimates)
                 self._fallback = dr.zeros(UInt32, 1)
                 self._fallback_warned = False
                 self._fallback_seen = False
@@ -350,6 +349,9 @@ def make_bsdf_class(mi, variant):
                 inputs = {"wi": [wi[0], wi[1], wi[2]], "alpha_u": [au], "alpha_v": [av]}
                 if wo is not None:
                     inputs["wo"] = [wo[0], wo[1], wo[2]]
+                    # Each lane's key comes from its hit (see msx_call_key): no dependence on lane order.
+                    inputs["p"] = [si.p[0], si.p[1], si.p[2]]
+                    inputs["uv"] = [si.uv[0], si.uv[1]]
                 if sample1 is not None:
                     inputs["sample1"] = [Float(sample1)]
                     inputs["sample2"] = [Float(sample2[0]), Float(sample2[1])]
@@ -392,8 +394,7 @@ def make_bsdf_class(mi, variant):
                 inp.ior.ptr = cast("const float *", f_ior.ctypes.data)
                 inp.ior.len = 1
                 inp.mode = lib.MSX_MODE_IMPORTANCE if (dielectric and ctx.mode == IMPORTANCE) else lib.MSX_MODE_RADIANCE
-                inp.key = self._key & 0xFFFFFFFFFFFFFFFF
-                self._key += n
+                inp.key = 0
 
                 out = new("MsxBatchOut *")
                 val = pdf = wo_out = None

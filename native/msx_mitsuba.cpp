@@ -1,0 +1,339 @@
+// msx_posfree as a native Mitsuba 3 BSDF for the scalar variants: every BSDF
+// call is one call into the Rust core (include/msx.h), with no Python and no
+// GIL, so Mitsuba's render threads run in parallel.
+//
+// This plugin is an internal back end: msx.register() (mitsuba_plugin/msx/
+// _native_backend.py) registers "msx_posfree" as a Python factory that parses
+// and validates the scene parameters exactly like the Python back end, then
+// instantiates this class ("msx_posfree_native") with the parsed values:
+//   strings  surface, distribution, model, estimator, seed (decimal u64)
+//   int      max_bounces (0 = library default)
+//   float    auto_tolerance (0 = library default), ior (dielectric)
+//   bool     isotropic
+//   textures alpha_u, alpha_v, specular_reflectance and, per surface,
+//            eta and k (conductor), specular_transmittance (dielectric),
+//            reflectance (diffuse)
+// It is compiled against the installed Mitsuba's own headers on first use
+// (see _native_backend.py), because the struct layouts must match the wheel.
+
+#include <mitsuba/core/plugin.h>
+#include <mitsuba/core/properties.h>
+#include <mitsuba/render/bsdf.h>
+#include <mitsuba/render/texture.h>
+
+#include <string>
+
+#include "msx.h"
+
+NAMESPACE_BEGIN(mitsuba)
+
+namespace {
+
+uint32_t choice(const std::string &value, std::initializer_list<std::pair<const char *, uint32_t>> options) {
+    for (auto &[name, code] : options)
+        if (value == name)
+            return code;
+    // The Python front end validated the value: reaching this is a programming error.
+    throw std::runtime_error("msx_posfree_native: unexpected value '" + value + "'");
+}
+
+} // namespace
+
+template <typename Float, typename Spectrum>
+class MsxNativeBSDF final : public BSDF<Float, Spectrum> {
+public:
+    MI_IMPORT_BASE(BSDF, m_flags, m_components)
+    MI_IMPORT_TYPES(Texture)
+    static_assert(!dr::is_jit_v<Float>, "msx_posfree_native supports Mitsuba's scalar variants only");
+    static constexpr size_t Channels = dr::size_v<UnpolarizedSpectrum>;
+    static_assert(Channels >= 1 && Channels <= MSX_MAX_CHANNELS, "unsupported spectrum size");
+
+    explicit MsxNativeBSDF(const Properties &props) : Base(props) {
+        m_surface = props.get<std::string>("surface");
+        MsxParams p{};
+        p.surface = choice(m_surface, { { "conductor", MSX_SURFACE_CONDUCTOR },
+                                        { "dielectric", MSX_SURFACE_DIELECTRIC },
+                                        { "diffuse", MSX_SURFACE_DIFFUSE } });
+        m_distribution = props.get<std::string>("distribution");
+        p.distribution = choice(m_distribution, { { "beckmann", MSX_DISTRIBUTION_BECKMANN },
+                                                  { "ggx", MSX_DISTRIBUTION_GGX } });
+        m_model = props.get<std::string>("model");
+        p.model = choice(m_model, { { "single", MSX_MODEL_SINGLE }, { "uncorrelated", MSX_MODEL_UNCORRELATED },
+                                    { "correlated", MSX_MODEL_CORRELATED }, { "heitz", MSX_MODEL_HEITZ },
+                                    { "invariance", MSX_MODEL_INVARIANCE }, { "fastmsx", MSX_MODEL_FASTMSX },
+                                    { "compensated", MSX_MODEL_COMPENSATED }, { "auto", MSX_MODEL_AUTO } });
+        m_estimator = props.get<std::string>("estimator");
+        p.estimator = choice(m_estimator, { { "pt", MSX_ESTIMATOR_PT }, { "bdpt", MSX_ESTIMATOR_BDPT } });
+        p.max_bounces = (uint32_t) props.get<int64_t>("max_bounces");
+        p.channels = (uint32_t) Channels;
+        p.seed = std::stoull(props.get<std::string>("seed"));
+        p.auto_tolerance = props.get<double>("auto_tolerance");
+
+        char err[512] = { 0 };
+        MsxBsdf *handle = nullptr;
+        if (msx_bsdf_new(&p, &handle, err, sizeof(err)) != MSX_OK)
+            Throw("msx_posfree: %s", err);
+        m_handle = handle;
+
+        m_isotropic = props.get<bool>("isotropic");
+        m_alpha_u = props.get_texture<Texture>("alpha_u");
+        m_alpha_v = m_isotropic ? m_alpha_u : props.get_texture<Texture>("alpha_v");
+        m_specular_reflectance = props.get_texture<Texture>("specular_reflectance");
+        if (m_surface == "conductor") {
+            m_eta = props.get_unbounded_texture<Texture>("eta");
+            m_k = props.get_unbounded_texture<Texture>("k");
+            m_lobe = +BSDFFlags::GlossyReflection;
+        } else if (m_surface == "dielectric") {
+            m_ior = (float) props.get<double>("ior");
+            m_specular_transmittance = props.get_texture<Texture>("specular_transmittance");
+            m_lobe = BSDFFlags::GlossyReflection | BSDFFlags::GlossyTransmission;
+        } else {
+            m_reflectance = props.get_texture<Texture>("reflectance");
+            m_lobe = +BSDFFlags::DiffuseReflection;
+        }
+        parameters_changed({});
+    }
+
+    ~MsxNativeBSDF() override { msx_bsdf_free(m_handle); }
+
+    void traverse(TraversalCallback *cb) override {
+        auto flags = ParamFlags::Differentiable | ParamFlags::Discontinuous;
+        if (m_isotropic) {
+            cb->put("alpha", m_alpha_u, flags);
+        } else {
+            cb->put("alpha_u", m_alpha_u, flags);
+            cb->put("alpha_v", m_alpha_v, flags);
+        }
+        if (m_eta) {
+            cb->put("eta", m_eta, flags);
+            cb->put("k", m_k, flags);
+        }
+        cb->put("specular_reflectance", m_specular_reflectance, +ParamFlags::Differentiable);
+        if (m_specular_transmittance)
+            cb->put("specular_transmittance", m_specular_transmittance, +ParamFlags::Differentiable);
+        if (m_reflectance)
+            cb->put("reflectance", m_reflectance, +ParamFlags::Differentiable);
+    }
+
+    void parameters_changed(const std::vector<std::string> & /*keys*/ = {}) override {
+        if (m_isotropic)
+            m_alpha_v = m_alpha_u;
+        // A material without spatial or spectral variation is evaluated once.
+        m_constant = true;
+        for (const Texture *t : textures()) {
+            if (t->is_spatially_varying())
+                m_constant = false;
+            if constexpr (is_spectral_v<Spectrum>)
+                if (t->class_name() != std::string_view("UniformSpectrum") && t != m_alpha_u.get() &&
+                    t != m_alpha_v.get())
+                    m_constant = false;
+        }
+        if (m_constant)
+            m_material = evaluate(dr::zeros<SurfaceInteraction3f>(), true);
+
+        m_flags = m_lobe | BSDFFlags::FrontSide;
+        if (m_surface == "dielectric")
+            m_flags = m_flags | BSDFFlags::BackSide | BSDFFlags::NonSymmetric;
+        // Anisotropic when the two roughnesses can differ (as the Python back end decides).
+        bool alpha_const = !m_alpha_u->is_spatially_varying() && !m_alpha_v->is_spatially_varying();
+        auto si0 = dr::zeros<SurfaceInteraction3f>();
+        if (!m_isotropic && (!alpha_const || m_alpha_u->eval_1(si0, true) != m_alpha_v->eval_1(si0, true)))
+            m_flags = m_flags | BSDFFlags::Anisotropic;
+        bool varying = false;
+        for (const Texture *t : textures())
+            varying |= t->is_spatially_varying();
+        if (varying)
+            m_flags = m_flags | BSDFFlags::SpatiallyVarying;
+        m_components.clear();
+        if (m_surface == "dielectric") {
+            uint32_t extra = m_flags & ~m_lobe;
+            m_components.push_back((uint32_t) BSDFFlags::GlossyReflection | extra);
+            m_components.push_back((uint32_t) BSDFFlags::GlossyTransmission | extra);
+        } else {
+            m_components.push_back(m_flags);
+        }
+    }
+
+    std::pair<BSDFSample3f, Spectrum> sample(const BSDFContext &ctx, const SurfaceInteraction3f &si,
+                                             Float sample1, const Point2f &sample2,
+                                             Mask active) const override {
+        BSDFSample3f bs = dr::zeros<BSDFSample3f>();
+        bs.eta = 1.f;
+        bs.sampled_component = 0;
+        bs.sampled_type = +first_lobe();
+        bool r_on = reflection_enabled(ctx), t_on = transmission_enabled(ctx);
+        if (!active || !(r_on || t_on))
+            return { bs, 0.f };
+        MsxMaterial mat = material(ctx, si);
+        MsxSample r = msx_sample(m_handle, &mat, vec(si.wi), sample1, sample2.x(), sample2.y());
+        if (!r.valid)
+            return { bs, 0.f };
+        bool transmit = r.wo.z * si.wi.z() < 0.f;
+        if (!(transmit ? t_on : r_on))
+            return { bs, 0.f };
+        bs.wo = Vector3f(r.wo.x, r.wo.y, r.wo.z);
+        bs.pdf = r.pdf;
+        if (transmit) {
+            bs.eta = si.wi.z() > 0.f ? m_ior : 1.f / m_ior;
+            bs.sampled_type = +BSDFFlags::GlossyTransmission;
+            bs.sampled_component = 1;
+        }
+        return { bs, spectrum(r.weight) };
+    }
+
+    Spectrum eval(const BSDFContext &ctx, const SurfaceInteraction3f &si, const Vector3f &wo,
+                  Mask active) const override {
+        if (!active || !lobe_enabled(ctx, si, wo))
+            return 0.f;
+        MsxMaterial mat = material(ctx, si);
+        return spectrum(msx_eval(m_handle, &mat, vec(si.wi), vec(wo), key(si)));
+    }
+
+    Float pdf(const BSDFContext &ctx, const SurfaceInteraction3f &si, const Vector3f &wo,
+              Mask active) const override {
+        if (!active || !lobe_enabled(ctx, si, wo))
+            return 0.f;
+        MsxMaterial mat = material(ctx, si);
+        return msx_pdf(m_handle, &mat, vec(si.wi), vec(wo));
+    }
+
+    std::pair<Spectrum, Float> eval_pdf(const BSDFContext &ctx, const SurfaceInteraction3f &si,
+                                        const Vector3f &wo, Mask active) const override {
+        if (!active || !lobe_enabled(ctx, si, wo))
+            return { 0.f, 0.f };
+        MsxMaterial mat = material(ctx, si);
+        MsxEvalPdf r = msx_eval_pdf(m_handle, &mat, vec(si.wi), vec(wo), key(si));
+        return { spectrum(r.value), r.pdf };
+    }
+
+    std::string to_string() const override {
+        std::ostringstream oss;
+        oss << "MsxPosfree[native," << std::endl
+            << "  surface = \"" << m_surface << "\"," << std::endl
+            << "  distribution = \"" << m_distribution << "\"," << std::endl
+            << "  model = \"" << m_model << "\"," << std::endl
+            << "  estimator = \"" << m_estimator << "\"," << std::endl
+            << "  alpha_u = " << string::indent(m_alpha_u) << "," << std::endl
+            << "  alpha_v = " << string::indent(m_alpha_v) << std::endl
+            << "]";
+        return oss.str();
+    }
+
+    MI_DECLARE_CLASS(MsxNativeBSDF)
+
+private:
+    std::vector<const Texture *> textures() const {
+        std::vector<const Texture *> out{ m_alpha_u.get(), m_alpha_v.get(), m_specular_reflectance.get() };
+        for (const ref<Texture> *t : { &m_eta, &m_k, &m_specular_transmittance, &m_reflectance })
+            if (*t)
+                out.push_back(t->get());
+        return out;
+    }
+
+    BSDFFlags first_lobe() const {
+        return m_surface == "diffuse" ? BSDFFlags::DiffuseReflection : BSDFFlags::GlossyReflection;
+    }
+
+    bool reflection_enabled(const BSDFContext &ctx) const { return ctx.is_enabled(first_lobe(), 0); }
+
+    bool transmission_enabled(const BSDFContext &ctx) const {
+        return m_surface == "dielectric" && ctx.is_enabled(BSDFFlags::GlossyTransmission, 1);
+    }
+
+    bool lobe_enabled(const BSDFContext &ctx, const SurfaceInteraction3f &si, const Vector3f &wo) const {
+        if (m_surface != "dielectric")
+            return reflection_enabled(ctx);
+        return si.wi.z() * wo.z() > 0.f ? reflection_enabled(ctx) : transmission_enabled(ctx);
+    }
+
+    static MsxVec3 vec(const Vector3f &v) { return MsxVec3{ v.x(), v.y(), v.z() }; }
+
+    // The key of msx_eval*: where the call happens (the core hashes it with the
+    // directions and the seed), so an estimate never depends on thread scheduling.
+    static uint64_t key(const SurfaceInteraction3f &si) {
+        return msx_call_key(si.p.x(), si.p.y(), si.p.z(), si.uv.x(), si.uv.y());
+    }
+
+    static Spectrum spectrum(const MsxSpectrum &s) {
+        UnpolarizedSpectrum out;
+        for (size_t c = 0; c < Channels; ++c)
+            out[c] = s.v[c];
+        return out;
+    }
+
+    template <typename Value> static void put(float *dst, const Value &v) {
+        for (size_t c = 0; c < Channels; ++c)
+            dst[c] = v[c];
+    }
+
+    /// Material values at the hit (textures evaluated there), radiance mode.
+    MsxMaterial evaluate(const SurfaceInteraction3f &si, bool /*unused*/) const {
+        MsxMaterial m{};
+        m.alpha_u = m_alpha_u->eval_1(si, true);
+        m.alpha_v = m_isotropic ? m.alpha_u : m_alpha_v->eval_1(si, true);
+        for (size_t c = 0; c < 4; ++c) {
+            m.k[c] = 1.f; // a perfect mirror in the fields this surface does not use
+            m.specular_transmittance[c] = m.specular_reflectance[c] = m.reflectance[c] = 1.f;
+        }
+        put(m.specular_reflectance, m_specular_reflectance->eval(si, true));
+        if (m_eta) {
+            put(m.eta, m_eta->eval(si, true));
+            put(m.k, m_k->eval(si, true));
+        }
+        if (m_specular_transmittance)
+            put(m.specular_transmittance, m_specular_transmittance->eval(si, true));
+        if (m_reflectance)
+            put(m.reflectance, m_reflectance->eval(si, true));
+        m.ior = m_ior;
+        m.mode = MSX_MODE_RADIANCE;
+        return m;
+    }
+
+    MsxMaterial material(const BSDFContext &ctx, const SurfaceInteraction3f &si) const {
+        MsxMaterial m = m_constant ? m_material : evaluate(si, true);
+        if (ctx.mode == TransportMode::Importance)
+            m.mode = MSX_MODE_IMPORTANCE;
+        return m;
+    }
+
+    MsxBsdf *m_handle = nullptr;
+    std::string m_surface, m_distribution, m_model, m_estimator;
+    uint32_t m_lobe = +BSDFFlags::GlossyReflection;
+    bool m_isotropic = true, m_constant = false;
+    float m_ior = 1.5046f;
+    ref<Texture> m_alpha_u, m_alpha_v, m_eta, m_k, m_specular_reflectance, m_specular_transmittance, m_reflectance;
+    MsxMaterial m_material{};
+};
+
+NAMESPACE_END(mitsuba)
+
+namespace {
+
+template <typename Float, typename Spectrum>
+mitsuba::ref<mitsuba::Object> instantiate(void *, const mitsuba::Properties &props) {
+    return new mitsuba::MsxNativeBSDF<Float, Spectrum>(props);
+}
+
+void release(void *) {}
+
+} // namespace
+
+/// Registers the plugin `name` for the scalar variants this build has.
+/// Returns the number of variants registered.
+extern "C" __attribute__((visibility("default"))) int msx_native_register(const char *name) {
+    using namespace mitsuba;
+    auto *pm = PluginManager::instance();
+    pm->register_plugin(name, "scalar_rgb", ObjectType::BSDF, instantiate<float, Color<float, 3>>, release, nullptr);
+    pm->register_plugin(name, "scalar_spectral", ObjectType::BSDF, instantiate<float, mitsuba::Spectrum<float, 4>>,
+                        release, nullptr);
+    return 2;
+}
+
+/// Sizes of the Mitsuba structs this build was compiled with (bytes), for a
+/// consistency check against the running Mitsuba: BSDFSample3f, SurfaceInteraction3f.
+extern "C" __attribute__((visibility("default"))) void msx_native_layout(uint64_t *out) {
+    using namespace mitsuba;
+    out[0] = sizeof(BSDFSample3<float, Color<float, 3>>);
+    out[1] = sizeof(SurfaceInteraction<float, Color<float, 3>>);
+    out[2] = sizeof(BSDFContext);
+}

@@ -74,7 +74,19 @@ N_PAIRS = 1000
 def llvm(variant="llvm_ad_rgb"):
     mi.set_variant(variant)
     msx.register()
+    # register() switched drjit to evaluated mode (see test_plain_render_matches_scalar); the tests below
+    # choose their mode themselves, starting from drjit's default.
+    for f in (dr.JitFlag.SymbolicLoops, dr.JitFlag.SymbolicCalls):
+        dr.set_flag(f, True)
     return mi
+
+
+@pytest.fixture(autouse=True)
+def symbolic_flags():
+    """Each test starts in drjit's default (symbolic) mode; creating an msx_posfree instance switches it off."""
+    for f in (dr.JitFlag.SymbolicLoops, dr.JitFlag.SymbolicCalls):
+        dr.set_flag(f, True)
+    yield
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -318,14 +330,22 @@ def scene_dict(bsdf):
 MS_BSDF = dict(type="msx_posfree", model="correlated", material="Cu", alpha=0.5)
 
 
-def test_render_evaluated_mode_matches_scalar():
-    mi = llvm()
+def test_plain_render_matches_scalar():
+    """A user's plain mi.render() (no wrapper) renders the right image: creating the instance switched drjit to
+    evaluated mode, with one warning; the mean equals the scalar variant's within noise."""
+    mi.set_variant("llvm_ad_rgb")
+    from msx import _plugin_llvm
+
+    _plugin_llvm._switched = False  # as in a new process: the first switch warns
+    msx._REGISTERED.pop("llvm_ad_rgb", None)
+    with pytest.warns(RuntimeWarning, match="symbolic loops and calls are now off"):
+        msx.register()
     scene = mi.load_dict(scene_dict(MS_BSDF))
+    assert not dr.flag(dr.JitFlag.SymbolicLoops) and not dr.flag(dr.JitFlag.SymbolicCalls)
     t0 = time.time()
-    with msx.evaluated_mode():
-        img_llvm = np.array(mi.render(scene, seed=1), dtype=np.float64)
+    img_llvm = np.array(mi.render(scene, seed=1), dtype=np.float64)
     t_llvm = time.time() - t0
-    assert dr.flag(dr.JitFlag.SymbolicLoops) and dr.flag(dr.JitFlag.SymbolicCalls)  # restored
+    assert msx.check_fallback() == 0
     mi.set_variant("scalar_rgb")
     msx.register()
     t0 = time.time()
@@ -334,12 +354,24 @@ def test_render_evaluated_mode_matches_scalar():
     assert np.all(np.isfinite(img_llvm)) and img_llvm.mean() > 0
     d = (img_llvm - img_s).ravel()
     se = d.std() / math.sqrt(d.size)
-    print("\n[render 32x32x4spp] llvm evaluated mean %.5f (%.2fs), scalar_rgb mean %.5f (%.2fs), diff %.5f, SE %.5f"
+    print("\n[render 32x32x4spp] llvm plain mi.render mean %.5f (%.2fs), scalar_rgb mean %.5f (%.2fs), diff %.5f, SE %.5f"
           % (img_llvm.mean(), t_llvm, img_s.mean(), t_s, d.mean(), se))
     assert abs(d.mean()) <= 4 * se + 1e-4
 
 
-def test_symbolic_mode_fallback():
+def test_evaluated_mode_context_restores_flags(monkeypatch):
+    monkeypatch.setenv("MSX_KEEP_SYMBOLIC", "1")
+    mi = llvm()
+    scene = mi.load_dict(scene_dict(MS_BSDF))
+    assert dr.flag(dr.JitFlag.SymbolicLoops) and dr.flag(dr.JitFlag.SymbolicCalls)  # kept on request
+    with msx.evaluated_mode():
+        img = np.array(mi.render(scene, seed=1), dtype=np.float64)
+    assert dr.flag(dr.JitFlag.SymbolicLoops) and dr.flag(dr.JitFlag.SymbolicCalls)  # restored
+    assert np.all(np.isfinite(img)) and img.mean() > 0
+
+
+def test_symbolic_mode_fallback(monkeypatch):
+    monkeypatch.setenv("MSX_KEEP_SYMBOLIC", "1")
     mi = llvm()
     assert dr.flag(dr.JitFlag.SymbolicLoops) and dr.flag(dr.JitFlag.SymbolicCalls)
     # A live msx instance must not break a symbolic render of a scene without it.

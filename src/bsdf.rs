@@ -193,7 +193,9 @@ impl Material {
     /// `Microfacet::new`. Only the first `channels` channels are read.
     fn usable(&self, surface: Surface, channels: usize) -> Option<Material> {
         let finite = |s: &Spectrum| s.0[..channels].iter().all(|v| v.is_finite());
-        let clamp = |s: Spectrum, hi: f64| Spectrum(s.0.map(|v| v.clamp(0.0, hi)));
+        // Channels beyond `channels` are zeroed: what the caller left there must not steer a walk
+        // (Russian roulette looks at the largest channel).
+        let clamp = |s: Spectrum, hi: f64| Spectrum(std::array::from_fn(|c| if c < channels { s.0[c].clamp(0.0, hi) } else { 0.0 }));
         if !(self.alpha_u.is_finite() && self.alpha_v.is_finite()) {
             return None;
         }

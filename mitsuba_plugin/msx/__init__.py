@@ -13,6 +13,7 @@ the hit and forwards each BSDF call to the C ABI (``include/msx.h``).
 """
 
 import os
+import threading
 
 __version__ = "0.1.0"
 
@@ -85,14 +86,30 @@ def register(backend=None):
                        "(one Python call per BSDF call, one render thread)")
     if factory is None:
         if variant.startswith("llvm_"):
-            from ._plugin_llvm import make_bsdf_class
+            from ._plugin_llvm import _switch_to_evaluated_mode, make_bsdf_class
+
+            # Native code cannot run in drjit's symbolic kernels: turn them off now (saying so once), so that
+            # a plain mi.render() of a scene with msx_posfree gives the right image. (Mitsuba's scene loader
+            # restores drjit's flags after loading, so the switch cannot wait for the instance.)
+            _switch_to_evaluated_mode()
         else:
             from ._plugin import make_bsdf_class
         cls = make_bsdf_class(mi, variant)
         factory = cls
-    mi.register_bsdf("msx_posfree", lambda props: factory(props))
+    mi.register_bsdf("msx_posfree", lambda props: _create(factory, props))
     _REGISTERED[variant] = (chosen, factory)
     return factory
+
+
+_CREATE_LOCK = threading.Lock()
+
+
+def _create(factory, props):
+    """Mitsuba's scene loader instantiates plugins on several threads at once; the factories load helper
+    objects with mi.load_dict (conductor presets, the native plugin), which crashed when two threads did so
+    concurrently. One instance at a time (instantiation is rare; rendering is not affected)."""
+    with _CREATE_LOCK:
+        return factory(props)
 
 
 def backend():

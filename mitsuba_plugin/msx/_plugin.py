@@ -258,9 +258,14 @@ def make_bsdf_class(mi, variant):
                 else:
                     cb.put("alpha_u", self._alpha_u, DIFF | DISC)
                     cb.put("alpha_v", self._alpha_v, DIFF | DISC)
-                cb.put("eta", self._eta, DIFF | DISC)
-                cb.put("k", self._k, DIFF | DISC)
+                if self._eta is not None:
+                    cb.put("eta", self._eta, DIFF | DISC)
+                    cb.put("k", self._k, DIFF | DISC)
                 cb.put("specular_reflectance", self._specular_reflectance, DIFF)
+                if self._specular_transmittance is not None:
+                    cb.put("specular_transmittance", self._specular_transmittance, DIFF)
+                if self._reflectance is not None:
+                    cb.put("reflectance", self._reflectance, DIFF)
 
             def parameters_changed(self, keys=[]):
                 self._refresh()

@@ -24,6 +24,7 @@ Native code cannot run inside drjit's symbolic (traced) kernels, so
 """
 
 import atexit
+import os
 import warnings
 import weakref
 
@@ -74,6 +75,32 @@ class _EvaluatedMode:
             dr.set_flag(dr.JitFlag.SymbolicLoops, self._saved[0])
             dr.set_flag(dr.JitFlag.SymbolicCalls, self._saved[1])
         return False
+
+
+_SWITCH_MSG = (
+    "%s: Dr.Jit's symbolic loops and calls are now off in this process (dr.JitFlag.SymbolicLoops and "
+    "SymbolicCalls): native code cannot run inside symbolic kernels, so a plain mi.render() of this scene "
+    "would show the surface black. Every scene still renders correctly; scenes without msx_posfree render "
+    "more slowly in this mode. Set MSX_KEEP_SYMBOLIC=1 to keep symbolic mode (msx_posfree then renders black "
+    "unless rendered inside msx.evaluated_mode())."
+)
+_switched = False
+
+
+def _switch_to_evaluated_mode():
+    """Called by msx.register() in an LLVM variant: turns drjit's symbolic modes off (with one warning per
+    process) so that a plain mi.render() of a scene with msx_posfree gives the right image."""
+    global _switched
+    import drjit as dr
+
+    if os.environ.get("MSX_KEEP_SYMBOLIC") == "1":
+        return
+    if dr.flag(dr.JitFlag.SymbolicLoops) or dr.flag(dr.JitFlag.SymbolicCalls):
+        dr.set_flag(dr.JitFlag.SymbolicLoops, False)
+        dr.set_flag(dr.JitFlag.SymbolicCalls, False)
+        if not _switched:
+            _switched = True
+            warnings.warn(_SWITCH_MSG % PLUGIN, RuntimeWarning, stacklevel=3)
 
 
 def evaluated_mode():

@@ -90,8 +90,10 @@ class Progress:
 _scenes: dict = {}  # per process: (variant, path, params) -> loaded scene
 
 
-def setup_variant(variant: str):
-    """Sets the Mitsuba variant and registers msx_posfree (LLVM: evaluated mode on)."""
+def setup_variant(variant: str, workers: int = 1):
+    """Sets the Mitsuba variant and registers msx_posfree. Render threads: with the native back end the
+    cores are shared among the `workers` processes; the Python back end of the scalar variants runs one
+    thread (Python BSDFs serialise on the GIL, more threads only add contention)."""
     import drjit as dr
     import mitsuba as mi
 
@@ -99,21 +101,22 @@ def setup_variant(variant: str):
         mi.set_variant(variant)
     except Exception as e:
         raise RenderError(f"unknown or unavailable Mitsuba variant '{variant}' ({one_line(e)})") from None
-    if variant.startswith("scalar"):
-        dr.set_thread_count(1)
     import msx
 
-    msx.register()
-    if variant.startswith("llvm_"):
-        # Native code cannot run in drjit's symbolic kernels.
-        msx.evaluated_mode().enable()
+    msx.register()  # LLVM variants: also turns drjit's symbolic modes off
+    if variant.startswith("scalar"):
+        cores = os.cpu_count() or 1
+        dr.set_thread_count(max(1, cores // max(1, workers)) if msx.backend() == "native" else 1)
     return mi
+
+
+_workers = 1  # worker processes of the current render (sets each one's thread count)
 
 
 def _load(variant: str, scene: str, params: dict):
     key = (variant, scene, tuple(sorted(params.items())))
     if key not in _scenes:
-        mi = setup_variant(variant)
+        mi = setup_variant(variant, _workers)
         try:
             _scenes[key] = mi.load_file(scene, **params)
         except Exception as e:
@@ -135,7 +138,9 @@ def _render_chunk(variant: str, scene: str, params: dict, seed: int, spp: int):
     return seed, spp, np.array(img, dtype=np.float64), time.perf_counter() - t0
 
 
-def _worker_init():
+def _worker_init(workers):
+    global _workers
+    _workers = workers
     # Ctrl-C reaches the whole process group: the parent stops the workers itself.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
@@ -175,7 +180,8 @@ def render_chunks(scene: str, tasks, *, variant: str, params: dict, workers: int
             on_result(_render_chunk(variant, scene, params, seed, spp))
         return
     ctx = mp.get_context("spawn")
-    executor = ProcessPoolExecutor(min(workers, len(tasks)), mp_context=ctx, initializer=_worker_init)
+    n = min(workers, len(tasks))
+    executor = ProcessPoolExecutor(n, mp_context=ctx, initializer=_worker_init, initargs=(n,))
     try:
         pending = {executor.submit(_render_chunk, variant, scene, params, seed, spp) for seed, spp in tasks}
         while pending:

@@ -85,13 +85,22 @@ def llvm_usable() -> str | None:
 
 
 def default_variant() -> tuple[str, str]:
-    """The fastest route available here and why."""
+    """The fastest route available here and why: the native back end in scalar_rgb (all render threads),
+    else the LLVM variant (batched calls in evaluated mode), else the scalar Python back end."""
+    from .._native_backend import NativeUnavailable, build
+
+    try:
+        build()
+        return "scalar_rgb", (f"scalar_rgb with the native back end (C++ plugin on the Rust core, "
+                              f"{os.cpu_count()} render threads)")
+    except NativeUnavailable as e:
+        native_why = str(e).splitlines()[0]
     if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(LLVM19):
         os.environ["DRJIT_LIBLLVM_PATH"] = LLVM19  # read when drjit first starts its LLVM backend
     why = llvm_usable()
     if why is None:
-        return "llvm_ad_rgb", "LLVM variant, batched native calls (the fastest route of this installation)"
-    return "scalar_rgb", f"scalar variant, one Python BSDF call per sample ({why})"
+        return "llvm_ad_rgb", f"LLVM variant, batched native calls (native back end unavailable: {native_why})"
+    return "scalar_rgb", f"scalar variant, Python back end, one thread (native: {native_why}; LLVM: {why})"
 
 
 class Progress:

@@ -15,6 +15,7 @@ import gc
 import hashlib
 import json
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,9 +55,10 @@ class Renderer:
         import msx
 
         mi.set_variant(variant)
-        if variant.startswith("scalar"):
-            dr.set_thread_count(1)  # Python BSDFs serialise on the GIL: more threads only add contention
         msx.register()
+        if variant.startswith("scalar"):
+            # Native back end: every core; the Python back end serialises on the GIL (one thread).
+            dr.set_thread_count((os.cpu_count() or 1) if msx.backend() == "native" else 1)
         self.mi, self.dr, self.msx = mi, dr, msx
         self.variant = variant
         self.scenes_dir = Path(scenes_dir)
@@ -120,9 +122,8 @@ class Renderer:
             ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(mi.Float(u), mi.Float(v)), mi.Point2f(0.5, 0.5))
             si = scene.ray_intersect(ray)
             ours = mi.Bool(False)
-            for shape in scene.shapes():
-                if type(shape.bsdf()).__name__ == "MsxPosfree":
-                    ours = ours | (si.is_valid() & (si.shape == mi.ShapePtr(shape)))
+            for shape in _msx_shapes(scene):
+                ours = ours | (si.is_valid() & (si.shape == mi.ShapePtr(shape)))
             hit = np.array(ours.numpy(), dtype=bool)
             return hit.reshape(h, w, sub * sub).all(axis=2)
         return self._mask_scalar(scene, w, h, sub)
@@ -130,6 +131,7 @@ class Renderer:
     def _mask_scalar(self, scene, w, h, sub):
         mi = self.mi
         sensor = scene.sensors()[0]
+        targets = _msx_shapes(scene)
         mask = np.ones((h, w), dtype=bool)
         for y in range(h):
             for x in range(w):
@@ -137,10 +139,15 @@ class Renderer:
                     sx, sy = (j % sub + 0.5) / sub, (j // sub + 0.5) / sub
                     ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f((x + sx) / w, (y + sy) / h), mi.Point2f(0.5, 0.5))
                     si = scene.ray_intersect(ray)
-                    if not (bool(si.is_valid()) and type(si.bsdf()).__name__ == "MsxPosfree"):
+                    if not (bool(si.is_valid()) and any(si.shape is t for t in targets)):
                         mask[y, x] = False
                         break
         return mask
+
+
+def _msx_shapes(scene):
+    """The shapes whose BSDF is msx_posfree (either back end: both describe themselves as MsxPosfree[...])."""
+    return [s for s in scene.shapes() if str(s.bsdf()).startswith("MsxPosfree")]
 
 
 class _Null:

@@ -1,71 +1,110 @@
-"""Render benchmark: scalar render time of the Fig. 9 setup (copper sphere, GGX
-α = 1, directional light) with `msx_posfree` vs Mitsuba's `roughconductor`.
+"""Render benchmark: the Fig. 9 scene (copper sphere, GGX α = 1, directional
+light; scenes/fig09_copper_sphere.xml) rendered at equal spp by Mitsuba's
+built-in roughconductor and by msx_posfree through every route:
 
-Times are interleaved over repeats and the median is kept; only ratios
-measured in this one run are meaningful (machines are shared and noisy).
+- scalar_rgb, native back end (C++ plugin on the Rust core) and Python back
+  end, each with 1 render thread and with all threads;
+- llvm_ad_rgb (batched native calls in drjit's evaluated mode), against the
+  built-in in drjit's default (symbolic) mode and in evaluated mode.
 
-    python3 benches/render_bench.py [--spp 16] [--res 128] [--repeats 3] [--variant scalar_rgb]
+Each route runs in its own process; within a process the configurations are
+interleaved over repeats and the median is kept. Only ratios measured in one
+run are meaningful (machines are shared and noisy).
+
+    python3 benches/render_bench.py [--spp 16] [--res 128] [--repeats 5]
 """
 
 import argparse
+import json
+import os
 import statistics
+import subprocess
+import sys
 import time
 
+MODELS = ["single", "correlated", "invariance", "heitz"]
+LLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
 
-def scene_dict(mi, bsdf, res, spp):
-    return {
-        "type": "scene",
-        "integrator": {"type": "path", "max_depth": 4},
-        "sensor": {
-            "type": "perspective",
-            "fov": 30,
-            "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 4.2], target=[0, 0, 0], up=[0, 1, 0]),
-            "sampler": {"type": "independent", "sample_count": spp},
-            "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}},
-        },
-        "light": {"type": "directional", "direction": [0, -0.5, -1], "irradiance": {"type": "rgb", "value": 3.0}},
-        "sphere": {"type": "sphere", "bsdf": bsdf},
-    }
+
+def worker(route, res, spp, repeats):
+    """One route in this process: {label: median seconds}."""
+    variant, backend, threads = route.split(":")
+    if variant.startswith("llvm") and "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(LLVM19):
+        os.environ["DRJIT_LIBLLVM_PATH"] = LLVM19
+    import drjit as dr
+    import mitsuba as mi
+
+    mi.set_variant(variant)
+    import msx
+    from msx._render import scenes_dir
+
+    path = str(scenes_dir() / "fig09_copper_sphere.xml")
+    size = dict(width=str(res), height=str(res))
+    configs = {}
+    if backend == "builtin-symbolic":  # no msx in this process: drjit's default mode stays on
+        configs["roughconductor (symbolic)"] = mi.load_file(path, bsdf="roughconductor", **size)
+    else:
+        msx.register(backend=None if backend == "auto" else backend)
+        if variant.startswith("scalar"):
+            dr.set_thread_count(os.cpu_count() if threads == "all" else 1)
+        label = "roughconductor" + (" (evaluated)" if variant.startswith("llvm") else "")
+        configs[label] = mi.load_file(path, bsdf="roughconductor", **size)
+        for m in MODELS if backend != "python" or variant.startswith("llvm") else MODELS[:2]:
+            configs[f"msx {m}"] = mi.load_file(path, bsdf="msx_posfree", model=m, **size)
+    for s in configs.values():
+        mi.render(s, spp=1)  # warm-up (kernel compilation in LLVM)
+    times = {k: [] for k in configs}
+    for _ in range(repeats):
+        for k, s in configs.items():
+            t0 = time.perf_counter()
+            mi.render(s, spp=spp)
+            times[k].append(time.perf_counter() - t0)
+    return {k: statistics.median(v) for k, v in times.items()}
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--res", type=int, default=128)
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--variant", default="scalar_rgb")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--worker", help=argparse.SUPPRESS)
     args = ap.parse_args()
-
-    import drjit as dr
-    import mitsuba as mi
-
-    mi.set_variant(args.variant)
-    dr.set_thread_count(1)
-    import msx
-
-    msx.register()
-    common = {"material": "Cu", "distribution": "ggx", "alpha": 1.0}
-    configs = {
-        "roughconductor": {"type": "roughconductor", **common},
-        "msx single": {"type": "msx_posfree", "model": "single", **common},
-        "msx uncorrelated": {"type": "msx_posfree", "model": "uncorrelated", **common},
-        "msx correlated": {"type": "msx_posfree", "model": "correlated", **common},
-    }
-    scenes = {k: mi.load_dict(scene_dict(mi, v, args.res, args.spp)) for k, v in configs.items()}
-    times = {k: [] for k in configs}
-    for k, s in scenes.items():  # warm-up
-        mi.render(s, spp=1)
-    for _ in range(args.repeats):
-        for k, s in scenes.items():
-            t0 = time.perf_counter()
-            mi.render(s, spp=args.spp)
-            times[k].append(time.perf_counter() - t0)
-    base = statistics.median(times["roughconductor"])
-    print(f"{args.variant}, {args.res}x{args.res}, {args.spp} spp, 1 render thread, median of {args.repeats}")
-    print(f"{'BSDF':<20} {'median s':>9} {'x roughconductor':>17}")
-    for k, ts in times.items():
-        m = statistics.median(ts)
-        print(f"{k:<20} {m:9.3f} {m / base:17.2f}")
+    if args.worker:
+        print(json.dumps(worker(args.worker, args.res, args.spp, args.repeats)))
+        return
+    routes = ["scalar_rgb:native:1", "scalar_rgb:native:all", "scalar_rgb:python:1", "scalar_rgb:python:all",
+              "llvm_ad_rgb:builtin-symbolic:all", "llvm_ad_rgb:auto:all"]
+    results = {}
+    for r in routes:
+        p = subprocess.run([sys.executable, __file__, "--worker", r, "--res", str(args.res), "--spp", str(args.spp),
+                            "--repeats", str(args.repeats)], capture_output=True, text=True)
+        if p.returncode != 0:
+            print(f"{r}: failed: {p.stderr.strip().splitlines()[-1:]}", file=sys.stderr)
+            continue
+        results[r] = json.loads(p.stdout.strip().splitlines()[-1])
+    cores = os.cpu_count()
+    print(f"Fig. 9 scene, {args.res}x{args.res}, {args.spp} spp, median of {args.repeats}; {cores} cores\n")
+    print(f"| route | threads | BSDF | seconds | × built-in (same route) |")
+    print("|---|---|---|---|---|")
+    for r, res in results.items():
+        variant, backend, threads = r.split(":")
+        base_key = next((k for k in res if k.startswith("roughconductor")), None)
+        if backend == "builtin-symbolic":
+            continue
+        base = res[base_key]
+        for k, t in res.items():
+            print(f"| {variant} {backend} | {threads if variant.startswith('scalar') else 'all'} | {k} | {t:.3f} | "
+                  f"{t / base:.2f} |")
+    sym = results.get("llvm_ad_rgb:builtin-symbolic:all", {}).get("roughconductor (symbolic)")
+    if sym and "llvm_ad_rgb:auto:all" in results:
+        print("\nLLVM, against the built-in in drjit's default (symbolic) mode:")
+        for k, t in results["llvm_ad_rgb:auto:all"].items():
+            print(f"  {k}: {t / sym:.2f} ×")
+    n1, na = results.get("scalar_rgb:native:1"), results.get("scalar_rgb:native:all")
+    if n1 and na:
+        print("\nThread scaling of the native back end (1 thread / all threads):")
+        for k in n1:
+            print(f"  {k}: {n1[k] / na[k]:.2f} ×")
 
 
 if __name__ == "__main__":

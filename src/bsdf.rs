@@ -368,7 +368,11 @@ impl Bsdf {
     pub fn eval_orders(&self, mat: &Material, wi: DVec3, wo: DVec3, key: u64, orders: (u32, u32)) -> Spectrum {
         let (Some(wi), Some(wo)) = (finite_unit(wi), finite_unit(wo)) else { return Spectrum::ZERO };
         let Some(mat) = mat.usable(self.cfg.surface, self.cfg.channels) else { return Spectrum::ZERO };
-        let mat = &mat;
+        self.eval_checked(&mat, wi, wo, key, orders)
+    }
+
+    /// `eval_orders` on inputs already checked (unit directions, usable material).
+    fn eval_checked(&self, mat: &Material, wi: DVec3, wo: DVec3, key: u64, orders: (u32, u32)) -> Spectrum {
         if orders.0 > orders.1 {
             return Spectrum::ZERO;
         }
@@ -446,7 +450,11 @@ impl Bsdf {
     pub fn pdf(&self, mat: &Material, wi: DVec3, wo: DVec3) -> f64 {
         let (Some(wi), Some(wo)) = (finite_unit(wi), finite_unit(wo)) else { return 0.0 };
         let Some(mat) = mat.usable(self.cfg.surface, self.cfg.channels) else { return 0.0 };
-        let mat = &mat;
+        self.pdf_checked(&mat, wi, wo)
+    }
+
+    /// `pdf` on inputs already checked (unit directions, usable material).
+    fn pdf_checked(&self, mat: &Material, wi: DVec3, wo: DVec3) -> f64 {
         let mf = self.microfacet(mat);
         let (model, _) = self.resolve(mat, wi);
         let p = match self.cfg.surface {
@@ -502,8 +510,16 @@ impl Bsdf {
         mf.reflect_pdf(wi, wo) * exit + (1.0 - e1).max(1e-3) * wo.z * FRAC_1_PI
     }
 
+    /// `eval` and `pdf` together, with the inputs checked once. The conductor's
+    /// `single` shares the half vector, D and G1(ω_i) between the two.
     pub fn eval_pdf(&self, mat: &Material, wi: DVec3, wo: DVec3, key: u64) -> (Spectrum, f64) {
-        (self.eval(mat, wi, wo, key), self.pdf(mat, wi, wo))
+        let (Some(wi), Some(wo)) = (finite_unit(wi), finite_unit(wo)) else { return (Spectrum::ZERO, 0.0) };
+        let Some(mat) = mat.usable(self.cfg.surface, self.cfg.channels) else { return (Spectrum::ZERO, 0.0) };
+        if self.cfg.surface == Surface::Conductor && self.cfg.model == Model::Single {
+            let (f, p) = single::eval_pdf(&self.microfacet(&mat), &self.fresnel(&mat), wi, wo);
+            return (f * mat.specular_reflectance, p);
+        }
+        (self.eval_checked(&mat, wi, wo, key, (1, u32::MAX)), self.pdf_checked(&mat, wi, wo))
     }
 
     /// Samples ω_o given Mitsuba's `sample1` and `sample2`; the random walks

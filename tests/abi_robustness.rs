@@ -828,3 +828,29 @@ fn batch_length_mismatch_is_an_error() {
         assert_eq!(f(h.0, &good, &o.ptrs(), ptr::null_mut(), 0), MSX_OK, "{fname}");
     }
 }
+
+// ------------------------------------------------------------ eval_pdf
+
+/// `msx_eval_pdf` is `msx_eval` and `msx_pdf` in one call: the same values
+/// (bit for bit, same key), whatever shortcut it takes.
+#[test]
+fn eval_pdf_equals_eval_and_pdf() {
+    let diag = msx_diagnostics();
+    let mut rng = Rng(0x5eed_0002);
+    for model in MODELS {
+        for dist in DISTRIBUTIONS {
+            let h = new(&params(model, dist));
+            for i in 0..400 {
+                let a = rng.log_uniform(0.01, 2.0) as f32;
+                let m = material(a, a * rng.range(0.5, 1.0) as f32, CU_ETA, CU_K);
+                let wi = dir(rng.range(0.0, 1.5), rng.range(0.0, 6.28));
+                let wo = dir(rng.range(0.0, 1.5), rng.range(0.0, 6.28));
+                let key = i as u64;
+                let both = msx_eval_pdf(h.0, &m, wi, wo, key);
+                let (v, p) = (msx_eval(h.0, &m, wi, wo, key), msx_pdf(h.0, &m, wi, wo));
+                assert_eq!((both.value.v, both.pdf), (v.v, p), "model {model} dist {dist} wi {wi:?} wo {wo:?}");
+            }
+        }
+    }
+    common::assert_no_raw_defects(diag, "eval_pdf_equals_eval_and_pdf");
+}

@@ -33,6 +33,23 @@ pub fn pdf(mf: &Microfacet, wi: DVec3, wo: DVec3) -> f64 {
     mf.d(h) * mitsuba::smith_g1(mf, wi, h) / (4.0 * wi.z)
 }
 
+/// `eval` and `pdf` in one pass (the half vector, D and G1(ω_i) computed once):
+/// the same values as the two functions.
+pub fn eval_pdf(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3) -> (Spectrum, f64) {
+    if wi.z <= 0.0 || wo.z <= 0.0 {
+        return (Spectrum::ZERO, 0.0);
+    }
+    let h = (wi + wo).normalize();
+    let d = mf.d(h);
+    if d == 0.0 {
+        return (Spectrum::ZERO, 0.0);
+    }
+    let g1_i = mitsuba::smith_g1(mf, wi, h);
+    let value = fresnel.eval(wi.dot(h)) * (d * g1_i * mitsuba::smith_g1(mf, wo, h) / (4.0 * wi.z));
+    let pdf = if wi.dot(h) <= 0.0 || wo.dot(h) <= 0.0 { 0.0 } else { d * g1_i / (4.0 * wi.z) };
+    (value, pdf)
+}
+
 /// Returns (ω_o, pdf, weight = f·cos θ_o / pdf) or None for an invalid sample.
 pub fn sample(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, u1: f64, u2: f64) -> Option<(DVec3, f64, Spectrum)> {
     if wi.z <= 0.0 {

@@ -7,11 +7,18 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 step() { printf '\n== %s (%s) ==\n' "$1" "$(date +%T)"; }
 
-step "1/3 build and install msx with pip (cargo build --release inside)"
+step "1/4 build and install msx with pip (cargo build --release inside)"
 python3 -m pip install --disable-pip-version-check --progress-bar off '.[test]'
 
-step "2/3 Rust tests (cargo test)"
+step "2/4 Rust lints (cargo clippy --all-targets -- -D warnings)"
+if cargo clippy --version >/dev/null 2>&1; then
+    cargo clippy --all-targets --quiet -- -D warnings
+else
+    echo "skipped: clippy is not installed (rustup component add clippy)"
+fi
+
+step "3/4 Rust tests (cargo test)"
 cargo test
 
-step "3/3 Python plugin tests (pytest)"
+step "4/4 Python plugin tests (pytest)"
 python3 -m pytest python_tests -v -rs

@@ -382,7 +382,7 @@ impl Bsdf {
         let mut opts = Self::walk_options(model, max_bounces);
         opts.orders = (orders.0.max(1), orders.1.min(max_bounces));
         let rng = || self.seeded(&[key, wi.x.to_bits(), wi.y.to_bits(), wi.z.to_bits(), wo.x.to_bits(), wo.y.to_bits(), wo.z.to_bits()]);
-        let value = match self.cfg.surface {
+        match self.cfg.surface {
             Surface::Conductor => {
                 let fresnel = self.fresnel(mat);
                 let v = match model {
@@ -428,8 +428,7 @@ impl Bsdf {
                 }
                 _ => Spectrum::ZERO,
             },
-        };
-        value
+        }
     }
 
     /// Mitsuba's tints: specular_reflectance on reflection, specular_transmittance on transmission.
@@ -457,7 +456,7 @@ impl Bsdf {
     fn pdf_checked(&self, mat: &Material, wi: DVec3, wo: DVec3) -> f64 {
         let mf = self.microfacet(mat);
         let (model, _) = self.resolve(mat, wi);
-        let p = match self.cfg.surface {
+        match self.cfg.surface {
             Surface::Conductor => match model {
                 Model::Single | Model::FastMsx | Model::Compensated => single::pdf(&mf, wi, wo),
                 _ => {
@@ -486,8 +485,7 @@ impl Bsdf {
                     wo.z * FRAC_1_PI
                 }
             }
-        };
-        p
+        }
     }
 
     /// MIS density of the conductor random walks: the exact density of leaving

@@ -301,6 +301,9 @@ fn config_from(p: &MsxParams) -> Result<Config, (&'static str, String)> {
 /// Creates a BSDF. On success writes the handle to `*out` and returns MSX_OK;
 /// otherwise returns an MSX_ERR_* code and writes a NUL-terminated message
 /// naming the parameter into `err` (capacity `err_len`, may be null).
+// A C entry point: the pointers are the C caller's (null-checked here), as for
+// every function of this ABI; `unsafe` would only burden Rust callers.
+#[allow(clippy::not_unsafe_ptr_arg_deref)]
 #[no_mangle]
 pub extern "C" fn msx_bsdf_new(params: *const MsxParams, out: *mut *mut MsxBsdf, err: *mut c_char, err_len: usize) -> i32 {
     let result = catch_unwind(AssertUnwindSafe(|| {
@@ -338,6 +341,9 @@ pub extern "C" fn msx_bsdf_new(params: *const MsxParams, out: *mut *mut MsxBsdf,
 }
 
 /// Frees a BSDF created by `msx_bsdf_new` (null is ignored).
+// A C entry point: the pointers are the C caller's (null-checked here), as for
+// every function of this ABI; `unsafe` would only burden Rust callers.
+#[allow(clippy::not_unsafe_ptr_arg_deref)]
 #[no_mangle]
 pub extern "C" fn msx_bsdf_free(bsdf: *mut MsxBsdf) {
     if bsdf.is_null() {
@@ -474,8 +480,8 @@ fn out_f32(x: f64) -> f32 {
 
 fn out_spectrum(s: Spectrum, channels: usize) -> MsxSpectrum {
     let mut v = [0.0f32; 4];
-    for c in 0..channels.min(MAX_CHANNELS) {
-        v[c] = out_f32(s.0[c]);
+    for (vc, &x) in v.iter_mut().zip(s.0.iter()).take(channels.min(MAX_CHANNELS)) {
+        *vc = out_f32(x);
     }
     MsxSpectrum { v }
 }
@@ -746,12 +752,12 @@ fn run_lane(b: &Bsdf, inp: &Inputs, out: OutPtrs, key: u64, op: Op, i: usize) {
     };
     // SAFETY: see OutPtrs::put.
     unsafe {
-        for c in 0..4 {
-            OutPtrs::put(out.value[c], i, value.v[c]);
+        for (&p, &x) in out.value.iter().zip(value.v.iter()) {
+            OutPtrs::put(p, i, x);
         }
         OutPtrs::put(out.pdf, i, pdf);
-        for c in 0..3 {
-            OutPtrs::put(out.wo[c], i, wo[c]);
+        for (&p, &x) in out.wo.iter().zip(wo.iter()) {
+            OutPtrs::put(p, i, x);
         }
     }
 }

@@ -35,8 +35,9 @@ impl Sampler {
         Sampler { rng: Pcg64Mcg::new(((hi as u128) << 64) | lo as u128 | 1) }
     }
 
-    /// Uniform in [0, 1).
+    /// Uniform in [0, 1). (Not an `Iterator`: the walks draw one number at a time.)
     #[inline]
+    #[allow(clippy::should_implement_trait)]
     pub fn next(&mut self) -> f64 {
         (self.rng.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
     }

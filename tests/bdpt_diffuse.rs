@@ -7,6 +7,9 @@
 //! combined Monte Carlo standard error, z the family-wise 3σ level of
 //! `common::family_sigmas`. Run with `--nocapture` for the measured values.
 
+// Lints relaxed for this test file: per-channel statistics indexed by channel.
+#![allow(clippy::needless_range_loop)]
+
 mod common;
 
 use common::*;

@@ -10,6 +10,9 @@
 //! rather than only when `libmsx.a` is missing, guarantees that the C program
 //! never links a stale library from an earlier version of `src/`.
 
+// Lints relaxed for this test file: tuple types of test tables.
+#![allow(clippy::type_complexity)]
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -96,7 +99,7 @@ fn staticlib() -> PathBuf {
         .flat_map(|l| l.split('"'))
         .filter(|s| s.ends_with("/libmsx.a"))
         .map(PathBuf::from)
-        .last();
+        .next_back();
     let lib = from_json.unwrap_or_else(|| profile_dir.join("libmsx.a"));
     assert!(lib.is_file(), "staticlib not found at {}", lib.display());
     lib
@@ -145,7 +148,7 @@ fn c_program_links_the_staticlib_and_passes() {
     println!("{stdout}");
     assert!(run.status.success(), "C consumer exited with {}:\n{stdout}\n{stderr}", run.status);
     assert_eq!(run.status.code(), Some(0));
-    assert_eq!(stdout.lines().last(), Some("ok"), "C consumer output:\n{stdout}\n{stderr}");
+    assert_eq!(stdout.lines().next_back(), Some("ok"), "C consumer output:\n{stdout}\n{stderr}");
     assert!(!stdout.contains("FAIL"), "C consumer reported failures:\n{stdout}");
     assert!(stdout.contains("invalid parameter 'model'"), "error message not printed as expected:\n{stdout}");
 }

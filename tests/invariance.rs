@@ -9,6 +9,9 @@
 //! combined Monte Carlo standard error, z the family-wise 3σ level of
 //! `common::family_sigmas`. Run with `--nocapture` for the measured values.
 
+// Lints relaxed for this test file: test helpers take every configuration axis.
+#![allow(clippy::too_many_arguments, clippy::type_complexity)]
+
 mod common;
 
 use common::*;

@@ -104,7 +104,7 @@ fn newton_monotone(f: impl Fn(f64) -> f64, df: impl Fn(f64) -> f64, x0: f64, hi:
             lo = x;
         }
         let mut next = x - fx / df(x);
-        if !(next > lo && next < hi) || !next.is_finite() {
+        if !(next > lo && next < hi && next.is_finite()) {
             next = if lo.is_finite() { 0.5 * (lo + hi) } else { x - (1.0 + x.abs()) };
         }
         if (next - x).abs() <= 1e-13 * (1.0 + x.abs()) {

@@ -88,6 +88,35 @@ pub fn dielectric(cos_i: f64, eta: f64) -> f64 {
     0.5 * (rs * rs + rp * rp)
 }
 
+/// Dielectric Fresnel with the conventions of Mitsuba 3's `fresnel()`:
+/// `eta` = η_int/η_ext of the interface and the sign
+/// of `cos_i` (measured against the normal that points to the exterior) tells
+/// the side. Returns (F, cos θ_t, η_it, η_ti): cos θ_t carries the sign opposite
+/// to `cos_i` (0 under total internal reflection, where F = 1), η_it is the
+/// relative IOR in the direction of travel and η_ti = 1/η_it. Index-matched
+/// (η = 1) gives F = 0; exactly grazing incidence gives F = 1.
+#[inline]
+pub fn dielectric_full(cos_i: f64, eta: f64) -> (f64, f64, f64, f64) {
+    let outside = cos_i >= 0.0;
+    let rcp = 1.0 / eta;
+    let (eta_it, eta_ti) = if outside { (eta, rcp) } else { (rcp, eta) };
+    let cos_t2 = 1.0 - (1.0 - cos_i * cos_i) * eta_ti * eta_ti;
+    let ci = cos_i.abs();
+    let ct = cos_t2.max(0.0).sqrt();
+    let f = if eta == 1.0 {
+        0.0
+    } else if ci == 0.0 {
+        1.0
+    } else {
+        let a_s = (ci - eta_it * ct) / (ci + eta_it * ct);
+        let a_p = (ct - eta_it * ci) / (ct + eta_it * ci);
+        0.5 * (a_s * a_s + a_p * a_p)
+    };
+    // Mitsuba's mulsign_neg: the sign bit of cos_i decides (−0 counts as negative).
+    let cos_t = if cos_i.is_sign_negative() { ct } else { -ct };
+    (f, cos_t, eta_it, eta_ti)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -122,33 +151,4 @@ mod tests {
             }
         }
     }
-}
-
-/// Dielectric Fresnel with the conventions of Mitsuba 3's `fresnel()`:
-/// `eta` = η_int/η_ext of the interface and the sign
-/// of `cos_i` (measured against the normal that points to the exterior) tells
-/// the side. Returns (F, cos θ_t, η_it, η_ti): cos θ_t carries the sign opposite
-/// to `cos_i` (0 under total internal reflection, where F = 1), η_it is the
-/// relative IOR in the direction of travel and η_ti = 1/η_it. Index-matched
-/// (η = 1) gives F = 0; exactly grazing incidence gives F = 1.
-#[inline]
-pub fn dielectric_full(cos_i: f64, eta: f64) -> (f64, f64, f64, f64) {
-    let outside = cos_i >= 0.0;
-    let rcp = 1.0 / eta;
-    let (eta_it, eta_ti) = if outside { (eta, rcp) } else { (rcp, eta) };
-    let cos_t2 = 1.0 - (1.0 - cos_i * cos_i) * eta_ti * eta_ti;
-    let ci = cos_i.abs();
-    let ct = cos_t2.max(0.0).sqrt();
-    let f = if eta == 1.0 {
-        0.0
-    } else if ci == 0.0 {
-        1.0
-    } else {
-        let a_s = (ci - eta_it * ct) / (ci + eta_it * ct);
-        let a_p = (ct - eta_it * ci) / (ct + eta_it * ci);
-        0.5 * (a_s * a_s + a_p * a_p)
-    };
-    // Mitsuba's mulsign_neg: the sign bit of cos_i decides (−0 counts as negative).
-    let cos_t = if cos_i.is_sign_negative() { ct } else { -ct };
-    (f, cos_t, eta_it, eta_ti)
 }

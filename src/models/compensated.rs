@@ -19,14 +19,19 @@ use crate::spectrum::{Spectrum, MAX_CHANNELS};
 use glam::DVec3;
 use std::cell::Cell;
 
+/// The last (η, k) seen on this thread and its average Fresnel term.
+type LastAverage = Option<([f64; MAX_CHANNELS], [f64; MAX_CHANNELS], Spectrum)>;
+
 /// Hemispherical average F_avg = 2∫F(μ)μ dμ of the conductor Fresnel per
 /// channel (16-point Gauss-Legendre in μ), memoised per thread for the last IOR.
+// The Gauss-Legendre nodes and weights are kept as published.
+#[allow(clippy::excessive_precision)]
 pub fn fresnel_average(fresnel: &ConductorFresnel) -> Spectrum {
     if fresnel.mirror {
         return Spectrum::ONE;
     }
     thread_local! {
-        static LAST: Cell<Option<([f64; MAX_CHANNELS], [f64; MAX_CHANNELS], Spectrum)>> = const { Cell::new(None) };
+        static LAST: Cell<LastAverage> = const { Cell::new(None) };
     }
     if let Some((eta, k, avg)) = LAST.with(|c| c.get()) {
         if eta == fresnel.eta.0 && k == fresnel.k.0 {

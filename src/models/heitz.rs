@@ -47,8 +47,6 @@
 //! per-vertex weights (Fresnel for conductors, albedo for diffuse, 1 for
 //! dielectrics).
 
-// `!(x > 0.0)` is deliberate: it is also true for NaN.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use super::{russian_roulette, Microsurface, WalkOptions};
 use crate::microfacet::{fresnel, reflect, Microfacet};

@@ -556,7 +556,7 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
             break;
         }
         // Connection strategy for order + 1: d_{m+1} = y from the side of ω_o.
-        if order + 1 >= opts.orders.0 && order + 1 <= CONNECT_MAX_ORDER {
+        if order + 1 >= opts.orders.0 && order < CONNECT_MAX_ORDER {
             if let Some(light) = &light {
                 result += throughput * light.connect(mf, fresnel, &dp, w, pdf_scale, lambda_o);
             }
@@ -590,7 +590,7 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
         throughput *= fresnel.eval(cos_wm);
         // m is the half vector of w and d_next: density D(m)/(4 A(w)), needed
         // by the MIS weight of the next NEE while the connection serves it.
-        if order + 1 <= CONNECT_MAX_ORDER {
+        if order < CONNECT_MAX_ORDER {
             pdf_walk = mf.d(m) * pdf_scale;
         }
         let l_next;

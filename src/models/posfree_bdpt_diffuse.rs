@@ -176,6 +176,8 @@ pub fn eval_bdpt_with(
         // ---- connections: order k, strategy s, t = k − 1 − s
         for k in o_lo..=kb {
             let k = k as usize;
+            // `s` is the strategy (camera vertices), not only an index into `cam`.
+            #[allow(clippy::needless_range_loop)]
             for s in 0..k {
                 let t = k - 1 - s;
                 if s > n_c || t > n_l {
@@ -242,10 +244,8 @@ pub fn eval_bdpt_with(
                 l = mf.abs_lambda(d_next);
             }
             w = -d_next;
-            if j + 1 >= kb + RR_START {
-                if !russian_roulette(&mut throughput, rng) {
-                    break;
-                }
+            if j + 1 >= kb + RR_START && !russian_roulette(&mut throughput, rng) {
+                break;
             }
         }
     }

@@ -117,10 +117,8 @@ pub fn eval_pt(mf: &Microfacet, albedo: Spectrum, wi: DVec3, wo: DVec3, opts: &W
             break;
         }
         w = -d_next;
-        if j + 1 >= RR_START {
-            if !russian_roulette(&mut throughput, rng) {
-                break;
-            }
+        if j + 1 >= RR_START && !russian_roulette(&mut throughput, rng) {
+            break;
         }
     }
     result

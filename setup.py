@@ -212,7 +212,7 @@ class BuildPyWithData(build_py):
         if os.path.isdir(src):
             dst = os.path.join(self.build_lib, "msx", "scenes")
             shutil.rmtree(dst, ignore_errors=True)
-            shutil.copytree(src, dst)
+            shutil.copytree(src, dst, ignore=shutil.ignore_patterns("assets"))  # generated on demand
         native = os.path.join(self.build_lib, "msx", "native")
         os.makedirs(native, exist_ok=True)
         shutil.copy2(os.path.join(ROOT, "native", "msx_mitsuba.cpp"), native)

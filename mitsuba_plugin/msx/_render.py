@@ -113,12 +113,27 @@ def setup_variant(variant: str, workers: int = 1):
 _workers = 1  # worker processes of the current render (sets each one's thread count)
 
 
+def load_scene(mi, scene: str, **params):
+    """mi.load_file with at least 2 Dr.Jit threads: with one thread, Mitsuba 3.9 deadlocks reading an EXR
+    (OpenEXR's tasks wait for a pool worker that never comes); the render's own thread count is restored."""
+    import drjit as dr
+
+    threads = dr.thread_count()
+    if threads < 2:
+        dr.set_thread_count(2)
+    try:
+        return mi.load_file(scene, **params)
+    finally:
+        if threads < 2:
+            dr.set_thread_count(threads)
+
+
 def _load(variant: str, scene: str, params: dict):
     key = (variant, scene, tuple(sorted(params.items())))
     if key not in _scenes:
         mi = setup_variant(variant, _workers)
         try:
-            _scenes[key] = mi.load_file(scene, **params)
+            _scenes[key] = load_scene(mi, scene, **params)
         except Exception as e:
             raise RenderError(one_line(e)) from None
     return _scenes[key]
@@ -162,6 +177,27 @@ def _exit_codes(executor: ProcessPoolExecutor):
     """Exit codes of dead workers, without the SIGTERM the executor sends to the others when the pool breaks."""
     return sorted({p.exitcode for p in getattr(executor, "_processes", {}).values()
                    if p.exitcode not in (None, 0, -signal.SIGTERM)})
+
+
+def with_assets(scene: str, params: dict) -> dict:
+    """Generates the assets a scene refers to as `$assets/...` (msx/assets.py): into the scene's own
+    `assets/` folder (its default), or, where that is not writable, into the cache (then passed as the
+    `assets` parameter)."""
+    from . import assets
+
+    path = Path(scene)
+    if "$assets" not in path.read_text():
+        return params
+    if "assets" in params:
+        assets.ensure(params["assets"])
+        return params
+    try:
+        assets.ensure(path.parent / "assets")
+        return params
+    except OSError:
+        cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "msx" / "assets"
+        assets.ensure(cache)
+        return dict(params, assets=str(cache))
 
 
 def _chunks(spp: int, n: int):
@@ -211,7 +247,7 @@ def render_scene(scene: str, *, variant: str = DEFAULT_VARIANT, spp: int | None 
 
     if not os.path.exists(scene):
         raise RenderError(f"scene file not found: {scene}")
-    params = {k: str(v) for k, v in (params or {}).items()}
+    params = with_assets(scene, {k: str(v) for k, v in (params or {}).items()})
     if spp is None:
         spp = int(params.get("spp", 16))
     if spp < 1:

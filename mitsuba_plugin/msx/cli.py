@@ -59,6 +59,13 @@ def cmd_compare(args):
     compare.run(args)
 
 
+def cmd_assets(args):
+    from . import assets
+
+    folder = assets.ensure(args.folder)
+    print(f"assets in {folder}: {', '.join(assets.FILES)}")
+
+
 def build_parser():
     workers = os.cpu_count() or 1
     common = argparse.ArgumentParser(add_help=False)
@@ -88,6 +95,11 @@ def build_parser():
                    help="Mitsuba variant (default: the fastest available, llvm_ad_rgb if it works here)")
     c.add_argument("--cache", default=None, help="folder of cached reference renders (default ~/.cache/msx)")
     c.set_defaults(func=cmd_compare)
+
+    a = sub.add_parser("assets", help="write the generated scene assets (sky, sculpted mesh, normal map)",
+                       parents=[common])
+    a.add_argument("folder", nargs="?", default=str(Path(__file__).resolve().parent / "scenes" / "assets"))
+    a.set_defaults(func=cmd_assets)
     return p
 
 

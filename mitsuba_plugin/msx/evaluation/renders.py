@@ -79,11 +79,14 @@ class Renderer:
         return p
 
     def _scene(self, name, params):
+        from .._render import load_scene, with_assets
+
+        params = with_assets(str(self.scene_path(name)), params)
         key = (name, tuple(sorted(params.items())))
         if self._loaded is None or self._loaded[0] != key:
             self._loaded = None
             gc.collect()  # no live msx instance may remain when a built-in renders symbolically
-            self._loaded = (key, self.mi.load_file(str(self.scene_path(name)), **params))
+            self._loaded = (key, load_scene(self.mi, str(self.scene_path(name)), **params))
         return self._loaded[1]
 
     def render(self, name, params, spp, seed):

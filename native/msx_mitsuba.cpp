@@ -168,7 +168,8 @@ public:
         MsxSample r = msx_sample(m_handle, &mat, vec(si.wi), sample1, sample2.x(), sample2.y());
         if (!r.valid)
             return { bs, 0.f };
-        bool transmit = r.wo.z * si.wi.z() < 0.f;
+        // Only a dielectric transmits; a conductor's ω_i may lie below a tilted shading normal.
+        bool transmit = m_surface == "dielectric" && r.wo.z * si.wi.z() < 0.f;
         if (!(transmit ? t_on : r_on))
             return { bs, 0.f };
         bs.wo = Vector3f(r.wo.x, r.wo.y, r.wo.z);

@@ -336,6 +336,10 @@ impl Bsdf {
     /// incidence and IOR.
     fn resolve(&self, mat: &Material, wi: DVec3) -> (Model, u32) {
         let Some(rule) = &self.auto_rule else { return (self.cfg.model, self.cfg.max_bounces) };
+        if wi.z < 0.0 && self.cfg.surface == Surface::Conductor {
+            // Below the macro surface the tables (built for ω_i above) do not apply: the full model.
+            return (Model::Correlated, self.cfg.max_bounces);
+        }
         let eta = match self.cfg.surface {
             Surface::Dielectric if wi.z > 0.0 => mat.ior,
             Surface::Dielectric => 1.0 / mat.ior,
@@ -460,8 +464,16 @@ impl Bsdf {
             Surface::Conductor => match model {
                 Model::Single | Model::FastMsx | Model::Compensated => single::pdf(&mf, wi, wo),
                 _ => {
-                    if wi.z <= 0.0 || wo.z <= 0.0 {
+                    if wo.z <= 0.0 || wi.z == 0.0 {
                         0.0
+                    } else if wi.z < 0.0 {
+                        // The position-free walks also start below the macro surface (normal mapping):
+                        // a cosine lobe for MIS there. Heitz and invariance do not (their walks start above).
+                        if matches!(model, Model::Uncorrelated | Model::Correlated) {
+                            wo.z * FRAC_1_PI
+                        } else {
+                            0.0
+                        }
                     } else {
                         self.conductor_walk_pdf(model, &mf, wi, wo)
                     }

@@ -2,7 +2,8 @@
 
 - ``sky.exr``: an equirectangular environment — sky gradient, a sun and a darker ground;
 - ``blob.ply``: a sculpted shape — a subdivided icosahedron displaced by a few smooth waves;
-- ``normalmap.exr``: a tangent-space normal map of round bumps (for Mitsuba's ``normalmap``).
+- ``normalmap.exr``: a tangent-space normal map of domes tilting the normal by up to 60°
+  (for Mitsuba's ``normalmap``).
 
 ``ensure(folder)`` writes whichever is missing; ``msx render`` and ``msx compare`` call it for the
 scene's ``assets`` parameter (``python3 -m msx assets DIR`` does it by hand).
@@ -88,20 +89,17 @@ def blob(path: Path, subdivisions=5):
     mesh.write_ply(str(path))
 
 
-def normalmap(path: Path, size=512, bumps=8):
-    """Tangent-space normals (encoded in [0, 1]) of a grid of round bumps with steep flanks."""
+def normalmap(path: Path, size=512, bumps=8, max_tilt_deg=60.0):
+    """Tangent-space normals (encoded in [0, 1]) of a grid of domes: inside each dome the normal tilts
+    outward by up to `max_tilt_deg` (a sine profile of the radius), flat between them."""
     mi = _mi()
     u = (np.arange(size) + 0.5) / size
     uu, vv = np.meshgrid(u, u, indexing="xy")
     cu, cv = (uu * bumps) % 1.0 - 0.5, (vv * bumps) % 1.0 - 0.5
-    r2 = (cu * cu + cv * cv) / 0.2
-    inside = r2 < 1
-    # Height h = A·(1 − r²)² inside each cell: its slope reaches ~2.2 (normals tilted up to ~65°).
-    amp = 0.6
-    dh = np.where(inside, -4 * amp * (1 - r2) / 0.2, 0.0)
-    nx, ny = -dh * cu * bumps, -dh * cv * bumps
-    n = np.stack([nx, ny, np.ones_like(nx)], axis=-1)
-    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    r = np.sqrt(cu * cu + cv * cv) / 0.45  # 0 at the centre, 1 at the dome's rim
+    tilt = np.where(r < 1.0, math.radians(max_tilt_deg) * np.sin(math.pi * np.minimum(r, 1.0)), 0.0)
+    phi = np.arctan2(cv, cu)
+    n = np.stack([np.sin(tilt) * np.cos(phi), np.sin(tilt) * np.sin(phi), np.cos(tilt)], axis=-1)
     img = (0.5 * n + 0.5).astype(np.float32)
     mi.Bitmap(img, pixel_format=mi.Bitmap.PixelFormat.RGB).write(str(path))
 

@@ -66,12 +66,19 @@ const RR_START: u32 = 1;
 /// PT estimator with next-event estimation towards ω_o at every vertex
 /// (Wang eqs. 24–26). Returns one sample of f(ω_i, ω_o)·cos θ_o: Wang's vertex
 /// term carries 1/(4|cos θ_i|) only, so the path integral ρ is already cosine-weighted.
+///
+/// The model is defined on the whole sphere of incident directions (Wang
+/// 2022 §5, normal mapping): ω_i below the macro surface (a tilted shading
+/// normal) starts the walk with an upward d_0 = −ω_i, whose L_0 = Λ(d_0) is
+/// the projected-area factor of ω_i's visible normals there, as at any
+/// vertex reached by an upward segment. ω_o must point up (light leaves
+/// upward only).
 pub fn eval_pt(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
-    if wi.z <= 0.0 || wo.z <= 0.0 {
+    if wi.z == 0.0 || wo.z <= 0.0 {
         return Spectrum::ZERO;
     }
-    // Vertex 0: light arrives from ω_i, L_0 = |Λ(−ω_i)| = 1 + Λ(ω_i).
-    let start = PtState { w: wi, l: 1.0 + mf.lambda(wi), throughput: Spectrum::ONE };
+    // Vertex 0: light arrives from ω_i, L_0 = |Λ(d_0)| = |Λ(−ω_i)| (1 + Λ(ω_i) for ω_i above).
+    let start = PtState { w: wi, l: mf.abs_lambda(-wi), throughput: Spectrum::ONE };
     let orders = (opts.orders.0, opts.orders.1.min(opts.max_bounces));
     pt_walk(mf, fresnel, wo, mf.lambda(wo), opts.segments, start, 0, orders, RR_START, rng)
 }
@@ -171,11 +178,11 @@ pub fn sample_walk(
     opts: &WalkOptions,
     rng: &mut Sampler,
 ) -> Option<(DVec3, Spectrum, u32)> {
-    if wi.z <= 0.0 {
+    if wi.z == 0.0 {
         return None;
     }
     let mut w = wi;
-    let mut l = 1.0 + mf.lambda(wi);
+    let mut l = mf.abs_lambda(-wi); // as in eval_pt: ω_i may lie below the macro surface
     let mut weight = Spectrum::ONE;
     for j in 0..opts.max_bounces {
         let (u_exit, u1, u2) = vertex_numbers(j, first, rng);

@@ -155,6 +155,10 @@ pub fn eval_bdpt_with(
     bdpt_orders: u32,
     rng: &mut Sampler,
 ) -> Spectrum {
+    if wi.z < 0.0 && wo.z > 0.0 {
+        // ω_i below the macro surface (normal mapping): the PT estimator, which covers it (same expectation).
+        return super::posfree::eval_pt(mf, fresnel, wi, wo, opts, rng);
+    }
     if wi.z <= 0.0 || wo.z <= 0.0 {
         return Spectrum::ZERO;
     }

@@ -40,9 +40,9 @@
 //! subpaths without roulette up to K_b and the PT tail above K_b are exactly as
 //! in `posfree_bdpt.rs`, with these densities as implemented.
 
-use super::posfree::Segments;
-use super::posfree_dielectric::{continue_up, last, vertex_reflect, vertex_transmit};
-use super::WalkOptions;
+use super::posfree::{roulette_importance, Segments};
+use super::posfree_dielectric::{continue_up, last, vertex_reflect, vertex_transmit, RR_NEE_GAIN};
+use super::{roulette_scalar, WalkOptions};
 use crate::microfacet::fresnel::dielectric_full;
 use crate::microfacet::{reflect, refract, Microfacet};
 use crate::rng::Sampler;
@@ -347,30 +347,19 @@ pub fn eval_bdpt_with(
                 break;
             }
             let order = j + 1;
-            if order >= o_lo && order <= o_hi {
-                let v = vtx(mf, eta, &a, &dk) * last(seg, a.side != dk.side, a.l, lambda_o);
-                if v.is_finite() {
-                    result += throughput * v;
-                }
+            let lst = last(seg, a.side != dk.side, a.l, lambda_o);
+            let v = if order >= o_lo && order <= o_hi { vtx(mf, eta, &a, &dk) * lst } else { 0.0 };
+            let v = if v.is_finite() { v } else { 0.0 };
+            if j >= kb + RR_START && !roulette_scalar(&mut throughput, rng, 1.0 / roulette_importance(v, lst, RR_NEE_GAIN)) {
+                break;
             }
+            result += throughput * v;
             if order >= o_hi {
                 break;
             }
             let Some(dn) = scatter(mf, eta, &a, rng) else { break };
             throughput *= cont(seg, &a, &dn);
             a = dn;
-            if j + 1 >= kb + RR_START {
-                let q = throughput.min(1.0);
-                if !(q > 0.0) {
-                    break;
-                }
-                if q < 1.0 {
-                    if rng.next() >= q {
-                        break;
-                    }
-                    throughput /= q;
-                }
-            }
         }
     }
     let value = result * mode_scale(eta, radiance, wi, wo.z);

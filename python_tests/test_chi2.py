@@ -34,54 +34,17 @@
 All accepted tests share one Šidák-corrected 1 % significance level.
 """
 
-import os
-import subprocess
-import sys
 import time
 import warnings
 
+import llvm_support  # noqa: F401  (points DRJIT_LIBLLVM_PATH at libLLVM 19 before drjit loads LLVM)
+import numpy as np
 import pytest
 
-# libLLVM 19 must be chosen before drjit initialises its LLVM backend (Debian's default libLLVM 15
-# crashes drjit, docs/mitsuba.md), hence at import time.
-_LLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
-if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(_LLVM19):
-    os.environ["DRJIT_LIBLLVM_PATH"] = _LLVM19
-
-np = pytest.importorskip("numpy")
 mi = pytest.importorskip("mitsuba")
 import drjit as dr  # noqa: E402
 
-_PROBE = (
-    "import mitsuba as mi, drjit as dr\n"
-    "mi.set_variant('llvm_ad_rgb')\n"
-    "x = dr.maximum(mi.Float([1.0, 2.0]), mi.Float([2.0, 1.0])) * 2\n"
-    "assert x.numpy().tolist() == [4.0, 4.0]\n"
-    "print('ok')\n"
-)
-
-
-def _llvm_unusable():
-    """None if llvm_ad_rgb works here, else why not (probed in a subprocess first: a bad libLLVM can crash)."""
-    if "llvm_ad_rgb" not in mi.variants():
-        return "this Mitsuba build has no llvm_ad_rgb variant"
-    try:
-        r = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=120)
-    except Exception as e:  # pragma: no cover
-        return "LLVM probe failed: %s" % e
-    if r.returncode != 0 or "ok" not in r.stdout:
-        return ("llvm_ad_rgb unusable (needs libLLVM >= 19: apt-get install libllvm19 and set "
-                "DRJIT_LIBLLVM_PATH=%s): %s"
-                % (_LLVM19, (r.stderr or r.stdout).strip().splitlines()[-1:]))
-    try:
-        mi.set_variant("llvm_ad_rgb")
-        dr.eval(mi.Float([1.0, 2.0]) + 1)
-    except Exception as e:
-        return "llvm_ad_rgb cannot be set in this process (LLVM initialised before DRJIT_LIBLLVM_PATH?): %s" % e
-    return None
-
-
-_REASON = _llvm_unusable()
+_REASON = llvm_support.llvm_unusable_reason()
 if _REASON:
     pytest.skip(_REASON, allow_module_level=True)
 

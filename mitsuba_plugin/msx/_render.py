@@ -289,7 +289,17 @@ def write_image(path: Path, image, variant: str = DEFAULT_VARIANT):
     arr = np.ascontiguousarray(image, dtype=np.float32)
     fmt = mi.Bitmap.PixelFormat.RGB if arr.ndim == 3 and arr.shape[-1] == 3 else mi.Bitmap.PixelFormat.Y
     bmp = mi.Bitmap(arr, pixel_format=fmt)
-    bmp.write(str(path.with_suffix(".exr")))
+    # Writing an EXR deadlocks like reading one with a single Dr.Jit thread (the Python back end's setting).
+    import drjit as dr
+
+    threads = dr.thread_count()
+    if threads < 2:
+        dr.set_thread_count(2)
+    try:
+        bmp.write(str(path.with_suffix(".exr")))
+    finally:
+        if threads < 2:
+            dr.set_thread_count(threads)
     bmp.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True).write(str(path.with_suffix(".png")))
 
 

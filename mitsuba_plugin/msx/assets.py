@@ -108,13 +108,28 @@ MAKERS = {"sky.exr": sky, "blob.ply": blob, "normalmap.exr": normalmap}
 
 
 def ensure(folder) -> Path:
-    """Writes the missing assets into `folder` (created if needed) and returns it."""
+    """Writes the missing assets into `folder` (created if needed) and returns it.
+
+    Mitsuba 3.9 deadlocks *writing* an EXR, like reading one, when Dr.Jit's pool has a single thread (the
+    scalar Python back end renders with one): the writes run with at least 2 threads."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    for name in FILES:
-        target = folder / name
-        if not target.exists():
+    missing = [name for name in FILES if not (folder / name).exists()]
+    if not missing:
+        return folder
+    import drjit as dr
+
+    _mi()
+    threads = dr.thread_count()
+    if threads < 2:
+        dr.set_thread_count(2)
+    try:
+        for name in missing:
+            target = folder / name
             tmp = folder / f".{name}.tmp{target.suffix}"
             MAKERS[name](tmp)
             tmp.replace(target)
+    finally:
+        if threads < 2:
+            dr.set_thread_count(threads)
     return folder

@@ -331,11 +331,11 @@ typedef struct MsxSimParams {
    */
   double albedo;
   /*
-   Vertices per side of each surface, a power of two (0 = 512)
+   Vertices per side of each surface, a power of two (0 = 1024)
    */
   uint32_t grid;
   /*
-   Correlation length in cells (0 = 8)
+   Correlation length in cells (0 = 16)
    */
   double corr_cells;
   /*

@@ -879,9 +879,9 @@ pub struct MsxSimParams {
     pub ior: f64,
     /// Diffuse facets' albedo
     pub albedo: f64,
-    /// Vertices per side of each surface, a power of two (0 = 512)
+    /// Vertices per side of each surface, a power of two (0 = 1024)
     pub grid: u32,
-    /// Correlation length in cells (0 = 8)
+    /// Correlation length in cells (0 = 16)
     pub corr_cells: f64,
     /// Independent surface realisations, the batches of the error estimate (0 = 16)
     pub surfaces: u32,
@@ -912,8 +912,8 @@ fn sim_config(p: &MsxSimParams) -> Result<crate::microgeometry::SimConfig, Strin
         surface: SurfaceParams {
             alpha_x: p.alpha_u,
             alpha_y: alpha_v,
-            grid: or(p.grid, 512) as usize,
-            corr_cells: if p.corr_cells == 0.0 { 8.0 } else { p.corr_cells },
+            grid: or(p.grid, 1024) as usize,
+            corr_cells: if p.corr_cells == 0.0 { 16.0 } else { p.corr_cells },
         },
         facet,
         theta_i: p.theta_i,

@@ -199,7 +199,7 @@ class SimResult:
 
 
 def simulate(surface, alpha, alpha_v=None, theta_i=0.0, rays=1_000_000, *, phi_i=0.0, eta=0.0, k=1.0,
-             ior=DIELECTRIC_IOR, albedo=1.0, grid=512, corr_cells=8.0, surfaces=16, theta_bins=36, phi_bins=36,
+             ior=DIELECTRIC_IOR, albedo=1.0, grid=1024, corr_cells=16.0, surfaces=16, theta_bins=36, phi_bins=36,
              max_bounces=100_000, seed=0, threads=0, progress=True, label=None, chunks=40):
     """Traces `rays` rays (split evenly over `surfaces` independent surface
     realisations) arriving from (θ_i, φ_i) on Beckmann surfaces of roughness
@@ -430,21 +430,23 @@ def _fmt_pct(x, se=None):
 
 
 def compare(out_dir, *, rays=4_000_000, quick=False, thetas=THETAS, alphas=ALPHAS, surfaces=SURFACES,
-            points=256, grid=512, corr_cells=8.0, n_surfaces=16, theta_bins=36, phi_bins=36, seed=0,
-            progress=True, cache=True):
+            points=256, grid=1024, corr_cells=16.0, n_surfaces=16, theta_bins=36, phi_bins=36, seed=0,
+            progress=True, cache=True, link_prefix=""):
     """Runs every configuration (surfaces × α × θ_i), compares every applicable
     model with the simulation and writes into `out_dir`: one lobe chart per
     configuration (``lobes_<surface>_a<α>_t<θ>.png``), an energy chart per
     surface, ``errors.csv`` (every number), ``errors.md`` / ``errors.html``
     (tables) and ``summary.md``. `quick` runs a reduced grid with fewer rays
     (for smoke tests). Simulations are cached in ``out_dir/sims`` by their
-    parameters. Returns a dict with the Markdown fragment ('markdown'), the
-    HTML table ('html'), the rows and the paths written."""
+    parameters. Returns a dict with the Markdown fragment ('markdown'; its links
+    are relative to out_dir, prefixed with `link_prefix`, e.g. "microgeometry/"
+    when the fragment goes into a report one folder up), the HTML table
+    ('html'), the rows and the paths written."""
     out = Path(out_dir)
     (out / "sims").mkdir(parents=True, exist_ok=True)
     if quick:
         rays = min(rays, 200_000)
-        thetas, alphas, points, grid = (0.0, 1.0), ((0.5, 0.5),), 32, 256
+        thetas, alphas, points, grid, corr_cells = (0.0, 1.0), ((0.5, 0.5),), 32, 256, 8.0
     t_start = time.perf_counter()
     configs = [(s, a, t) for s in surfaces for a in alphas for t in thetas]
     rows, charts, sims = [], [], {}
@@ -475,7 +477,8 @@ def compare(out_dir, *, rays=4_000_000, quick=False, thetas=THETAS, alphas=ALPHA
             sys.stderr.write(f"{label}: models compared ({time.perf_counter() - t_start:.0f} s so far)\n")
         charts.append(_lobe_chart(out, res, model_data, surface, alpha, theta))
     energy_charts = [_energy_chart(out, rows, s, alphas, thetas) for s in surfaces]
-    fragment, html = _write_tables(out, rows, surfaces)
+    surf_chart = surface_chart(out, alphas[-1], grid=grid, corr_cells=corr_cells, n_surfaces=n_surfaces, seed=seed)
+    fragment, html = _write_tables(out, rows, surfaces, link_prefix)
     elapsed = time.perf_counter() - t_start
     speed = f"{total_rays / total_seconds:,.0f} rays/s" if total_seconds > 0 else "cached simulations"
     md = [
@@ -489,12 +492,17 @@ def compare(out_dir, *, rays=4_000_000, quick=False, thetas=THETAS, alphas=ALPHA
         "",
         fragment,
         "",
+    ]
+    if surf_chart:
+        md += ["Generated surfaces against Beckmann (slope histograms; tested in tests/microgeometry.rs):", "",
+               f"![surfaces]({link_prefix}surfaces.png)", ""]
+    md += [
         "Energy per order against θ_i:",
         "",
     ]
-    md += [f"![{Path(c).stem}]({Path(c).name})" for c in energy_charts if c]
+    md += [f"![{Path(c).stem}]({link_prefix}{Path(c).name})" for c in energy_charts if c]
     md += ["", "Lobes per order in the plane of incidence (one chart per configuration): "
-           + ", ".join(f"[{Path(c).stem}]({Path(c).name})" for c in charts if c)]
+           + ", ".join(f"[{Path(c).stem}]({link_prefix}{Path(c).name})" for c in charts if c)]
     markdown = "\n".join(md) + "\n"
     (out / "summary.md").write_text(markdown)
     return {"markdown": markdown, "html": html, "rows": rows, "charts": charts + energy_charts,
@@ -509,7 +517,7 @@ _CSV_COLUMNS = (
 )
 
 
-def _write_tables(out, rows, surfaces):
+def _write_tables(out, rows, surfaces, link_prefix=""):
     """errors.csv (everything), errors.md and errors.html (per configuration),
     and a summary table per surface and model (returned as Markdown)."""
     with open(out / "errors.csv", "w") as f:
@@ -538,7 +546,7 @@ def _write_tables(out, rows, surfaces):
                "0.1 % of the flux), largest in brackets; L1 of the total lobe ∫|f_model − f_sim| cos θ_o dω "
                "(fraction of the incident flux; in brackets its expected value from Monte Carlo noise alone). "
                "Analytic models (single, compensated) have no orders beyond 1 (—). Per configuration: "
-               "[errors.md](errors.md), every number: [errors.csv](errors.csv).\n\n" + "\n".join(summ))
+               f"[errors.md]({link_prefix}errors.md), every number: [errors.csv]({link_prefix}errors.csv).\n\n" + "\n".join(summ))
     # Per configuration.
     lines = []
     html = []
@@ -578,6 +586,63 @@ def _write_tables(out, rows, surfaces):
     html_s = "<p>" + head + "</p>\n" + "\n".join(html) + "\n"
     (out / "errors.html").write_text(html_s)
     return summary, html_s
+
+
+def surface_chart(out_dir, alpha=(1.0, 0.1), grid=1024, corr_cells=16.0, n_surfaces=16, seed=0):
+    """surfaces.png: one generated surface (heights) and the slope histograms
+    of `n_surfaces` realisations along x and y (standardised by Beckmann's
+    α/√2) against the unit Gaussian of Beckmann's P22, with the spread between
+    realisations as error bars. Returns the path (None without matplotlib)."""
+    plt = _plt()
+    if plt is None:
+        return None
+    ffi, lib = _native()
+    p = ffi.new("MsxSimParams *")
+    p.surface = lib.MSX_SURFACE_CONDUCTOR
+    p.alpha_u, p.alpha_v, p.theta_i, p.k = alpha[0], alpha[1], 0.0, 1.0
+    p.grid, p.corr_cells, p.surfaces, p.seed = grid, corr_cells, n_surfaces, seed
+    out = ffi.new("MsxSim **")
+    err = ffi.new("char[]", _ERR_LEN)
+    if lib.msx_sim_new(p, out, err, _ERR_LEN) != lib.MSX_OK:
+        raise ValueError(ffi.string(err).decode(errors="replace"))
+    sim = ffi.gc(out[0], lib.msx_sim_free)
+    h = np.empty(grid * grid)
+    dx, dy = ffi.new("double *"), ffi.new("double *")
+    edges = np.linspace(-4, 4, 33)
+    hx, hy = [], []
+    first = None
+    for s in range(n_surfaces):
+        lib.msx_sim_surface(sim, s, ffi.cast("double *", h.ctypes.data), h.size, dx, dy)
+        g = h.reshape(grid, grid).copy()
+        first = g if first is None else first
+        sx = (np.roll(g, -1, axis=1) - g) / dx[0] / (alpha[0] / math.sqrt(2))
+        sy = (np.roll(g, -1, axis=0) - g) / dy[0] / (alpha[1] / math.sqrt(2))
+        hx.append(np.histogram(sx, edges, density=True)[0])
+        hy.append(np.histogram(sy, edges, density=True)[0])
+    fig, ax = plt.subplots(1, 3, figsize=(13, 3.6))
+    ext = [0, grid * dx[0], 0, grid * dy[0]]
+    im = ax[0].imshow(first[: grid // 4, : grid // 4], origin="lower", extent=[e / 4 for e in ext], aspect="auto",
+                      cmap="gray")
+    fig.colorbar(im, ax=ax[0], label="height / σ")
+    ax[0].set_title(f"a quarter of one surface (α = {_alpha_label(alpha)})", fontsize=8)
+    ax[0].set_xlabel("x / σ", fontsize=8)
+    ax[0].set_ylabel("y / σ", fontsize=8)
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    gauss = np.exp(-centres ** 2 / 2) / math.sqrt(2 * math.pi)
+    for a, hist, name in ((ax[1], hx, "x"), (ax[2], hy, "y")):
+        hist = np.array(hist)
+        a.errorbar(centres, hist.mean(0), yerr=hist.std(0, ddof=1) / math.sqrt(len(hist)), fmt="k.", ms=4,
+                   label=f"{n_surfaces} generated surfaces")
+        a.plot(centres, gauss, "r-", lw=1, label="Beckmann P22 marginal")
+        a.set_yscale("log")
+        a.set_ylim(1e-5, 1)
+        a.set_xlabel(f"slope along {name} / (α_{name}/√2)", fontsize=8)
+        a.legend(fontsize=7)
+    fig.tight_layout()
+    path = Path(out_dir) / "surfaces.png"
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return str(path)
 
 
 def _plt():
@@ -698,8 +763,8 @@ def add_simulate_parser(sub, parents=()):
     s.add_argument("--k", type=float, default=1.0, help="conductor: imaginary part of the IOR")
     s.add_argument("--ior", type=float, default=DIELECTRIC_IOR, help="dielectric: relative IOR η_int/η_ext")
     s.add_argument("--albedo", type=float, default=1.0, help="diffuse: facet albedo")
-    s.add_argument("--grid", type=int, default=512, help="vertices per side of each surface (power of two)")
-    s.add_argument("--corr-cells", type=float, default=8.0, help="correlation length in grid cells")
+    s.add_argument("--grid", type=int, default=1024, help="vertices per side of each surface (power of two)")
+    s.add_argument("--corr-cells", type=float, default=16.0, help="correlation length in grid cells")
     s.add_argument("--surfaces", type=int, default=16, help="independent surface realisations (error batches)")
     s.add_argument("--theta-bins", type=int, default=36)
     s.add_argument("--phi-bins", type=int, default=36)
@@ -721,3 +786,23 @@ def cmd_simulate(args):
     for lab, (er, et, ser, set_, e, se) in res.energy_estimates().items():
         print(f"  order {lab:>5}: E_r = {er:.5f} ± {ser:.5f}   E_t = {et:.5f} ± {set_:.5f}")
     print(f"wrote {os.path.join(args.out, 'energy.csv')} and {os.path.join(args.out, 'lobes.csv')}")
+
+
+def main(argv=None):
+    """``python3 -m msx.microgeometry OUT_DIR``: the full comparison on its own."""
+    import argparse
+
+    p = argparse.ArgumentParser(prog="python3 -m msx.microgeometry",
+                                description="compare every model with ray tracing on generated Beckmann surfaces")
+    p.add_argument("out", help="output folder (charts, errors.csv/.md/.html, summary.md)")
+    p.add_argument("--rays", type=int, default=4_000_000, help="rays per configuration")
+    p.add_argument("--points", type=int, default=256, help="model evaluations per direction bin")
+    p.add_argument("--quick", action="store_true", help="reduced grid and rays (smoke test)")
+    p.add_argument("--no-cache", action="store_true", help="rerun simulations even if cached in OUT/sims")
+    a = p.parse_args(argv)
+    r = compare(a.out, rays=a.rays, points=a.points, quick=a.quick, cache=not a.no_cache)
+    print(r["markdown"])
+
+
+if __name__ == "__main__":
+    main()

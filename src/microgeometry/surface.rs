@@ -64,8 +64,10 @@ pub(crate) const BLOCK: usize = 8;
 #[derive(Clone, Debug)]
 pub struct HeightField {
     pub(crate) n: usize,
-    /// Heights h[j·n + i] at the vertex (i·dx, j·dy).
-    pub(crate) h: Vec<f64>,
+    /// Heights h[j·n + i] at the vertex (i·dx, j·dy), stored in single
+    /// precision (half the memory; the surface *is* these values, so every
+    /// computation sees the same triangles).
+    pub(crate) h: Vec<f32>,
     /// Physical cell sizes.
     pub dx: f64,
     pub dy: f64,
@@ -147,6 +149,7 @@ impl HeightField {
     }
 
     fn from_heights(n: usize, h: Vec<f64>, dx: f64, dy: f64, rho1: f64, rho_diag: f64) -> HeightField {
+        let h: Vec<f32> = h.iter().map(|&x| x as f32).collect();
         let nb = n / BLOCK;
         let (mut bmin, mut bmax) = (vec![f64::INFINITY; nb * nb], vec![f64::NEG_INFINITY; nb * nb]);
         for bj in 0..nb {
@@ -154,7 +157,7 @@ impl HeightField {
                 let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
                 for j in 0..=BLOCK {
                     for i in 0..=BLOCK {
-                        let v = h[((bj * BLOCK + j) % n) * n + (bi * BLOCK + i) % n];
+                        let v = h[((bj * BLOCK + j) % n) * n + (bi * BLOCK + i) % n] as f64;
                         lo = lo.min(v);
                         hi = hi.max(v);
                     }
@@ -163,8 +166,8 @@ impl HeightField {
                 bmax[bj * nb + bi] = hi;
             }
         }
-        let zmin = h.iter().cloned().fold(f64::INFINITY, f64::min);
-        let zmax = h.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+        let zmin = h.iter().map(|&x| x as f64).fold(f64::INFINITY, f64::min);
+        let zmax = h.iter().map(|&x| x as f64).fold(f64::NEG_INFINITY, f64::max);
         HeightField { n, h, dx, dy, zmin, zmax, bmin, bmax, rho1, rho_diag }
     }
 
@@ -182,7 +185,7 @@ impl HeightField {
     #[inline]
     pub fn vertex(&self, i: i64, j: i64) -> f64 {
         let m = (self.n - 1) as i64;
-        self.h[((j & m) as usize) * self.n + (i & m) as usize]
+        self.h[((j & m) as usize) * self.n + (i & m) as usize] as f64
     }
 
     /// Ensemble correlation coefficient of the x and y slopes within one

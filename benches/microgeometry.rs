@@ -17,7 +17,7 @@ fn main() {
         for alpha in [(0.25, 0.25), (1.0, 1.0), (1.0, 0.1)] {
             for theta in [0.0, 1.5] {
                 let cfg = SimConfig {
-                    surface: SurfaceParams { alpha_x: alpha.0, alpha_y: alpha.1, grid: 512, corr_cells: 8.0 },
+                    surface: SurfaceParams { alpha_x: alpha.0, alpha_y: alpha.1, grid: 1024, corr_cells: 16.0 },
                     facet,
                     theta_i: theta,
                     phi_i: 0.0,

@@ -92,11 +92,11 @@ def test_model_lobes_cover_the_simulated_bins():
 
 
 def test_comparison_writes_tables_and_charts(tmp_path):
-    r = mg.compare(tmp_path, rays=16000, thetas=(0.5,), alphas=((0.5, 0.5),), surfaces=("conductor", "dielectric"),
-                   points=16, grid=128, n_surfaces=4, progress=False)
+    r = mg.compare(tmp_path, rays=16000, thetas=(0.5,), alphas=((0.5, 0.5), (0.6, 0.2)),
+                   surfaces=("conductor", "dielectric"), points=16, grid=128, n_surfaces=4, progress=False)
     rows = read_csv(tmp_path / "errors.csv")
-    models = {(row["surface"], row["model"]) for row in rows}
-    assert models == {("conductor", m) for m in mg.MODELS["conductor"]} | {("dielectric", m) for m in mg.MODELS["dielectric"]}
+    models = {(row["surface"], row["alpha"], row["model"]) for row in rows}
+    assert models == {(s, a, m) for s in ("conductor", "dielectric") for a in ("0.5", "(0.6, 0.2)") for m in mg.MODELS[s]}
     for row in rows:
         assert np.isfinite(float(row["L1"])) and float(row["E1_sim"]) > 0.5
     for name in ("errors.md", "errors.html", "summary.md"):

@@ -520,10 +520,13 @@ _CSV_COLUMNS = (
 def _write_tables(out, rows, surfaces, link_prefix=""):
     """errors.csv (everything), errors.md and errors.html (per configuration),
     and a summary table per surface and model (returned as Markdown)."""
-    with open(out / "errors.csv", "w") as f:
-        f.write(",".join(_CSV_COLUMNS) + "\n")
+    import csv
+
+    with open(out / "errors.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(_CSV_COLUMNS)
         for r in rows:
-            f.write(",".join(str(r[c]) if isinstance(r[c], str) else f"{r[c]:.6g}" for c in _CSV_COLUMNS) + "\n")
+            w.writerow([r[c] if isinstance(r[c], str) else f"{r[c]:.6g}" for c in _CSV_COLUMNS])
     # Summary: mean |relative error| per order and mean L1 per surface and model.
     summ = ["| surface | model | order 1 | order 2 | order 3 | order 4+ | total | L1 total lobe (noise) |",
             "|---|---|---|---|---|---|---|---|"]

@@ -44,6 +44,16 @@ MODELS = {
 }
 # Analytic models have no orders beyond their whole value.
 ANALYTIC = ("single", "compensated", "fastmsx")
+# Of these, single *is* order 1 (Walter 2007); the others are a whole lobe
+# with no order decomposition: only their total is compared.
+WHOLE = ("compensated", "fastmsx")
+
+
+def _has_order(model, lab):
+    """Whether a model's value for order `lab` is meaningful."""
+    if model in WHOLE:
+        return lab == "total"
+    return not (model in ANALYTIC and lab in ("2", "3", "4+"))
 # The configurations of the comparison (issue 12).
 THETAS = (0.0, 0.5, 1.0, 1.5)
 ALPHAS = ((0.25, 0.25), (0.5, 0.5), (1.0, 1.0), (1.0, 0.1))
@@ -400,8 +410,8 @@ def errors_for(res: SimResult, model, lobes):
         es, ess = e_sim[lab][4], e_sim[lab][5]
         em = float(e_groups[:, k].mean())
         ems = float(e_groups[:, k].std(ddof=1) / math.sqrt(len(e_groups))) if len(e_groups) > 1 else 0.0
-        if model in ANALYTIC and lab in ("2", "3", "4+"):
-            em, ems = 0.0, 0.0
+        if not _has_order(model, lab):
+            em = ems = float("nan")  # no such order in this model (CSV: nan, tables: —)
         rel = (em - es) / es if es > 0 else float("nan")
         rel_se = abs(em / es) * math.hypot(ems / em if em > 0 else 0.0, ess / es) if es > 0 else float("nan")
         row[f"E{lab}_sim"], row[f"E{lab}_sim_se"], row[f"E{lab}_model"], row[f"E{lab}_model_se"] = es, ess, em, ems
@@ -528,8 +538,9 @@ def _write_tables(out, rows, surfaces, link_prefix=""):
         for r in rows:
             w.writerow([r[c] if isinstance(r[c], str) else f"{r[c]:.6g}" for c in _CSV_COLUMNS])
     # Summary: mean |relative error| per order and mean L1 per surface and model.
-    summ = ["| surface | model | order 1 | order 2 | order 3 | order 4+ | total | L1 total lobe (noise) |",
-            "|---|---|---|---|---|---|---|---|"]
+    summ = ["| surface | model | order 1 | order 2 | order 3 | order 4+ | total | reflected (dielectric) "
+            "| L1 total lobe (noise) |",
+            "|---|---|---|---|---|---|---|---|---|"]
     for s in surfaces:
         for model in MODELS[s]:
             sel = [r for r in rows if r["surface"] == s and r["model"] == model]
@@ -537,18 +548,24 @@ def _write_tables(out, rows, surfaces, link_prefix=""):
                 continue
             cells = []
             for lab in ORDER_LABELS:
-                if model in ANALYTIC and lab in ("2", "3", "4+"):
+                if not _has_order(model, lab):
                     cells.append("—")
                     continue
                 v = [abs(r[f"rel{lab}"]) for r in sel if np.isfinite(r[f"rel{lab}"]) and r[f"E{lab}_sim"] > 1e-3]
                 cells.append(f"{np.mean(v) * 100:.1f} % (max {np.max(v) * 100:.0f} %)" if v else "—")
+            if s == "dielectric":
+                v = [abs(r["relR"]) for r in sel if np.isfinite(r["relR"])]
+                cells.append(f"{np.mean(v) * 100:.1f} % (max {np.max(v) * 100:.0f} %)")
+            else:
+                cells.append("—")
             l1 = np.mean([r["L1"] for r in sel])
             l1n = np.mean([r["L1_noise"] for r in sel])
             summ.append(f"| {s} | {model} | " + " | ".join(cells) + f" | {l1:.4f} ({l1n:.4f}) |")
     summary = ("Mean |relative error| of each order's energy over the configurations (orders carrying more than "
-               "0.1 % of the flux), largest in brackets; L1 of the total lobe ∫|f_model − f_sim| cos θ_o dω "
+               "0.1 % of the flux), largest in brackets (lossless facets: the total is 1 in the simulation; the "
+               "dielectric's reflected share E_r is the informative split); L1 of the total lobe ∫|f_model − f_sim| cos θ_o dω "
                "(fraction of the incident flux; in brackets its expected value from Monte Carlo noise alone). "
-               "Analytic models (single, compensated) have no orders beyond 1 (—). Per configuration: "
+               "single is order 1 alone; compensated is a whole lobe without orders (—). Per configuration: "
                f"[errors.md]({link_prefix}errors.md), every number: [errors.csv]({link_prefix}errors.csv).\n\n" + "\n".join(summ))
     # Per configuration.
     lines = []
@@ -573,7 +590,7 @@ def _write_tables(out, rows, surfaces, link_prefix=""):
             for r in cfg_rows:
                 cells = []
                 for lab in ORDER_LABELS:
-                    if r["model"] in ANALYTIC and lab in ("2", "3", "4+"):
+                    if not _has_order(r["model"], lab):
                         cells.append("—")
                     else:
                         cells.append(_fmt_pct(r[f"rel{lab}"], r[f"rel{lab}_se"]))
@@ -690,7 +707,7 @@ def _lobe_chart(out, res, model_data, surface, alpha, theta):
         sel = np.abs(x) <= limit
         ax.errorbar(x[sel], y[sel], yerr=ye[sel], fmt="k.", ms=3, lw=0.8, label="simulation", zorder=5)
         for model, (mv, _) in model_data.items():
-            if model in ANALYTIC and lab in ("2", "3", "4+"):
+            if not _has_order(model, lab):
                 continue
             _, my = _in_plane(res, mv[k])
             ax.plot(x[sel], my[sel], "-", color=_COLORS.get(model), lw=1.1, label=model)
@@ -728,7 +745,7 @@ def _energy_chart(out, rows, surface, alphas, thetas):
             ax.errorbar(rs, [b[f"E{lab}_sim"] for b in base], yerr=[b[f"E{lab}_sim_se"] for b in base], fmt="ko",
                         ms=4, label="simulation", zorder=5)
             for model in MODELS[surface]:
-                if model in ANALYTIC and lab in ("2", "3", "4+"):
+                if not _has_order(model, lab):
                     continue
                 ms = [next(r for r in sel if r["alpha"] == al and r["theta_i"] == t and r["model"] == model) for t in rs]
                 ax.plot(rs, [m[f"E{lab}_model"] for m in ms], "-", marker=".", color=_COLORS.get(model), lw=1,

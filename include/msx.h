@@ -500,6 +500,20 @@ int32_t msx_sample_batch(const struct MsxBsdf *bsdf,
                          size_t err_len);
 
 /*
+ Batched `msx_sample` that also writes each lane's scattering order into
+ `orders` (n values): the number of microfacet events of the sampled path,
+ 1 for the analytic models (their whole lobe is order 1, as in
+ `msx_eval_orders`), 0 for an invalid sample. Weights binned by order
+ estimate each order's lobe and energy.
+ */
+int32_t msx_sample_orders_batch(const struct MsxBsdf *bsdf,
+                                const struct MsxBatchIn *input,
+                                const struct MsxBatchOut *output,
+                                uint32_t *orders,
+                                char *err,
+                                size_t err_len);
+
+/*
  Generates the surfaces of a simulation. On success writes the handle to
  `*out` and returns MSX_OK; otherwise an MSX_ERR_* code and a message in `err`.
  */

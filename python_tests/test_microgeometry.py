@@ -79,21 +79,26 @@ def test_invalid_parameters_raise_with_the_parameter_named():
 
 def test_model_lobes_cover_the_simulated_bins():
     res = mg.simulate("diffuse", 0.5, theta_i=0.5, rays=20000, surfaces=4, grid=128, progress=False)
-    value, se, groups = mg.model_lobes(res, "correlated", points=64, groups=4)
+    value, se, groups = mg.model_lobes(res, "correlated", samples=40000, groups=4)
     assert value.shape == (5, 36, 36) and groups.shape == (4, 5, 36, 36)
     omega = res.solid_angles()
-    # Diffuse microsurface of albedo 1: the correlated model conserves energy
-    # (within its Monte Carlo error) and nothing goes below the horizon.
+    # Diffuse microsurface of albedo 1: every sampled path leaves with weight
+    # 1 (the model conserves energy), upward only, and the orders add up.
     total = (value[4] * omega).sum()
-    assert abs(total - 1.0) < 4 * np.sqrt(((se[4] * omega) ** 2).sum()) + 0.02
+    assert total == pytest.approx(1.0, abs=1e-3)
     assert np.all(value[:, 18:] == 0.0)
-    # Orders add up to the total within the noise.
-    assert abs((value[:4] * omega).sum() - total) < 0.05
+    assert (value[:4] * omega).sum() == pytest.approx(total, rel=1e-9)
+    # The sampled binning is the simulation's: a direction at a bin centre lands in that bin.
+    te, pe = res.theta_edges(), res.phi_edges()
+    for it, ip in ((0, 0), (7, 3), (20, 35), (35, 18)):
+        t, ph = 0.5 * (te[it] + te[it + 1]), 0.5 * (pe[ip] + pe[ip + 1])
+        w = np.array([[math.sin(t) * math.cos(ph), math.sin(t) * math.sin(ph), math.cos(t)]])
+        assert mg.bin_index(res, w)[0] == it * 36 + ip
 
 
 def test_comparison_writes_tables_and_charts(tmp_path):
     r = mg.compare(tmp_path, rays=16000, thetas=(0.5,), alphas=((0.5, 0.5), (0.6, 0.2)),
-                   surfaces=("conductor", "dielectric"), points=16, grid=128, n_surfaces=4, progress=False)
+                   surfaces=("conductor", "dielectric"), model_samples=16000, grid=128, n_surfaces=4, progress=False)
     rows = read_csv(tmp_path / "errors.csv")
     models = {(row["surface"], row["alpha"], row["model"]) for row in rows}
     assert models == {(s, a, m) for s in ("conductor", "dielectric") for a in ("0.5", "(0.6, 0.2)") for m in mg.MODELS[s]}
@@ -107,7 +112,7 @@ def test_comparison_writes_tables_and_charts(tmp_path):
         assert (tmp_path / "lobes_dielectric_a0.5-0.5_t0.5.png").exists()
     # Cached simulations are reused: a second run gives the same table.
     r2 = mg.compare(tmp_path, rays=16000, thetas=(0.5,), alphas=((0.5, 0.5),), surfaces=("conductor",),
-                    points=16, grid=128, n_surfaces=4, progress=False)
+                    model_samples=16000, grid=128, n_surfaces=4, progress=False)
     a = [x for x in r["rows"] if x["surface"] == "conductor" and x["model"] == "single"][0]
     b = [x for x in r2["rows"] if x["model"] == "single"][0]
     assert a["E1_sim"] == b["E1_sim"]

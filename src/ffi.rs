@@ -589,6 +589,8 @@ enum Op {
     Pdf,
     EvalPdf,
     Sample,
+    /// `sample`, also writing each lane's scattering order (u32) at this address.
+    SampleOrders(usize),
 }
 
 /// One input array (or its default), read lane by lane.
@@ -749,6 +751,15 @@ fn run_lane(b: &Bsdf, inp: &Inputs, out: OutPtrs, key: u64, op: Op, i: usize) {
             let s = out_sample(b.sample(&mat, wi, inp.s1.get(i) as f64, (inp.s2[0].get(i) as f64, inp.s2[1].get(i) as f64)), channels);
             (s.weight, s.pdf, [s.wo.x, s.wo.y, s.wo.z])
         }
+        Op::SampleOrders(orders) => {
+            let r = b.sample_with_order(&mat, wi, inp.s1.get(i) as f64, (inp.s2[0].get(i) as f64, inp.s2[1].get(i) as f64));
+            let order = r.as_ref().map_or(0, |&(_, k)| k);
+            let s = out_sample(r.map(|(s, _)| s), channels);
+            // SAFETY: msx_sample_orders_batch checked `orders` non-null; the
+            // caller promises n u32 there; lane i is written by one thread.
+            unsafe { *(orders as *mut u32).add(i) = if s.valid == 1 { order } else { 0 } };
+            (s.weight, s.pdf, [s.wo.x, s.wo.y, s.wo.z])
+        }
     };
     // SAFETY: see OutPtrs::put.
     unsafe {
@@ -851,6 +862,29 @@ pub extern "C" fn msx_eval_pdf_batch(bsdf: *const MsxBsdf, input: *const MsxBatc
 #[no_mangle]
 pub extern "C" fn msx_sample_batch(bsdf: *const MsxBsdf, input: *const MsxBatchIn, output: *const MsxBatchOut, err: *mut c_char, err_len: usize) -> i32 {
     run_batch(bsdf, input, output, Op::Sample, err, err_len)
+}
+
+/// Batched `msx_sample` that also writes each lane's scattering order into
+/// `orders` (n values): the number of microfacet events of the sampled path,
+/// 1 for the analytic models (their whole lobe is order 1, as in
+/// `msx_eval_orders`), 0 for an invalid sample. Weights binned by order
+/// estimate each order's lobe and energy.
+// A C entry point: the pointers are the C caller's (null-checked here).
+#[allow(clippy::not_unsafe_ptr_arg_deref)]
+#[no_mangle]
+pub extern "C" fn msx_sample_orders_batch(
+    bsdf: *const MsxBsdf,
+    input: *const MsxBatchIn,
+    output: *const MsxBatchOut,
+    orders: *mut u32,
+    err: *mut c_char,
+    err_len: usize,
+) -> i32 {
+    if orders.is_null() {
+        write_error(err, err_len, "null pointer passed to msx_sample_orders_batch (orders)");
+        return MSX_ERR_NULL_POINTER;
+    }
+    run_batch(bsdf, input, output, Op::SampleOrders(orders as usize), err, err_len)
 }
 
 // ------------------------------------------------- microgeometry simulation

@@ -291,94 +291,62 @@ def _slope_stats(sim, params):
 # -------------------------------------------------------------------- models
 
 
-def _bin_directions(res: SimResult, points, rng, upper_only):
-    """Stratified jittered directions, uniform in solid angle within each bin:
-    (wo [3, bins·points], bin mask). `points` is rounded to a square."""
-    s = max(1, int(round(math.sqrt(points))))
-    te, pe = res.theta_edges(), res.phi_edges()
+def bin_index(res: SimResult, wo):
+    """Direction bin of each row of `wo` (n, 3), as the simulation bins (θ_o
+    uniform on [0, π], φ_o bins centred on φ_i + k·Δφ): θ index · phi_bins + φ index."""
     nt, npb = res.theta_bins, res.phi_bins
-    it_range = range(nt // 2) if upper_only else range(nt)
-    its = np.array(list(it_range))
-    ct0, ct1 = np.cos(te[its]), np.cos(te[its + 1])
-    a = (np.arange(s)[:, None] + rng.random((len(its), npb, s, s))) / s  # strata in cos θ
-    b = (np.arange(s)[None, :] + rng.random((len(its), npb, s, s))) / s  # strata in φ
-    cos_t = ct0[:, None, None, None] + a * (ct1 - ct0)[:, None, None, None]
-    phi = pe[None, :-1, None, None] + b * (2 * math.pi / npb)
-    sin_t = np.sqrt(np.maximum(0.0, 1 - cos_t ** 2))
-    wo = np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t]).reshape(3, -1)
-    return wo.astype(np.float32), its, s * s
+    theta = np.arccos(np.clip(wo[:, 2], -1.0, 1.0))
+    it = np.minimum((theta / math.pi * nt).astype(np.int64), nt - 1)
+    dphi = 2 * math.pi / npb
+    phi = np.arctan2(wo[:, 1], wo[:, 0]) - res.params["phi_i"]
+    ip = np.mod(np.floor(phi / dphi + 0.5).astype(np.int64), npb)
+    return it * npb + ip
 
 
-def model_lobes(res: SimResult, model, *, points=256, groups=8, seed=1, max_bounces=_MODEL_MAX_BOUNCES):
-    """The model's f·|cos θ_o| (Importance mode, flux per steradian) averaged
-    over each direction bin of `res`, per order: (value, se, per_group), value
-    and se [order(5), theta, phi] like :meth:`SimResult.lobe_estimates`,
-    per_group [group, order, theta, phi]. Each of `groups` independent groups
-    evaluates points/groups stratified directions per bin (and its own random
-    walks); the standard errors are the spread between groups, which stays
-    honest for stratified sampling and heavy-tailed estimators. Analytic models
-    put their whole value in order 1 (and total)."""
-    ffi, lib = _native()
+def model_lobes(res: SimResult, model, *, samples=2_000_000, groups=8, seed=1, max_bounces=_MODEL_MAX_BOUNCES):
+    """The model's lobes per order in the direction bins of `res`, estimated
+    the way the simulation measures them: `samples` directions sampled from
+    the model (``msx_sample_orders_batch``: Importance mode, each sample's
+    weight f·|cos θ_o|/pdf and its scattering order) binned by order and
+    direction. Returns (value, se, per_group): value and se [order(5), theta,
+    phi] in flux per steradian like :meth:`SimResult.lobe_estimates`,
+    per_group [group, order, theta, phi]; the standard errors are the spread
+    between `groups` independent groups. Analytic models put their whole value
+    in order 1.
+
+    Sampling rather than integrating `eval` over each bin: the random walks'
+    per-order `eval` estimates are heavy-tailed at high orders (rare values
+    10⁵ times the mean), so bin integrals of a few hundred thousand
+    evaluations miss most of the order-4+ energy; sampled weights are bounded
+    by 1 for lossless facets."""
+    from .core import CoreBsdf
+
     p = res.params
-    surface = p["surface"]
-    bp = ffi.new("MsxParams *")
-    bp.surface = {"conductor": lib.MSX_SURFACE_CONDUCTOR, "dielectric": lib.MSX_SURFACE_DIELECTRIC,
-                  "diffuse": lib.MSX_SURFACE_DIFFUSE}[surface]
-    bp.distribution = lib.MSX_DISTRIBUTION_BECKMANN
-    bp.model = getattr(lib, "MSX_MODEL_" + model.upper())
-    bp.estimator = lib.MSX_ESTIMATOR_PT
-    bp.max_bounces = max_bounces
-    bp.channels = 1
-    bp.seed = seed
-    out = ffi.new("MsxBsdf **")
-    err = ffi.new("char[]", _ERR_LEN)
-    if lib.msx_bsdf_new(bp, out, err, _ERR_LEN) != lib.MSX_OK:
-        raise ValueError(ffi.string(err).decode(errors="replace"))
-    bsdf = ffi.gc(out[0], lib.msx_bsdf_free)
-    rng = np.random.default_rng(seed)
-    upper_only = surface != "dielectric"
+    b = CoreBsdf(p["surface"], "beckmann", model, channels=1, seed=seed, max_bounces=max_bounces,
+                 alpha=p["alpha_u"], alpha_v=p["alpha_v"], eta=p["eta"], k=p["k"], ior=p["ior"],
+                 reflectance=p["albedo"], radiance=False)
     st, ct = math.sin(p["theta_i"]), math.cos(p["theta_i"])
-    wi = np.array([st * math.cos(p["phi_i"]), st * math.sin(p["phi_i"]), ct], dtype=np.float32)
-    ranges = [(1, 1), (2, 2), (3, 3), (4, 0xFFFFFFFF), (1, 0xFFFFFFFF)]
+    wi = np.array([[st * math.cos(p["phi_i"]), st * math.sin(p["phi_i"]), ct]])
     nt, npb = res.theta_bins, res.phi_bins
+    nb = nt * npb
+    omega = res.solid_angles()
+    rng = np.random.default_rng(seed)
     per_group = np.zeros((groups, 5, nt, npb))
+    n = max(1, samples // groups)
+    chunk = 1 << 18
     for g in range(groups):
-        wo, its, npts = _bin_directions(res, max(1, points // groups), rng, upper_only)
-        n = wo.shape[1]
-        keep = [wo]
-        inp = ffi.new("MsxBatchIn *")
-        inp.n = n
-
-        def put(arr, values):
-            a = np.ascontiguousarray(np.atleast_1d(np.asarray(values, dtype=np.float32)))
-            keep.append(a)
-            arr.ptr = ffi.cast("const float *", a.ctypes.data)
-            arr.len = a.shape[0]
-
-        for c in range(3):
-            put(inp.wi[c], wi[c])
-            put(inp.wo[c], wo[c])
-        put(inp.alpha_u, p["alpha_u"])
-        put(inp.alpha_v, p["alpha_v"])
-        put(inp.eta[0], p["eta"])
-        put(inp.k[0], p["k"])
-        put(inp.ior, p["ior"])
-        put(inp.reflectance[0], p["albedo"])
-        put(inp.specular_reflectance[0], 1.0)
-        put(inp.specular_transmittance[0], 1.0)
-        inp.mode = lib.MSX_MODE_IMPORTANCE
-        vals = np.empty(n, dtype=np.float32)
-        outp = ffi.new("MsxBatchOut *")
-        outp.value[0] = ffi.cast("float *", vals.ctypes.data)
-        for k, (first, last) in enumerate(ranges):
-            if model in ANALYTIC and k in (1, 2, 3):
-                continue  # zero beyond order 1
-            # Distinct keys per group and order range: independent random walks.
-            inp.key = ((g * 8 + k + 1) << 40) & 0xFFFFFFFFFFFFFFFF
-            if lib.msx_eval_orders_batch(bsdf, inp, outp, first, last, err, _ERR_LEN) != lib.MSX_OK:
-                raise RuntimeError(ffi.string(err).decode(errors="replace"))
-            per_group[g, k, its] = vals.astype(np.float64).reshape(len(its), npb, npts).mean(axis=2)
-        del keep
+        sums = np.zeros(4 * nb)
+        done = 0
+        while done < n:
+            m = min(chunk, n - done)
+            wo, weight, pdf, orders = b.sample_orders(wi, rng.random((3, m)))
+            ok = orders > 0
+            idx = (np.minimum(orders[ok], 4).astype(np.int64) - 1) * nb + bin_index(res, wo[ok])
+            sums += np.bincount(idx, weights=weight[0][ok], minlength=4 * nb)
+            done += m
+        lob = sums.reshape(4, nt, npb) / n / omega[None]
+        per_group[g, :4] = lob
+        per_group[g, 4] = lob.sum(axis=0)
     value = per_group.mean(axis=0)
     se = per_group.std(axis=0, ddof=1) / math.sqrt(groups) if groups > 1 else np.zeros_like(value)
     return value, se, per_group
@@ -440,7 +408,7 @@ def _fmt_pct(x, se=None):
 
 
 def compare(out_dir, *, rays=4_000_000, quick=False, thetas=THETAS, alphas=ALPHAS, surfaces=SURFACES,
-            points=256, grid=1024, corr_cells=16.0, n_surfaces=16, theta_bins=36, phi_bins=36, seed=0,
+            model_samples=2_000_000, grid=1024, corr_cells=16.0, n_surfaces=16, theta_bins=36, phi_bins=36, seed=0,
             progress=True, cache=True, link_prefix=""):
     """Runs every configuration (surfaces × α × θ_i), compares every applicable
     model with the simulation and writes into `out_dir`: one lobe chart per
@@ -456,7 +424,8 @@ def compare(out_dir, *, rays=4_000_000, quick=False, thetas=THETAS, alphas=ALPHA
     (out / "sims").mkdir(parents=True, exist_ok=True)
     if quick:
         rays = min(rays, 200_000)
-        thetas, alphas, points, grid, corr_cells = (0.0, 1.0), ((0.5, 0.5),), 32, 256, 8.0
+        model_samples = min(model_samples, 200_000)
+        thetas, alphas, grid, corr_cells = (0.0, 1.0), ((0.5, 0.5),), 256, 8.0
     t_start = time.perf_counter()
     configs = [(s, a, t) for s in surfaces for a in alphas for t in thetas]
     rows, charts, sims = [], [], {}
@@ -477,7 +446,7 @@ def compare(out_dir, *, rays=4_000_000, quick=False, thetas=THETAS, alphas=ALPHA
         sims[(surface, alpha, theta)] = res
         model_data = {}
         for model in MODELS[surface]:
-            lob = model_lobes(res, model, points=points, seed=seed + 1)
+            lob = model_lobes(res, model, samples=model_samples, seed=seed + 1)
             model_data[model] = lob[:2]
             r = errors_for(res, model, lob)
             r.update(surface=surface, alpha=_alpha_label(alpha), alpha_u=alpha[0], alpha_v=alpha[1], theta_i=theta,
@@ -497,7 +466,8 @@ def compare(out_dir, *, rays=4_000_000, quick=False, thetas=THETAS, alphas=ALPHA
         f"Rays traced through all their bounces on generated Beckmann surfaces ({n_surfaces} realisations of "
         f"{grid}² vertices, correlation length {corr_cells:g} cells, {rays:,} rays per configuration; "
         f"{speed}; {elapsed:.0f} s in all). Errors of the simulation: spread between surface realisations. "
-        "Models: Importance-mode f·|cos θ_o| averaged over the same direction bins. How it works and what "
+        f"Models: {model_samples:,} Importance-mode samples each, binned by order and direction like the rays. "
+        "How it works and what "
         "it shows: docs/microgeometry.md.",
         "",
         fragment,
@@ -816,11 +786,11 @@ def main(argv=None):
                                 description="compare every model with ray tracing on generated Beckmann surfaces")
     p.add_argument("out", help="output folder (charts, errors.csv/.md/.html, summary.md)")
     p.add_argument("--rays", type=int, default=4_000_000, help="rays per configuration")
-    p.add_argument("--points", type=int, default=256, help="model evaluations per direction bin")
+    p.add_argument("--model-samples", type=int, default=2_000_000, help="samples per model and configuration")
     p.add_argument("--quick", action="store_true", help="reduced grid and rays (smoke test)")
     p.add_argument("--no-cache", action="store_true", help="rerun simulations even if cached in OUT/sims")
     a = p.parse_args(argv)
-    r = compare(a.out, rays=a.rays, points=a.points, quick=a.quick, cache=not a.no_cache)
+    r = compare(a.out, rays=a.rays, model_samples=a.model_samples, quick=a.quick, cache=not a.no_cache)
     print(r["markdown"])
 
 

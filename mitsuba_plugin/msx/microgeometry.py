@@ -8,8 +8,8 @@ order by order (docs/microgeometry.md).
 * :func:`simulate` runs one simulation and returns a :class:`SimResult`
   (energies and lobes per scattering order with their Monte Carlo errors);
   :meth:`SimResult.write` writes ``energy.csv`` and ``lobes.csv``.
-* :func:`model_lobes` integrates a model's f·|cos θ_o| over the same direction
-  bins (``msx_eval_orders_batch``), per order.
+* :func:`model_lobes` measures a model the same way: paths sampled from it
+  (``msx_sample_orders_batch``) binned by scattering order and direction.
 * :func:`compare` runs the grid of configurations, writes charts (PNG), the
   error table (CSV, Markdown, HTML) into a folder and returns the Markdown
   fragment for a report.
@@ -428,7 +428,7 @@ def compare(out_dir, *, rays=4_000_000, quick=False, thetas=THETAS, alphas=ALPHA
         thetas, alphas, grid, corr_cells = (0.0, 1.0), ((0.5, 0.5),), 256, 8.0
     t_start = time.perf_counter()
     configs = [(s, a, t) for s in surfaces for a in alphas for t in thetas]
-    rows, charts, sims = [], [], {}
+    rows, charts = [], []
     total_rays, total_seconds = 0, 0.0
     for i, (surface, alpha, theta) in enumerate(configs):
         kw = dict(surface=surface, alpha=alpha[0], alpha_v=alpha[1], theta_i=theta, rays=rays, grid=grid,
@@ -443,7 +443,6 @@ def compare(out_dir, *, rays=4_000_000, quick=False, thetas=THETAS, alphas=ALPHA
             res.save_npz(path)
             total_rays += res.rays
             total_seconds += res.seconds
-        sims[(surface, alpha, theta)] = res
         model_data = {}
         for model in MODELS[surface]:
             lob = model_lobes(res, model, samples=model_samples, seed=seed + 1)
@@ -467,8 +466,7 @@ def compare(out_dir, *, rays=4_000_000, quick=False, thetas=THETAS, alphas=ALPHA
         f"{grid}² vertices, correlation length {corr_cells:g} cells, {rays:,} rays per configuration; "
         f"{speed}; {elapsed:.0f} s in all). Errors of the simulation: spread between surface realisations. "
         f"Models: {model_samples:,} Importance-mode samples each, binned by order and direction like the rays. "
-        "How it works and what "
-        "it shows: docs/microgeometry.md.",
+        "How it works and what it shows: docs/microgeometry.md.",
         "",
         fragment,
         "",

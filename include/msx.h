@@ -76,6 +76,11 @@
 #define MSX_ALPHA_MAX 1e4
 
 /*
+ Scattering orders a simulation tallies apart: 1, 2, 3 and 4+ (index 3).
+ */
+#define MSX_SIM_ORDERS 4
+
+/*
  Default tolerance: 1 % of the scattered energy may be omitted.
  */
 #define DEFAULT_TOLERANCE 0.01
@@ -84,6 +89,11 @@
  Opaque BSDF handle.
  */
 typedef struct MsxBsdf MsxBsdf;
+
+/*
+ Opaque simulation handle.
+ */
+typedef struct MsxSim MsxSim;
 
 /*
  Static configuration of a BSDF.
@@ -288,6 +298,62 @@ typedef struct MsxBatchOut {
   float *wo[3];
 } MsxBatchOut;
 
+/*
+ Configuration of a light transport simulation on generated Beckmann
+ surfaces (docs/microgeometry.md). Zero selects the default where noted.
+ */
+typedef struct MsxSimParams {
+  /*
+   MSX_SURFACE_*: what the facets do
+   */
+  uint32_t surface;
+  /*
+   Beckmann roughness along x and y (α_v = 0: α_v = α_u)
+   */
+  double alpha_u;
+  double alpha_v;
+  /*
+   Direction towards the light: θ_i in [0, π/2) and φ_i (radians)
+   */
+  double theta_i;
+  double phi_i;
+  /*
+   Conductor complex IOR (η = 0, k = 1: perfect mirror, F = 1)
+   */
+  double eta;
+  double k;
+  /*
+   Dielectric relative IOR η_int/η_ext
+   */
+  double ior;
+  /*
+   Diffuse facets' albedo
+   */
+  double albedo;
+  /*
+   Vertices per side of each surface, a power of two (0 = 1024)
+   */
+  uint32_t grid;
+  /*
+   Correlation length in cells (0 = 16)
+   */
+  double corr_cells;
+  /*
+   Independent surface realisations, the batches of the error estimate (0 = 16)
+   */
+  uint32_t surfaces;
+  /*
+   Direction bins: θ_o uniform on [0, π], φ_o uniform with bin 0 centred on φ_i (0 = 36 each)
+   */
+  uint32_t theta_bins;
+  uint32_t phi_bins;
+  /*
+   Rays still bouncing after this many events are dropped and counted (0 = 100000)
+   */
+  uint32_t max_bounces;
+  uint64_t seed;
+} MsxSimParams;
+
 #ifdef __cplusplus
 extern "C" {
 #endif // __cplusplus
@@ -432,6 +498,72 @@ int32_t msx_sample_batch(const struct MsxBsdf *bsdf,
                          const struct MsxBatchOut *output,
                          char *err,
                          size_t err_len);
+
+/*
+ Batched `msx_sample` that also writes each lane's scattering order into
+ `orders` (n values): the number of microfacet events of the sampled path,
+ 1 for the analytic models (their whole lobe is order 1, as in
+ `msx_eval_orders`), 0 for an invalid sample. Weights binned by order
+ estimate each order's lobe and energy.
+ */
+int32_t msx_sample_orders_batch(const struct MsxBsdf *bsdf,
+                                const struct MsxBatchIn *input,
+                                const struct MsxBatchOut *output,
+                                uint32_t *orders,
+                                char *err,
+                                size_t err_len);
+
+/*
+ Generates the surfaces of a simulation. On success writes the handle to
+ `*out` and returns MSX_OK; otherwise an MSX_ERR_* code and a message in `err`.
+ */
+int32_t msx_sim_new(const struct MsxSimParams *params,
+                    struct MsxSim **out,
+                    char *err,
+                    size_t err_len);
+
+/*
+ Frees a simulation (null is ignored).
+ */
+void msx_sim_free(struct MsxSim *sim);
+
+/*
+ Traces `rays_per_surface` more rays on every surface with `threads`
+ threads (0 = all cores). The tallies depend only on the parameters and the
+ total number of rays, not on the threads or on how the rays are split
+ between calls (the caller can show progress between calls).
+ */
+int32_t msx_sim_run(struct MsxSim *sim,
+                    uint64_t rays_per_surface,
+                    uint32_t threads,
+                    char *err,
+                    size_t err_len);
+
+/*
+ Reads the tallies. `lobes` receives Σ weight per [surface][order][θ bin][φ
+ bin] (surfaces·MSX_SIM_ORDERS·theta_bins·phi_bins values), `energy` Σ weight
+ per [surface][order][reflected, transmitted] (surfaces·MSX_SIM_ORDERS·2),
+ `counts` per [surface][rays, lost, capped, Σ bounces] (surfaces·4). A null
+ pointer skips that array; a length that does not match is an error.
+ */
+int32_t msx_sim_read(const struct MsxSim *sim,
+                     double *lobes,
+                     size_t lobes_len,
+                     double *energy,
+                     size_t energy_len,
+                     uint64_t *counts,
+                     size_t counts_len);
+
+/*
+ Copies the heights of surface `index` (grid² values, row-major, x fastest;
+ units of the height deviation σ) and its cell sizes (in the same units).
+ */
+int32_t msx_sim_surface(const struct MsxSim *sim,
+                        uint32_t index,
+                        double *heights,
+                        size_t len,
+                        double *dx,
+                        double *dy);
 
 #ifdef __cplusplus
 }  // extern "C"

@@ -535,6 +535,15 @@ impl Bsdf {
     /// Samples ω_o given Mitsuba's `sample1` and `sample2`; the random walks
     /// draw their further numbers from a stream seeded by them and `seed`.
     pub fn sample(&self, mat: &Material, wi: DVec3, sample1: f64, sample2: (f64, f64)) -> Option<BsdfSample> {
+        self.sample_with_order(mat, wi, sample1, sample2).map(|(s, _)| s)
+    }
+
+    /// `sample` together with the scattering order of the sampled path (the
+    /// number of microfacet events; 1 for the analytic models, whose whole
+    /// lobe counts as order 1 as in `eval_orders`). Weights binned by order
+    /// estimate each order's lobe and energy (src/microgeometry/ compares them
+    /// with ray tracing).
+    pub fn sample_with_order(&self, mat: &Material, wi: DVec3, sample1: f64, sample2: (f64, f64)) -> Option<(BsdfSample, u32)> {
         let wi = finite_unit(wi)?;
         let mat = &mat.usable(self.cfg.surface, self.cfg.channels)?;
         let clamp01 = |u: f64| if u.is_finite() { u.clamp(0.0, 1.0 - f64::EPSILON / 2.0) } else { 0.5 };
@@ -544,62 +553,66 @@ impl Bsdf {
         let opts = Self::walk_options(model, max_bounces);
         let rng = || self.seeded(&[s1.to_bits(), u1.to_bits(), u2.to_bits(), wi.x.to_bits(), wi.z.to_bits()]);
         let first = (s1, u1, u2);
-        let (wo, pdf, weight) = match self.cfg.surface {
+        let (wo, pdf, weight, order) = match self.cfg.surface {
             Surface::Conductor => {
                 let fresnel = self.fresnel(mat);
-                let (wo, pdf, w) = match model {
-                    Model::Single => single::sample(&mf, &fresnel, wi, u1, u2)?,
-                    Model::FastMsx => fastmsx::sample(&mf, &fresnel, wi, u1, u2)?,
-                    Model::Compensated => compensated::sample(&mf, &fresnel, wi, u1, u2)?,
+                let with1 = |(wo, pdf, w)| (wo, pdf, w, 1);
+                let (wo, pdf, w, order) = match model {
+                    Model::Single => with1(single::sample(&mf, &fresnel, wi, u1, u2)?),
+                    Model::FastMsx => with1(fastmsx::sample(&mf, &fresnel, wi, u1, u2)?),
+                    Model::Compensated => with1(compensated::sample(&mf, &fresnel, wi, u1, u2)?),
                     Model::Uncorrelated | Model::Correlated | Model::Auto | Model::Heitz | Model::Invariance => {
-                        let (wo, w, _) = match model {
+                        let (wo, w, order) = match model {
                             Model::Heitz => heitz::sample(&mf, &Microsurface::Conductor(fresnel), wi, first, &opts, &mut rng())?,
                             Model::Invariance => invariance::sample(&mf, &fresnel, wi, first, &opts, &mut rng())?,
                             _ => posfree::sample_walk(&mf, &fresnel, wi, first, &opts, &mut rng())?,
                         };
-                        (wo, self.pdf(mat, wi, wo), w)
+                        (wo, self.pdf(mat, wi, wo), w, order)
                     }
                 };
-                (wo, pdf, w * mat.specular_reflectance)
+                (wo, pdf, w * mat.specular_reflectance, order)
             }
             Surface::Dielectric => {
                 let eta = valid_ior(mat.ior)?;
-                let (wo, pdf, w) = match model {
+                let (wo, pdf, w, order) = match model {
                     Model::Single => {
                         let (wo, pdf, w, _) = single_dielectric::sample(&mf, eta, wi, s1, u1, u2, mat.radiance)?;
-                        (wo, pdf, w)
+                        (wo, pdf, w, 1)
                     }
-                    Model::Compensated => compensated_dielectric::sample(&mf, eta, wi, s1, u1, u2, mat.radiance)?,
+                    Model::Compensated => {
+                        let (wo, pdf, w) = compensated_dielectric::sample(&mf, eta, wi, s1, u1, u2, mat.radiance)?;
+                        (wo, pdf, w, 1)
+                    }
                     Model::Heitz => {
                         let surf = Microsurface::Dielectric { eta, radiance: mat.radiance };
-                        let (wo, w, _) = heitz::sample(&mf, &surf, wi, first, &opts, &mut rng())?;
-                        (wo, self.pdf(mat, wi, wo), w.0[0])
+                        let (wo, w, order) = heitz::sample(&mf, &surf, wi, first, &opts, &mut rng())?;
+                        (wo, self.pdf(mat, wi, wo), w.0[0], order)
                     }
                     Model::Invariance => {
-                        let (wo, w, _) = invariance_dielectric::sample(&mf, eta, mat.radiance, wi, first, &opts, &mut rng())?;
-                        (wo, self.pdf(mat, wi, wo), w)
+                        let (wo, w, order) = invariance_dielectric::sample(&mf, eta, mat.radiance, wi, first, &opts, &mut rng())?;
+                        (wo, self.pdf(mat, wi, wo), w, order)
                     }
                     _ => {
-                        let (wo, w, _) = posfree_dielectric::sample_walk(&mf, eta, mat.radiance, wi, first, &opts, &mut rng())?;
-                        (wo, self.pdf(mat, wi, wo), w)
+                        let (wo, w, order) = posfree_dielectric::sample_walk(&mf, eta, mat.radiance, wi, first, &opts, &mut rng())?;
+                        (wo, self.pdf(mat, wi, wo), w, order)
                     }
                 };
-                (wo, pdf, self.dielectric_tint(mat, wi, wo) * w)
+                (wo, pdf, self.dielectric_tint(mat, wi, wo) * w, order)
             }
             Surface::Diffuse => {
-                let (wo, w, _) = match model {
+                let (wo, w, order) = match model {
                     Model::Heitz => heitz::sample(&mf, &Microsurface::Diffuse { albedo: mat.reflectance }, wi, first, &opts, &mut rng())?,
                     Model::Invariance => {
                         invariance_general::sample(&mf, &Microsurface::Diffuse { albedo: mat.reflectance }, wi, first, &opts, &mut rng())?
                     }
                     _ => posfree_diffuse::sample_walk(&mf, mat.reflectance, wi, first, &opts, &mut rng())?,
                 };
-                (wo, self.pdf(mat, wi, wo), w)
+                (wo, self.pdf(mat, wi, wo), w, order)
             }
         };
         // Raw values: the C ABI rejects a sample whose pdf is not > 0 and
         // counts any non-finite or negative value (docs/conventions.md).
-        Some(BsdfSample { wo, pdf, weight })
+        Some((BsdfSample { wo, pdf, weight }, order))
     }
 }
 

@@ -5,6 +5,7 @@
 pub mod bsdf;
 pub mod ffi;
 pub mod microfacet;
+pub mod microgeometry;
 pub mod models;
 pub mod rng;
 pub mod spectrum;

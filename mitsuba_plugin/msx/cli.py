@@ -1,4 +1,5 @@
-"""Command line: ``msx render SCENE.xml`` and ``msx compare``.
+"""Command line: ``msx render SCENE.xml``, ``msx compare`` and ``msx simulate``
+(ray tracing on generated microgeometry, msx/microgeometry.py).
 
 Errors end the run with one line on stderr naming the problem (exit code 1;
 ``--verbose`` adds the traceback); Ctrl-C stops every worker (exit code 130).
@@ -100,6 +101,10 @@ def build_parser():
                        parents=[common])
     a.add_argument("folder", nargs="?", default=str(Path(__file__).resolve().parent / "scenes" / "assets"))
     a.set_defaults(func=cmd_assets)
+
+    from .microgeometry import add_simulate_parser
+
+    add_simulate_parser(sub, parents=[common])
     return p
 
 

@@ -157,6 +157,20 @@ class CoreBsdf:
         del keep
         return arrays["wo"].T.astype(np.float64), arrays["value"].astype(np.float64), arrays["pdf"].astype(np.float64)
 
+    def sample_orders(self, wi, samples, **material):
+        """`sample` plus each sample's scattering order (n,): the number of microfacet events of the
+        sampled path (1 for the analytic models, 0 for an invalid sample)."""
+        samples = np.asarray(samples, dtype=np.float32)
+        n = samples.shape[1]
+        inp, keep = self._batch(n, wi, samples=samples, **material)
+        out, arrays = self._out(n, value=True, pdf=True, wo=True)
+        orders = np.empty(n, np.uint32)
+        self._check(lib.msx_sample_orders_batch(self._h, inp, out, ffi.cast("uint32_t *", orders.ctypes.data),
+                                                self._err, _ERR_LEN))
+        del keep
+        return (arrays["wo"].T.astype(np.float64), arrays["value"].astype(np.float64),
+                arrays["pdf"].astype(np.float64), orders)
+
 
 def pexit_study(distribution, alpha, theta_i, vertices, paths=2000, seed=1):
     """Bitterli & d'Eon's p_exit against the stable invariance-principle form on conductor walk paths:

@@ -95,13 +95,27 @@ def test_bad_call_inputs_give_finite_zero(variant, model):
     ctx = mi.BSDFContext()
     nan = float("nan")
     good = mi.Vector3f(0.0, 0.6, 0.8)
+    below = mi.Vector3f(0.0, 0.6, -0.8)
     bad_dirs = [
         mi.Vector3f(nan, 0.0, 1.0),
         mi.Vector3f(nan, nan, nan),
         mi.Vector3f(0.0, 0.0, 0.0),
-        mi.Vector3f(0.0, 0.6, -0.8),  # below the horizon
         mi.Vector3f(float("inf"), 0.0, 1.0),
     ]
+    if model == "single":
+        bad_dirs.append(below)  # single scattering is defined above the shading plane only
+    else:
+        # The position-free models take ω_i below the shading plane (normal mapping, docs/paper-notes.md);
+        # ω_o below it is still outside the BSDF's support.
+        si = mi.SurfaceInteraction3f()
+        si.wi = below
+        si.p = mi.Point3f(0.1, 0.2, 0.3)
+        if mi.is_spectral:
+            si.wavelengths = mi.Spectrum(450.0, 550.0, 600.0, 700.0)
+        assert max(float(x) for x in b.eval(ctx, si, good)) > 0.0 and float(b.pdf(ctx, si, good)) > 0.0
+        assert max(float(x) for x in b.eval(ctx, si, below)) == 0.0 and float(b.pdf(ctx, si, below)) == 0.0
+        bs, w = b.sample(ctx, si, 0.5, mi.Point2f(0.3, 0.6))
+        assert float(bs.pdf) > 0.0 and float(bs.wo[2]) > 0.0 and finite_nonneg([float(x) for x in w])
     for bad in bad_dirs:
         for wi, wo in [(bad, good), (good, bad), (bad, bad)]:
             si = mi.SurfaceInteraction3f()

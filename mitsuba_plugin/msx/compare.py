@@ -35,12 +35,27 @@ SWEEP_SCENES = [
     renders.SweepScene("fig01_dielectric_sphere", "Rough dielectric sphere, GGX α = 1, environment + directional light, 16 bounces",
                        "dielectric", "roughdielectric", DIELECTRIC_ROWS, "environment"),
 ]
-# Side-by-side only (no sweep): (scene, title, built-in, models, spp scale)
+# Side-by-side only (no sweep): (key, scene file, title, built-in twin, models, scene parameters)
 SIDE_SCENES = [
-    ("furnace_sphere", "White furnace: F = 1, GGX α = 1.5 — an energy-conserving BSDF vanishes (value 1)",
-     "roughconductor", ["single", "uncorrelated", "correlated", "heitz", "invariance", "auto", "compensated", "fastmsx"]),
-    ("roughness_ramp", "Copper, GGX α = 0.02, 0.05, 0.1, 0.3, 1 (top to bottom): where model='auto' drops the walk",
-     "roughconductor", ["single", "correlated", "auto", "invariance"]),
+    ("furnace_sphere", "furnace_sphere", "White furnace: F = 1, GGX α = 1.5 — an energy-conserving BSDF vanishes (value 1)",
+     "roughconductor", ["single", "uncorrelated", "correlated", "heitz", "invariance", "auto", "compensated", "fastmsx"], {}),
+    ("roughness_ramp", "roughness_ramp", "Copper, GGX α = 0.02, 0.05, 0.1, 0.3, 1 (top to bottom): where model='auto' drops the walk",
+     "roughconductor", ["single", "correlated", "auto", "invariance"], {}),
+    ("fig01_metals", "fig01_metals", "Wang 2022 Fig. 1 (a, b): copper α 0.1, aluminium α 0.6, gold α 0.5 on aluminium α 0.1",
+     "roughconductor", ["single", "correlated", "heitz", "invariance", "auto", "compensated"], {}),
+    ("fig07_normalmap", "fig07_normalmap", "Wang 2022 Fig. 7: copper α 0.3 under a normal map — black where single scattering "
+     "sees ω_i below the shading plane", "roughconductor", ["single", "correlated", "uncorrelated", "auto"], {}),
+    ("fig08_diffuse", "fig08_diffuse", "Wang 2022 Fig. 8: rough diffuse microsurface, GGX α 1 (built-in: Lambertian diffuse)",
+     "diffuse", ["correlated", "uncorrelated", "heitz", "invariance", "auto"], {}),
+    ("fig12_kulla_conty", "fig12_kulla_conty", "Wang 2022 Fig. 12: gold GGX α 1 — multiple scattering vs Kulla-Conty "
+     "compensation (average-Fresnel colour)", "roughconductor", ["single", "heitz", "invariance", "correlated", "compensated",
+                                                                 "fastmsx"], {}),
+    ("fig14_dielectric_series", "fig14_dielectric_series", "Wang 2022 Fig. 14: rough glass, GGX α 0.1, 0.6, 1.0",
+     "roughdielectric", ["single", "correlated", "uncorrelated", "heitz", "invariance", "compensated"], {}),
+    ("furnace_dielectric_a0.1", "furnace_dielectric", "Dielectric white furnace, GGX α 0.1", "roughdielectric",
+     ["single", "correlated", "heitz", "invariance", "compensated"], {"alpha": "0.1"}),
+    ("furnace_dielectric_a1", "furnace_dielectric", "Dielectric white furnace, GGX α 1.0", "roughdielectric",
+     ["single", "correlated", "heitz", "invariance", "compensated"], {"alpha": "1.0"}),
 ]
 
 
@@ -57,9 +72,11 @@ def run(args):
             raise RenderError(f"scene not found: {sdir / (s.name + '.xml')}")
     cache = Path(args.cache) if args.cache else Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "msx"
     stages = [f"sweep {s.name}" for s in SWEEP_SCENES] + ["side-by-side scenes", "stability atlas", "lobes",
-                                                          "energy curves", "report"]
-    # Shares of a run's time per stage (measured on the full and quick runs), for the run's ETA.
-    prog = common.Progress(stages, [0.08, 0.09, 0.62, 0.04, 0.14, 0.02, 0.01, 0.002])
+                                                          "energy curves"]
+    stages += ([] if st.quick else ["microgeometry"]) + ["report"]
+    # Shares of a run's time per stage (measured on full and quick runs), for the run's ETA.
+    weights = [0.05, 0.05, 0.35, 0.1, 0.08, 0.01, 0.01] + ([] if st.quick else [0.35]) + [0.002]
+    prog = common.Progress(stages, weights)
     print(f"msx compare{' --quick' if st.quick else ''}: route {route}; report in {out}", flush=True)
 
     renderer = renders.Renderer(variant, sdir)
@@ -69,8 +86,8 @@ def run(args):
         scene_reports.append(_sweep_scene(renderer, scene, st, cache, out, prog, results))
 
     prog.stage("side-by-side scenes")
-    side_reports = [_side_scene(renderer, name, title, builtin, models, st, out, prog)
-                    for name, title, builtin, models in SIDE_SCENES]
+    side_reports = [_side_scene(renderer, key, name, title, builtin, models, extra, st, out, prog)
+                    for key, name, title, builtin, models, extra in SIDE_SCENES]
     renderer.release()
 
     prog.stage("stability atlas")
@@ -96,6 +113,14 @@ def run(args):
     energy_png = charts.energy(out / "energy.png", energy_rows, energy_mod.THETAS)
     _write_csv(out / "energy.csv", energy_rows, ["surface", "material", "model", "theta_i", "alpha", "part", "value", "se"])
 
+    micro = None
+    if not st.quick:
+        # Every model against ray-traced explicit microgeometry (docs/microgeometry.md); simulations cached.
+        prog.stage("microgeometry")
+        from . import microgeometry
+
+        micro = microgeometry.compare(out / "microgeometry", link_prefix="microgeometry/")
+
     prog.stage("report")
     _write_csv(out / "results.csv", results, ["scene", "model", "estimator", "spp", "seconds", "rel_mse", "bias2",
                                               "variance", "rel_mse_se", "unbiased"])
@@ -105,7 +130,7 @@ def run(args):
     total = time.perf_counter() - t_start
     html = report.page(dict(route=route, settings=st, scenes=scene_reports, side=side_reports, fails=fails,
                             stability=stability_pngs, extras=extras_png, lobes=lobe_pngs, energy=energy_png,
-                            checks=checks, seconds=total, machine=f"{platform.machine()}, {os.cpu_count()} cores",
+                            checks=checks, seconds=total, micro=micro, machine=f"{platform.machine()}, {os.cpu_count()} cores",
                             out=out))
     (out / "index.html").write_text(html)
     print(f"\nreport: {out / 'index.html'} ({total:.0f} s)")
@@ -223,7 +248,7 @@ def _energy(img, mask):
 # ---------------------------------------------------------------- side-by-side scenes
 
 
-def _side_scene(renderer, name, title, builtin, models, st, out, prog):
+def _side_scene(renderer, key, name, title, builtin, models, extra, st, out, prog):
     spp = max(1, st.compare_spp)
     path = renderer.scene_path(name)
     import xml.etree.ElementTree as ET
@@ -232,7 +257,7 @@ def _side_scene(renderer, name, title, builtin, models, st, out, prog):
     defaults = {d.get("name"): d.get("value") for d in root.iter("default")}
     w, h = int(defaults.get("width", 128)), int(defaults.get("height", 128))
     size = (max(8, int(w * st.compare_scale)), max(8, int(h * st.compare_scale)))
-    sizes = {"width": str(size[0]), "height": str(size[1])}
+    sizes = {"width": str(size[0]), "height": str(size[1]), **extra}
     mask = renderer.object_mask(name, dict(sizes, bsdf="msx_posfree"))
     rows = [("builtin", "-")] + [(m, "pt") for m in models]
     images, seeds = {}, 4
@@ -242,7 +267,7 @@ def _side_scene(renderer, name, title, builtin, models, st, out, prog):
         renderer.warm_up(name, params)
         imgs = [renderer.render(name, params, max(1, spp // seeds), seed=500 + k)[0] for k in range(seeds)]
         images[row] = imgs
-        prog.update(i + 1, len(rows), f"{name} renders")
+        prog.update(i + 1, len(rows), f"{key} renders")
     means = {r: sum(v) / len(v) for r, v in images.items()}
     b = images[("builtin", "-")]
     energy = []
@@ -252,13 +277,13 @@ def _side_scene(renderer, name, title, builtin, models, st, out, prog):
         d = np.array(e) - np.array(eb)
         energy.append(dict(label=row_label(row), value=float(np.mean(e)), builtin=float(np.mean(eb)),
                            ratio=float(np.mean(e) / np.mean(eb)), se=float(d.std(ddof=1) / math.sqrt(len(d)))))
-    grid_png = charts.image_grid(out / f"{name}_models.png", [means[r] for r in rows],
+    grid_png = charts.image_grid(out / f"{key}_models.png", [means[r] for r in rows],
                                  [f"{row_label(r)}\n{e['value']:.4f}" for r, e in zip(rows, energy)], cols=min(len(rows), 5),
                                  title=f"{title} ({spp} spp; label: mean over the object)")
-    diff_png = charts.difference_grid(out / f"{name}_diff.png", means[("builtin", "-")], [means[r] for r in rows[1:]],
-                                      [row_label(r) for r in rows[1:]], mask, f"{name}: model − built-in {builtin}")
+    diff_png = charts.difference_grid(out / f"{key}_diff.png", means[("builtin", "-")], [means[r] for r in rows[1:]],
+                                      [row_label(r) for r in rows[1:]], mask, f"{key}: model − built-in {builtin}")
     renderer.release()
-    return dict(name=name, title=title, builtin=builtin, energy=energy, pngs=dict(models=grid_png, diff=diff_png),
+    return dict(name=key, title=title, builtin=builtin, energy=energy, pngs=dict(models=grid_png, diff=diff_png),
                 spp=spp)
 
 

@@ -114,7 +114,7 @@ class Renderer:
     def object_mask(self, name, params, sub=3):
         """Pixels whose whole footprint (sub × sub rays) hits a surface with msx_posfree: the object's pixels."""
         mi = self.mi
-        scene = self._scene(name, dict(params, bsdf="msx_posfree", model="single", estimator="pt"))
+        scene = self._scene(name, dict(params, bsdf="msx_posfree", model="correlated", estimator="pt"))
         sensor = scene.sensors()[0]
         film = sensor.film()
         w, h = film.crop_size()
@@ -149,8 +149,9 @@ class Renderer:
 
 
 def _msx_shapes(scene):
-    """The shapes whose BSDF is msx_posfree (either back end: both describe themselves as MsxPosfree[...])."""
-    return [s for s in scene.shapes() if str(s.bsdf()).startswith("MsxPosfree")]
+    """The shapes whose BSDF is msx_posfree, possibly wrapped (a normal map): both back ends describe
+    themselves as MsxPosfree[...]."""
+    return [s for s in scene.shapes() if "MsxPosfree" in str(s.bsdf())]
 
 
 class _Null:

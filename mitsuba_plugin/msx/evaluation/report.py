@@ -190,5 +190,9 @@ def page(ctx):
     for p in ctx["lobes"]:
         parts.append(_img(p, Path(p).stem))
     parts.append("<h2>Energy</h2>" + _img(ctx["energy"], "directional albedo against roughness"))
+    if ctx.get("micro"):
+        parts.append("<h2>Against explicit microgeometry</h2><p class='note'>Every model against rays traced on "
+                     "generated Beckmann height fields (docs/microgeometry.md): relative energy error per scattering "
+                     "order and L1 of the lobe; charts in <code>microgeometry/</code>.</p>" + ctx["micro"]["html"])
     parts.append("</body></html>")
     return "\n".join(parts)

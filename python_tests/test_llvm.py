@@ -8,16 +8,12 @@ its LLVM backend, hence at import time of this module).
 
 import math
 import os
-import subprocess
-import sys
 import time
 import warnings
 
 import pytest
 
-_LLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
-if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(_LLVM19):
-    os.environ["DRJIT_LIBLLVM_PATH"] = _LLVM19
+from llvm_support import llvm_unusable_reason  # noqa: E402  (sets DRJIT_LIBLLVM_PATH before drjit starts)
 
 np = pytest.importorskip("numpy")
 mi = pytest.importorskip("mitsuba")
@@ -25,37 +21,10 @@ import drjit as dr  # noqa: E402
 
 from conftest import close, direction_pairs  # noqa: E402
 
-_PROBE = (
-    "import mitsuba as mi, drjit as dr\n"
-    "mi.set_variant('llvm_ad_rgb')\n"
-    "x = dr.maximum(mi.Float([1.0, 2.0]), mi.Float([2.0, 1.0])) * 2\n"
-    "assert x.numpy().tolist() == [4.0, 4.0]\n"
-    "print('ok')\n"
-)
-
-
-def _llvm_usable():
-    if "llvm_ad_rgb" not in mi.variants():
-        return "this Mitsuba build has no llvm_ad_rgb variant"
-    try:  # in a subprocess first: a bad libLLVM can crash the process
-        r = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=120)
-    except Exception as e:  # pragma: no cover
-        return "LLVM probe failed: %s" % e
-    if r.returncode != 0 or "ok" not in r.stdout:
-        return ("llvm_ad_rgb unusable (needs libLLVM >= 19: apt-get install libllvm19 and set DRJIT_LIBLLVM_PATH=%s): %s"
-                % (_LLVM19, (r.stderr or r.stdout).strip().splitlines()[-1:]))
-    try:
-        mi.set_variant("llvm_ad_rgb")
-        x = mi.Float([1.0, 2.0]) + 1
-        dr.eval(x)
-    except Exception as e:
-        return "llvm_ad_rgb cannot be set in this process (LLVM initialised before DRJIT_LIBLLVM_PATH?): %s" % e
-    return None
-
-
-_REASON = _llvm_usable()
+_REASON = llvm_unusable_reason()
 if _REASON:
     pytest.skip(_REASON, allow_module_level=True)
+mi.set_variant("llvm_ad_rgb")
 
 import msx  # noqa: E402
 

@@ -10,6 +10,7 @@
 
 mod common;
 
+use common::Rng;
 use msx::ffi::*;
 use std::cell::Cell;
 use std::collections::HashSet;
@@ -52,30 +53,7 @@ fn no_panic<T>(what: &str, f: impl FnOnce() -> T) -> T {
     out
 }
 
-// ------------------------------------------------------------ a small PRNG
 
-/// SplitMix64: a tiny, fixed-seed generator for the sweeps.
-struct Rng(u64);
-
-impl Rng {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    /// Uniform in [0, 1).
-    fn f(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.f()
-    }
-    fn log_uniform(&mut self, lo: f64, hi: f64) -> f64 {
-        (lo.ln() + (hi.ln() - lo.ln()) * self.f()).exp()
-    }
-}
 
 // ------------------------------------------------------------ helpers
 

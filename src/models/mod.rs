@@ -35,33 +35,40 @@ pub fn russian_roulette(throughput: &mut Spectrum, rng: &mut Sampler) -> bool {
 /// throughput is divided by it).
 #[inline]
 pub fn russian_roulette_keep(throughput: &mut Spectrum, rng: &mut Sampler, keep: f64) -> bool {
-    let q = (throughput.max_value() / keep).min(1.0);
-    if !(q > 0.0) {
-        return false;
-    }
-    if q < 1.0 {
-        if rng.next() >= q {
-            return false;
+    match survival(throughput.max_value() / keep, rng) {
+        Some(q) => {
+            *throughput *= 1.0 / q;
+            true
         }
-        *throughput *= 1.0 / q;
+        None => false,
     }
-    true
 }
 
 /// [`russian_roulette_keep`] for a scalar throughput (≥ 0).
 #[inline]
 pub fn roulette_scalar(throughput: &mut f64, rng: &mut Sampler, keep: f64) -> bool {
-    let q = (*throughput / keep).min(1.0);
-    if !(q > 0.0) {
-        return false;
-    }
-    if q < 1.0 {
-        if rng.next() >= q {
-            return false;
+    match survival(*throughput / keep, rng) {
+        Some(q) => {
+            *throughput /= q;
+            true
         }
-        *throughput /= q;
+        None => false,
     }
-    true
+}
+
+/// Plays the roulette with survival probability min(1, `ratio`): the
+/// probability the throughput must be divided by, or None when the path ends
+/// (always for a ratio ≤ 0 or NaN).
+#[inline]
+fn survival(ratio: f64, rng: &mut Sampler) -> Option<f64> {
+    let q = ratio.min(1.0);
+    if !(q > 0.0) {
+        return None;
+    }
+    if q < 1.0 && rng.next() >= q {
+        return None;
+    }
+    Some(q)
 }
 
 /// The three uniform numbers (u_choice, u1, u2) of vertex `j` of a sampled

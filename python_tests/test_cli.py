@@ -17,6 +17,14 @@ DEADLINE = 5.0  # seconds a bad input may take to end the run
 STOP_DEADLINE = 15.0  # seconds for a dying worker or Ctrl-C to end a running render (generous under load)
 
 
+@pytest.fixture(scope="module", autouse=True)
+def native_plugin_built():
+    """The first scene load of a fresh install compiles the native plugin once (several seconds, announced
+    on stderr, then cached): done here, so that the deadlines below time the failure paths themselves."""
+    code = "import mitsuba as mi; mi.set_variant('scalar_rgb'); import msx; msx.register()"
+    subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, check=True)
+
+
 def msx(*args, timeout=60, **kw):
     return subprocess.run([sys.executable, "-m", "msx", *args], capture_output=True, text=True, timeout=timeout, **kw)
 

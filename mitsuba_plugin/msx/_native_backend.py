@@ -98,6 +98,9 @@ def build(verbose=False) -> Path:
                *[f"-I{d}" for d in inc], f"-I{hdr.parent}", str(src), "-o", str(tmp), str(ext),
                f"-L{mi_dir}", "-lmitsuba", f"-L{dr_dir}", "-ldrjit-core", "-ldrjit-extra", "-lnanothread",
                f"-Wl,-rpath,{mi_dir}", f"-Wl,-rpath,{dr_dir}"]
+        # A one-time cost (several seconds): say so, or the first scene load looks hung.
+        print(f"msx: compiling the native plugin for mitsuba {versions[0]} (first use; cached in {out_dir})",
+              file=sys.stderr, flush=True)
         if verbose:
             print(" ".join(cmd), file=sys.stderr)
         r = subprocess.run(cmd, capture_output=True, text=True)

@@ -3,13 +3,15 @@
 //! [`Material`], since Mitsuba evaluates textures at the hit.
 
 use crate::microfacet::{Distribution, Microfacet};
-use crate::models::posfree::{self, Segments};
-use crate::models::WalkOptions;
-use crate::models::albedo::AlbedoTable;
-use crate::models::{
-    auto, compensated, compensated_dielectric, fastmsx, heitz, invariance, invariance_dielectric, invariance_general, posfree_bdpt, posfree_bdpt_dielectric, posfree_bdpt_diffuse, posfree_dielectric, posfree_diffuse, single, single_dielectric, ConductorFresnel,
-    Microsurface,
+use crate::models::analytic::{compensated, compensated_dielectric, fastmsx};
+use crate::models::invariance::{conductor as invariance, dielectric as invariance_dielectric, general as invariance_general};
+use crate::models::posfree::{
+    self, bdpt_conductor as posfree_bdpt, bdpt_dielectric as posfree_bdpt_dielectric, bdpt_diffuse as posfree_bdpt_diffuse,
+    dielectric as posfree_dielectric, diffuse as posfree_diffuse, Segments,
 };
+use crate::models::single::{conductor as single, dielectric as single_dielectric};
+use crate::models::{auto, heitz, ConductorFresnel, Microsurface, WalkOptions};
+use crate::tables::albedo::AlbedoTable;
 use crate::rng::{hash_words, Sampler};
 use crate::spectrum::{Spectrum, MAX_CHANNELS};
 use glam::DVec3;
@@ -395,7 +397,7 @@ impl Bsdf {
                     Model::Compensated if first => compensated::eval(&mf, &fresnel, wi, wo),
                     Model::Single | Model::FastMsx | Model::Compensated => Spectrum::ZERO,
                     Model::Uncorrelated | Model::Correlated | Model::Auto => match self.cfg.estimator {
-                        Estimator::Pt => posfree::eval_pt(&mf, &fresnel, wi, wo, &opts, &mut rng()),
+                        Estimator::Pt => posfree::conductor::eval_pt(&mf, &fresnel, wi, wo, &opts, &mut rng()),
                         Estimator::Bdpt => posfree_bdpt::eval_bdpt(&mf, &fresnel, wi, wo, &opts, &mut rng()),
                     },
                     Model::Heitz => heitz::eval(&mf, &Microsurface::Conductor(fresnel), wi, wo, &opts, &mut rng()),
@@ -565,7 +567,7 @@ impl Bsdf {
                         let (wo, w, order) = match model {
                             Model::Heitz => heitz::sample(&mf, &Microsurface::Conductor(fresnel), wi, first, &opts, &mut rng())?,
                             Model::Invariance => invariance::sample(&mf, &fresnel, wi, first, &opts, &mut rng())?,
-                            _ => posfree::sample_walk(&mf, &fresnel, wi, first, &opts, &mut rng())?,
+                            _ => posfree::conductor::sample_walk(&mf, &fresnel, wi, first, &opts, &mut rng())?,
                         };
                         (wo, self.pdf(mat, wi, wo), w, order)
                     }

@@ -9,6 +9,8 @@ pub mod microgeometry;
 pub mod models;
 pub mod rng;
 pub mod spectrum;
+pub mod tables;
+pub mod walk;
 
 pub use bsdf::{Bsdf, BsdfSample, Config, Estimator, Material, Model, ParamError, Surface};
 pub use microfacet::{Distribution, Microfacet};

@@ -15,7 +15,7 @@ mod common;
 
 use common::{Checker, Stat, VndfOutProposal};
 use glam::DVec3;
-use msx::models::compensated::{self, AlbedoTable};
+use msx::models::analytic::compensated::{self, AlbedoTable};
 use msx::rng::Sampler;
 use msx::{Bsdf, Config, Distribution, Material, Model, Spectrum};
 

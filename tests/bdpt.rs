@@ -1,6 +1,6 @@
 //! Bidirectional estimator of the position-free conductor
 //! (`models::posfree_bdpt`, Wang 2022 eqs. 27–29) against the PT estimator
-//! (`models::posfree::eval_pt`), per scattering order and in total, for both
+//! (`models::posfree::conductor::eval_pt`), per scattering order and in total, for both
 //! segment models; white furnace; variance and time per call.
 //!
 //! Statistical checks: |estimate − expected| ≤ z·σ (+ stated allowance), σ the
@@ -15,7 +15,7 @@ mod common;
 use common::*;
 use glam::DVec3;
 use msx::models::posfree::{self, Segments};
-use msx::models::posfree_bdpt;
+use msx::models::posfree::bdpt_conductor as posfree_bdpt;
 use msx::models::{ConductorFresnel, WalkOptions};
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet, Spectrum};
@@ -89,7 +89,7 @@ fn bdpt_equals_pt_per_order() {
                     for orders in [(1, 1), (2, 2), (3, 3), (1, MAX_BOUNCES)] {
                         let o = opts(seg, orders);
                         seed += 2;
-                        let (pt, _) = run(n, |r| posfree::eval_pt(&mf, &fr, wi, wo, &o, r), seed);
+                        let (pt, _) = run(n, |r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r), seed);
                         let (bd, _) = run(n, |r| posfree_bdpt::eval_bdpt(&mf, &fr, wi, wo, &o, r), seed + 1);
                         for c in 0..3 {
                             let label =
@@ -119,7 +119,7 @@ fn bdpt_tail_and_cap_agree() {
             for orders in [(1, MAX_BOUNCES), (3, 6)] {
                 let o = opts(seg, orders);
                 seed += 2;
-                let (pt, _) = run(n, |r| posfree::eval_pt(&mf, &fr, wi, wo, &o, r), seed);
+                let (pt, _) = run(n, |r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r), seed);
                 let (bd, _) = run(n, |r| posfree_bdpt::eval_bdpt_with(&mf, &fr, wi, wo, &o, kb, r), seed + 1);
                 for c in 0..3 {
                     let label = format!("{} ggx α=1 {pname} K_b={kb} orders {}..={} ch{c}", seg_name(seg), orders.0, orders.1);
@@ -195,8 +195,8 @@ fn bdpt_vs_pt_variance_and_time() {
                     let o = opts(seg, (1, MAX_BOUNCES));
                     seed += 2;
                     // Warm-up so that the timing excludes first-touch effects.
-                    let _ = run(2000, |r| posfree::eval_pt(&mf, &fr, wi, wo, &o, r), seed + 77);
-                    let (pt, t_pt) = run(n, |r| posfree::eval_pt(&mf, &fr, wi, wo, &o, r), seed);
+                    let _ = run(2000, |r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r), seed + 77);
+                    let (pt, t_pt) = run(n, |r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r), seed);
                     let (bd, t_bd) = run(n, |r| posfree_bdpt::eval_bdpt(&mf, &fr, wi, wo, &o, r), seed + 1);
                     let (bd6, t_bd6) = run(n / 3, |r| posfree_bdpt::eval_bdpt_with(&mf, &fr, wi, wo, &o, 6, r), seed + 5001);
                     let (vp, vb, vb6) = (pt[0].var(), bd[0].var(), bd6[0].var());

@@ -313,8 +313,8 @@ fn order1_is_walter_with_g2() {
                     let walter = fr.eval(wi.dot(h)) * (mf.d(h) * g2 / (4.0 * wi.z));
                     let mut r1 = Sampler::new(1);
                     let mut r2 = Sampler::new(2);
-                    let a = invariance::eval(&mf, &fr, wi, wo, &opts(MAXB, (1, 1)), &mut r1);
-                    let b = invariance::eval(&mf, &fr, wi, wo, &opts(MAXB, (1, 1)), &mut r2);
+                    let a = invariance::conductor::eval(&mf, &fr, wi, wo, &opts(MAXB, (1, 1)), &mut r1);
+                    let b = invariance::conductor::eval(&mf, &fr, wi, wo, &opts(MAXB, (1, 1)), &mut r2);
                     deterministic &= a == b;
                     for c in 0..3 {
                         if walter.0[c] > 1e-300 {
@@ -363,7 +363,7 @@ fn eval_integral(
 }
 
 fn inv_eval(mf: Microfacet, fr: ConductorFresnel, o: WalkOptions) -> impl Fn(DVec3, DVec3, &mut Sampler) -> Spectrum {
-    move |wi, wo, rng| invariance::eval(&mf, &fr, wi, wo, &o, rng)
+    move |wi, wo, rng| invariance::conductor::eval(&mf, &fr, wi, wo, &o, rng)
 }
 
 fn heitz_eval(mf: Microfacet, fr: ConductorFresnel, o: WalkOptions) -> impl Fn(DVec3, DVec3, &mut Sampler) -> Spectrum {
@@ -377,7 +377,7 @@ fn sample_mean(mf: Microfacet, fr: ConductorFresnel, wi: DVec3, o: WalkOptions, 
     let mut st = Stat::default();
     for _ in 0..n {
         let first = (rng.next(), rng.next(), rng.next());
-        match invariance::sample(&mf, &fr, wi, first, &o, &mut rng) {
+        match invariance::conductor::sample(&mf, &fr, wi, first, &o, &mut rng) {
             Some((wo, w, _)) => st.push(w.0[c] * g(wo)),
             None => st.push(0.0),
         }
@@ -422,7 +422,7 @@ fn reciprocity() {
                         let mut rng = Sampler::new(seed);
                         let mut st = Stat::default();
                         for _ in 0..40_000 {
-                            st.push(invariance::eval(&mf, &fr, a, b, &o, &mut rng).0[0] / b.z);
+                            st.push(invariance::conductor::eval(&mf, &fr, a, b, &o, &mut rng).0[0] / b.z);
                         }
                         st.est()
                     };
@@ -486,7 +486,7 @@ fn per_order_energy_and_heitz_agreement() {
     let mut hrng = Sampler::new(78);
     for _ in 0..n_s {
         let first = (rng.next(), rng.next(), rng.next());
-        match invariance::sample(&mf, &mirror(), wi, first, &all_orders(), &mut rng) {
+        match invariance::conductor::sample(&mf, &mirror(), wi, first, &all_orders(), &mut rng) {
             Some((_, w, k)) => bins.push(Some((k.min(4) - 1) as usize), w.0[0]),
             None => bins.push(None, 0.0),
         }
@@ -532,7 +532,7 @@ fn per_order_energy_and_heitz_agreement() {
             let mut r2 = Sampler::new(seed + 12);
             seed += 2;
             for _ in 0..100_000 {
-                a.push(invariance::eval(&mf, &mirror(), wi, wo, &o, &mut r1).0[0]);
+                a.push(invariance::conductor::eval(&mf, &mirror(), wi, wo, &o, &mut r1).0[0]);
                 b.push(heitz::eval(&mf, &Microsurface::Conductor(mirror()), wi, wo, &o, &mut r2).0[0]);
             }
             ck.close(&format!("{dist:?} α=0.8 θi={ti} θo={to} Δφ={:.2} multiple-scattering f·cos: invariance vs Heitz", po - pi), a.est(), b.est(), 0.0, 0.0);
@@ -558,8 +558,8 @@ fn variance_and_time_per_call() {
             // Round-robin blocks so that the three share any interference from
             // concurrent work; the time per call is the median block time.
             let fs: [&dyn Fn(&mut Sampler) -> Spectrum; 3] = [
-                &|r| invariance::eval(&mf, &fr, wi, wo, &o, r),
-                &|r| posfree::eval_pt(&mf, &fr, wi, wo, &o, r),
+                &|r| invariance::conductor::eval(&mf, &fr, wi, wo, &o, r),
+                &|r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r),
                 &|r| heitz::eval(&mf, &Microsurface::Conductor(fr), wi, wo, &o, r),
             ];
             let mut rngs = [Sampler::new(1), Sampler::new(2), Sampler::new(3)];

@@ -15,7 +15,7 @@ mod common;
 use common::*;
 use glam::DVec3;
 use msx::microfacet::fresnel;
-use msx::models::invariance_dielectric::{self as idl, PieceChain};
+use msx::models::invariance::dielectric::{self as idl, PieceChain};
 use msx::models::posfree::Segments;
 use msx::models::{heitz, invariance, Microsurface, WalkOptions};
 use msx::rng::Sampler;

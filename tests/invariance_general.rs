@@ -13,7 +13,7 @@ mod common;
 
 use common::*;
 use glam::DVec3;
-use msx::models::invariance_general as ig;
+use msx::models::invariance::general as ig;
 use msx::models::posfree::Segments;
 use msx::models::{heitz, invariance, Microsurface, WalkOptions};
 use msx::rng::Sampler;

@@ -17,7 +17,7 @@ mod common;
 use common::*;
 use glam::DVec3;
 use msx::models::posfree::Segments;
-use msx::models::posfree_diffuse::{eval_pt, sample_walk};
+use msx::models::posfree::diffuse::{eval_pt, sample_walk};
 use msx::models::WalkOptions;
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet, Spectrum};

@@ -383,7 +383,7 @@ fn pdf_sample_consistency() {
                             .unwrap_or(0.0);
                         e1.push(v);
                     }
-                    let table = msx::models::albedo::AlbedoTable::get(dist);
+                    let table = msx::tables::albedo::AlbedoTable::get(dist);
                     let e1_table = if model == Model::Uncorrelated { table.e1_uncorrelated(alpha, wi.z) } else { table.e1_correlated(alpha, wi.z) };
                     let expected = (e1.mean() + (1.0 - e1_table).max(1e-3), e1.se());
                     println!("{tag}: ∫pdf dω_o over the hemisphere = {:.5} ± {:.5} (order-1 albedo {:.5} MC, {e1_table:.5} table)", s_int.mean(), s_int.se(), e1.mean());

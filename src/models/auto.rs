@@ -40,9 +40,8 @@
 //! both bracketing IOR rows for dielectrics). Off the grid (α > 4, μ < 0.02,
 //! IOR ratio beyond 1/3 … 3): the full model. Anisotropy uses max(α_u, α_v).
 
-use super::posfree::Segments;
-use super::posfree_dielectric;
-use super::posfree_diffuse::cosine_about;
+use super::posfree::{dielectric as posfree_dielectric, Segments};
+use crate::walk::cosine_about;
 use crate::microfacet::fresnel::dielectric_full;
 use crate::microfacet::{reflect, refract, Distribution, Microfacet};
 use crate::rng::{hash_words, Sampler};

@@ -1,88 +1,14 @@
 //! The scattering models, each a small file to read beside its paper.
 
-pub mod albedo;
+pub mod analytic;
 pub mod auto;
-pub mod compensated;
-pub mod compensated_dielectric;
-pub mod fastmsx;
 pub mod heitz;
 pub mod invariance;
-pub mod invariance_dielectric;
-pub mod invariance_general;
 pub mod posfree;
-pub mod posfree_dielectric;
-pub mod posfree_bdpt;
-pub mod posfree_bdpt_dielectric;
-pub mod posfree_bdpt_diffuse;
-pub mod posfree_diffuse;
 pub mod single;
-pub mod single_dielectric;
 
 use crate::microfacet::fresnel;
-use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
-
-/// Russian roulette on the largest channel of a throughput that is ≤ 1 per
-/// channel: returns false when the path ends, otherwise divides the
-/// throughput by the survival probability (unbiased).
-#[inline]
-pub fn russian_roulette(throughput: &mut Spectrum, rng: &mut Sampler) -> bool {
-    russian_roulette_keep(throughput, rng, 1.0)
-}
-
-/// Russian roulette that keeps a path surely while its largest channel is
-/// ≥ `keep` and otherwise survives with probability max/keep (unbiased: the
-/// throughput is divided by it).
-#[inline]
-pub fn russian_roulette_keep(throughput: &mut Spectrum, rng: &mut Sampler, keep: f64) -> bool {
-    match survival(throughput.max_value() / keep, rng) {
-        Some(q) => {
-            *throughput *= 1.0 / q;
-            true
-        }
-        None => false,
-    }
-}
-
-/// [`russian_roulette_keep`] for a scalar throughput (≥ 0).
-#[inline]
-pub fn roulette_scalar(throughput: &mut f64, rng: &mut Sampler, keep: f64) -> bool {
-    match survival(*throughput / keep, rng) {
-        Some(q) => {
-            *throughput /= q;
-            true
-        }
-        None => false,
-    }
-}
-
-/// Plays the roulette with survival probability min(1, `ratio`): the
-/// probability the throughput must be divided by, or None when the path ends
-/// (always for a ratio ≤ 0 or NaN).
-#[inline]
-fn survival(ratio: f64, rng: &mut Sampler) -> Option<f64> {
-    let q = ratio.min(1.0);
-    if !(q > 0.0) {
-        return None;
-    }
-    if q < 1.0 && rng.next() >= q {
-        return None;
-    }
-    Some(q)
-}
-
-/// The three uniform numbers (u_choice, u1, u2) of vertex `j` of a sampled
-/// walk: the caller's (from Mitsuba's sample1/sample2) at the first vertex,
-/// the walk's own stream after it.
-#[inline]
-pub fn vertex_numbers(j: u32, first: (f64, f64, f64), rng: &mut Sampler) -> (f64, f64, f64) {
-    if j == 0 {
-        first
-    } else {
-        let (a, b) = rng.next2();
-        (rng.next(), a, b)
-    }
-}
 
 /// Options of one evaluation.
 #[derive(Clone, Copy, Debug)]

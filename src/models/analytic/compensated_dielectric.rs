@@ -26,7 +26,7 @@
 
 use crate::microfacet::fresnel::dielectric_full;
 use crate::microfacet::{mitsuba, reflect, refract, Distribution, Microfacet};
-use super::single_dielectric;
+use crate::models::single::dielectric as single_dielectric;
 use glam::DVec3;
 use std::sync::OnceLock;
 

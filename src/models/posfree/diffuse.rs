@@ -48,31 +48,17 @@
 //! continuation at the same vertex (the expectation of each NEE term given the
 //! past is exact, so the estimator stays unbiased).
 
-use super::posfree::Segments;
-use super::{russian_roulette, vertex_numbers, WalkOptions};
+use super::Segments;
+use crate::models::WalkOptions;
+use crate::walk::{cosine_about, russian_roulette, vertex_numbers};
 use crate::microfacet::Microfacet;
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
-use std::f64::consts::{FRAC_1_PI, PI};
+use std::f64::consts::FRAC_1_PI;
 
 /// First vertex after which Russian roulette may end a path (as `posfree`).
 const RR_START: u32 = 1;
-
-/// Cosine-distributed direction about the unit vector n (density ⟨ω,n⟩⁺/π).
-#[inline]
-pub fn cosine_about(n: DVec3, u1: f64, u2: f64) -> DVec3 {
-    // Orthonormal basis (Duff et al. 2017).
-    let sign = if n.z >= 0.0 { 1.0 } else { -1.0 };
-    let a = -1.0 / (sign + n.z);
-    let b = n.x * n.y * a;
-    let t = DVec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
-    let bt = DVec3::new(b, sign + n.y * n.y * a, -n.y);
-    let r = u1.sqrt();
-    let (sp, cp) = (2.0 * PI * u2).sin_cos();
-    let z = (1.0 - u1).max(0.0).sqrt();
-    (t * (r * cp) + bt * (r * sp) + n * z).normalize()
-}
 
 /// PT estimator with next-event estimation of f(ω_i, ω_o)·cos θ_o for the
 /// diffuse microsurface of albedo `albedo` (per channel). Orders

@@ -48,7 +48,8 @@
 //! dielectrics).
 
 
-use super::{russian_roulette, Microsurface, WalkOptions};
+use crate::models::{Microsurface, WalkOptions};
+use crate::walk::{cosine_about, russian_roulette};
 use crate::microfacet::{fresnel, reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
@@ -148,25 +149,6 @@ pub fn flip_height(t: f64) -> f64 {
 // ---------------------------------------------------------------------------
 // Small geometry helpers.
 
-/// Orthonormal basis (t, b) completing the unit vector n (Duff et al. 2017).
-#[inline]
-fn basis(n: DVec3) -> (DVec3, DVec3) {
-    let s = if n.z >= 0.0 { 1.0 } else { -1.0 };
-    let a = -1.0 / (s + n.z);
-    let b = n.x * n.y * a;
-    (DVec3::new(1.0 + s * n.x * n.x * a, s * b, -s * n.x), DVec3::new(b, s + n.y * n.y * a, -n.y))
-}
-
-/// Cosine-weighted direction about the unit vector m.
-#[inline]
-fn cosine_about(m: DVec3, u1: f64, u2: f64) -> DVec3 {
-    let r = u1.sqrt();
-    let (s, c) = (2.0 * PI * u2).sin_cos();
-    let z = (1.0 - u1).max(0.0).sqrt();
-    let (t, b) = basis(m);
-    (t * (r * c) + b * (r * s) + m * z).normalize()
-}
-
 /// Refraction of `w` (pointing away from the facet, w·m = `cos_i` > 0) through
 /// the facet m with relative IOR `eta` = η_t/η_i. `None` under TIR.
 #[inline]
@@ -264,7 +246,7 @@ pub(crate) fn dielectric_phase(mf: &Microfacet, wi: DVec3, wo: DVec3, eta: f64, 
 /// What the walk needs to know of the material.
 #[derive(Clone, Copy)]
 enum Mat<'a> {
-    Conductor(&'a super::ConductorFresnel),
+    Conductor(&'a crate::models::ConductorFresnel),
     Diffuse(Spectrum),
     Dielectric { eta: f64, radiance: bool },
 }

@@ -38,12 +38,13 @@
 //! `invariance_dielectric.rs` integrates the heights exactly up to the first
 //! refraction and samples them after it.
 
-use super::{russian_roulette, vertex_numbers, Microsurface, WalkOptions};
+use crate::models::{Microsurface, WalkOptions};
+use crate::walk::{cosine_about, russian_roulette, vertex_numbers};
 use crate::microfacet::Microfacet;
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
-use std::f64::consts::{FRAC_1_PI, PI};
+use std::f64::consts::FRAC_1_PI;
 
 /// First vertex after whose NEE Russian roulette may end a walk.
 const RR_START: u32 = 1;
@@ -166,20 +167,6 @@ pub fn p_exit_incremental(mf: &Microfacet, dirs: &[DVec3]) -> f64 {
         t.push(mf.abs_lambda(d), d.z < 0.0);
     }
     t.exit_probability(mf.lambda(dirs[n - 1]))
-}
-
-/// Cosine-distributed direction about the unit vector n (density ⟨ω,n⟩⁺/π).
-#[inline]
-fn cosine_about(n: DVec3, u1: f64, u2: f64) -> DVec3 {
-    let sign = if n.z >= 0.0 { 1.0 } else { -1.0 };
-    let a = -1.0 / (sign + n.z);
-    let b = n.x * n.y * a;
-    let t = DVec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
-    let bt = DVec3::new(b, sign + n.y * n.y * a, -n.y);
-    let r = u1.sqrt();
-    let (sp, cp) = (2.0 * PI * u2).sin_cos();
-    let z = (1.0 - u1).max(0.0).sqrt();
-    (t * (r * cp) + bt * (r * sp) + n * z).normalize()
 }
 
 /// |Λ(d)| and whether d points down; None for degenerate directions (Λ = ∞,

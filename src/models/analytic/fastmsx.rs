@@ -13,7 +13,8 @@
 //! The model is neither reciprocal nor energy conserving (the paper says so);
 //! its albedo is measured in the tests. Sampling uses `single`'s sampler.
 
-use super::{single, ConductorFresnel};
+use crate::models::single::conductor as single;
+use crate::models::ConductorFresnel;
 use crate::microfacet::Microfacet;
 use crate::spectrum::Spectrum;
 use glam::DVec3;

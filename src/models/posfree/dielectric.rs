@@ -62,8 +62,9 @@
 //! (G1 of each direction taken in its own medium's frame), of `Correlated`
 //! with G2 = 1/(1+Λ_i+Λ_o) (reflection) or B(1+Λ_i, 1+Λ_o) (transmission).
 
-use super::posfree::{roulette_importance, Segments};
-use super::{roulette_scalar, WalkOptions};
+use super::{roulette_importance, Segments};
+use crate::models::WalkOptions;
+use crate::walk::roulette_scalar;
 use crate::microfacet::fresnel::dielectric_full;
 use crate::microfacet::{reflect, refract, Microfacet};
 use crate::rng::Sampler;

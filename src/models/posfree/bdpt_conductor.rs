@@ -1,5 +1,5 @@
 //! Bidirectional estimator (Wang et al. 2022 §4.2, eqs. 27–29) of the
-//! position-free conductor BSDF of [`super::posfree`], for both segment models.
+//! position-free conductor BSDF of [`super::conductor`], for both segment models.
 //!
 //! # Path contribution as a chain of pair factors
 //! A path of order k is d_0 = −ω_i, d_1, …, d_{k−1}, d_k = ω_o; the integration
@@ -57,8 +57,9 @@
 //! high orders is unbiased. Subpaths stop early only on measure-zero events
 //! (a direction that sees no microfacet, Λ = 0 exactly).
 
-use super::posfree::{pt_walk, PtState, Segments};
-use super::{ConductorFresnel, WalkOptions};
+use super::conductor::{pt_walk, PtState};
+use super::Segments;
+use crate::models::{ConductorFresnel, WalkOptions};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
@@ -157,7 +158,7 @@ pub fn eval_bdpt_with(
 ) -> Spectrum {
     if wi.z < 0.0 && wo.z > 0.0 {
         // ω_i below the macro surface (normal mapping): the PT estimator, which covers it (same expectation).
-        return super::posfree::eval_pt(mf, fresnel, wi, wo, opts, rng);
+        return super::conductor::eval_pt(mf, fresnel, wi, wo, opts, rng);
     }
     if wi.z <= 0.0 || wo.z <= 0.0 {
         return Spectrum::ZERO;

@@ -1,59 +1,15 @@
-//! Position-free multiple scattering, Wang et al. 2022 (conductors), with the
-//! corrected readings of docs/paper-notes.md.
-//!
-//! A path is d_0 = −ω_i, b_0, d_1, …, b_{k−1}, d_k = ω_o (eq. 1): vertex terms
-//! v_j = F·D(h)/(4|cos d_j|) (eq. 2) and segment terms s_j = e_j·p_j.
-//! Writing L_j = |Λ(d_j)| (so that p_j = G1_dist(−d_j) = 1/L_j), the pair
-//! "p_j · e_{j+1}" of the segment model reads
-//!
-//! | pair p_j·e_{j+1}            | uncorrelated (eqs. 7, 8, 11) | correlated (eqs. 17, 18, 22, 23) |
-//! |-----------------------------|------------------------------|----------------------------------|
-//! | middle, d_{j+1} upward      | (1/L_j)·Λ/(1+Λ)              | 1/L_j − 1/(L_j+Λ)                |
-//! | middle, d_{j+1} downward    | 1/L_j                        | 1/L_j                            |
-//! | last (ω_o upward)           | (1/L_j)·1/(1+Λ_o)            | 1/(L_j + Λ_o)  (eq. 17 read with |Λ|) |
-//!
-//! with Λ = Λ(d_{j+1}). For j = 0, L_0 = |Λ(−ω_i)| = 1 + Λ(ω_i), so the first
-//! order is Walter 2007 with G1·G1 (uncorrelated) or G2 = 1/(1+Λ_i+Λ_o)
-//! (correlated). Sampling d_{j+1} from the visible normals of −d_j has density
-//! v_j·p_j/F, so f/pdf of a path prefix is Π F_j·L_j·(p_j e_{j+1}), i.e. a
-//! product of Fresnel terms and the "continue" factors of the table times L_j.
+//! Position-free multiple scattering on specular conductor facets (Wang et
+//! al. 2022 §3, eqs. 1–2, 7–11, 17–18): the PT estimator with next-event
+//! estimation and the random-walk sampler. The pair factors of the segment
+//! models are in `mod.rs`.
 
-use super::{russian_roulette_keep, vertex_numbers, ConductorFresnel, WalkOptions};
+use super::{roulette_importance, Segments};
+use crate::models::{ConductorFresnel, WalkOptions};
+use crate::walk::{russian_roulette_keep, vertex_numbers};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
-
-/// Height-uncorrelated (§3.3) or height-correlated (§3.4) segment terms.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Segments {
-    Uncorrelated,
-    Correlated,
-}
-
-impl Segments {
-    /// L_j·(p_j e_{j+1}) for a middle segment going upward with Λ = Λ(d_{j+1}):
-    /// the probability that the walk continues (hits the surface again).
-    #[inline]
-    pub fn continue_up(self, l: f64, lambda: f64) -> f64 {
-        if !lambda.is_finite() {
-            return 1.0;
-        }
-        match self {
-            Segments::Uncorrelated => lambda / (1.0 + lambda),
-            Segments::Correlated => lambda / (l + lambda),
-        }
-    }
-
-    /// p_j·e_k for the last segment towards ω_o (upward), Λ_o = Λ(ω_o).
-    #[inline]
-    pub fn last(self, l: f64, lambda_o: f64) -> f64 {
-        match self {
-            Segments::Uncorrelated => 1.0 / (l * (1.0 + lambda_o)),
-            Segments::Correlated => 1.0 / (l + lambda_o),
-        }
-    }
-}
 
 /// First vertex at which Russian roulette may end a path (played on arrival,
 /// before the vertex's next event; see [`roulette_importance`]). Roulette from
@@ -93,39 +49,11 @@ pub(crate) struct PtState {
     pub throughput: Spectrum,
 }
 
-/// Russian roulette of the position-free walks (docs/estimators.md,
-/// "Roulette and the next event"): importance, per unit throughput, of a walk
-/// that has just reached a vertex whose next-event value is `nee` (without the
-/// throughput) and whose last-segment factor is `last` = p_j·e_k. The walk is
-/// kept with probability min(1, throughput·importance), importance =
-/// max(1, gain·nee, RR_LAST_WEIGHT·last):
-/// - 1: the plain roulette on the throughput, for the vertices after this one;
-/// - gain·nee: the walk is kept surely while its next event would add at
-///   least 1/gain, and a walk the roulette renormalises adds at most 1/gain
-///   at that next event;
-/// - RR_LAST_WEIGHT·last: keeps throughput·last ≤ 1/RR_LAST_WEIGHT at every
-///   later vertex (for conductors), so that no next event exceeds its vertex
-///   term / RR_LAST_WEIGHT whatever the roulette did before.
-///
-/// On the throughput alone, a steep upward continuation (Λ → 0) leaves a
-/// throughput ≈ Λ/L that the roulette keeps with that probability, and the
-/// survivor's next event multiplies the renormalised throughput by
-/// last ≈ 1/Λ: rare calls of size ∝ 1/Λ near ω_o = n (fireflies).
-#[inline]
-pub(crate) fn roulette_importance(nee: f64, last: f64, gain: f64) -> f64 {
-    (gain * nee).max(RR_LAST_WEIGHT * last).max(1.0)
-}
-
 /// Gain of the next-event value in [`roulette_importance`] for conductors.
 /// Measured (GGX α ∈ {0.2, 0.5, 1}, Cu, fixed and random pairs, efficiency
 /// 1/(variance·time)): 30 within 5 % of the best gain of {10, 30, 100} in
 /// every case; 10 loses up to 25 % at α = 1, 100 up to 10 % at α = 0.2.
 pub(crate) const RR_NEE_GAIN: f64 = 30.0;
-
-/// Weight of the last-segment factor in [`roulette_importance`]: a bound for
-/// the vertices the next-event term does not see; at 0.05 it changed no
-/// measured variance (a safety net, not a tuning knob).
-pub(crate) const RR_LAST_WEIGHT: f64 = 0.05;
 
 /// The conductor's next-event term at a vertex with w = −d_j and last-segment
 /// factor `last`, without the Fresnel factor: (w·h, D(h)·last/(4|w_z|)) with h

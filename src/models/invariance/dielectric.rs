@@ -58,10 +58,11 @@
 //! Transport modes as in `heitz.rs` (Importance-mode vertex terms; the
 //! Radiance-mode factor applied once per path).
 
-use super::heitz::{self, WalkState};
-use super::{russian_roulette, vertex_numbers, Microsurface, WalkOptions};
+use crate::models::heitz::{self, WalkState};
+use crate::models::{Microsurface, WalkOptions};
+use crate::walk::{russian_roulette, vertex_numbers};
 use crate::microfacet::{fresnel, reflect, Microfacet};
-use crate::models::posfree_dielectric::l_beta;
+use crate::models::posfree::dielectric::l_beta;
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
 use glam::DVec3;

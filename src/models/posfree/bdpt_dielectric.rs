@@ -1,7 +1,7 @@
 //! Bidirectional estimator of the position-free rough-dielectric BSDF of
-//! [`super::posfree_dielectric`] (Wang et al. 2022 §4.2 applied to eqs. 2–3,
+//! [`super::dielectric`] (Wang et al. 2022 §4.2 applied to eqs. 2–3,
 //! 12–23), for both segment models. Same structure as the conductor BDPT of
-//! [`super::posfree_bdpt`]; read that header first.
+//! [`super::bdpt_conductor`]; read that header first.
 //!
 //! # Directions with media
 //! A path of order k is d_0 = −ω_i, d_1, …, d_k = ω_o. Every d_j is stored in
@@ -40,16 +40,17 @@
 //! subpaths without roulette up to K_b and the PT tail above K_b are exactly as
 //! in `posfree_bdpt.rs`, with these densities as implemented.
 
-use super::posfree::{roulette_importance, Segments};
-use super::posfree_dielectric::{continue_up, last, vertex_reflect, vertex_transmit, RR_NEE_GAIN};
-use super::{roulette_scalar, WalkOptions};
+use super::dielectric::{continue_up, last, vertex_reflect, vertex_transmit, RR_NEE_GAIN};
+use super::{roulette_importance, Segments};
+use crate::models::WalkOptions;
+use crate::walk::roulette_scalar;
 use crate::microfacet::fresnel::dielectric_full;
 use crate::microfacet::{reflect, refract, Microfacet};
 use crate::rng::Sampler;
 use glam::DVec3;
 
 /// Orders handled bidirectionally by default, and at most (as for conductors).
-pub use super::posfree_bdpt::{DEFAULT_BDPT_ORDERS, MAX_BDPT_ORDERS};
+pub use super::bdpt_conductor::{DEFAULT_BDPT_ORDERS, MAX_BDPT_ORDERS};
 
 /// First continuation vertex after which roulette may end the PT tail.
 const RR_START: u32 = 1;

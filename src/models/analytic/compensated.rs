@@ -12,8 +12,9 @@
 //! The albedo table (`albedo.rs`) is computed by this project's own code on
 //! first use (deterministic stratified quadrature over visible normals).
 
-pub use super::albedo::{single_albedo, AlbedoTable};
-use super::{single, ConductorFresnel};
+pub use crate::tables::albedo::{single_albedo, AlbedoTable};
+use crate::models::single::conductor as single;
+use crate::models::ConductorFresnel;
 use crate::microfacet::Microfacet;
 use crate::spectrum::{Spectrum, MAX_CHANNELS};
 use glam::DVec3;

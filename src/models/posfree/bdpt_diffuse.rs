@@ -1,6 +1,6 @@
 //! Bidirectional estimator of the position-free rough *diffuse* microsurface of
-//! [`super::posfree_diffuse`] (Lambertian facets, Wang 2022 segment terms), for
-//! both segment models. Structure as in [`super::posfree_bdpt`] (read it first).
+//! [`super::diffuse`] (Lambertian facets, Wang 2022 segment terms), for
+//! both segment models. Structure as in [`super::bdpt_conductor`] (read it first).
 //!
 //! # The vertex integral
 //! With I(d_j, d_{j+1}) = ∫⟨d_{j+1}, m⟩⁺⟨−d_j, m⟩⁺ D(m) dm (no closed form),
@@ -37,17 +37,17 @@
 //! Fixed-length subpaths without roulette for orders ≤ K_b, PT tail (with NEE
 //! as posfree_diffuse::eval_pt) above K_b.
 
-use super::{russian_roulette, WalkOptions};
+use crate::models::WalkOptions;
+use crate::walk::{cosine_about, russian_roulette};
 use crate::microfacet::Microfacet;
-use crate::models::posfree_diffuse::cosine_about;
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 use std::f64::consts::FRAC_1_PI;
 
 /// Orders handled bidirectionally by default, and at most (as for conductors).
-pub use super::posfree_bdpt::{DEFAULT_BDPT_ORDERS, MAX_BDPT_ORDERS};
-use super::posfree_bdpt::{cont, smith};
+pub use super::bdpt_conductor::{DEFAULT_BDPT_ORDERS, MAX_BDPT_ORDERS};
+use super::bdpt_conductor::{cont, smith};
 
 const RR_START: u32 = 1;
 

@@ -1,0 +1,85 @@
+//! What every random walk over the microsurface shares, whichever paper it
+//! implements: Russian roulette, the uniform numbers of a sampled vertex and
+//! the Lambertian direction of a diffuse facet.
+
+use crate::rng::Sampler;
+use crate::spectrum::Spectrum;
+use glam::DVec3;
+use std::f64::consts::PI;
+
+/// Russian roulette on the largest channel of a throughput that is ≤ 1 per
+/// channel: returns false when the path ends, otherwise divides the
+/// throughput by the survival probability (unbiased).
+#[inline]
+pub fn russian_roulette(throughput: &mut Spectrum, rng: &mut Sampler) -> bool {
+    russian_roulette_keep(throughput, rng, 1.0)
+}
+
+/// Russian roulette that keeps a path surely while its largest channel is
+/// ≥ `keep` and otherwise survives with probability max/keep (unbiased: the
+/// throughput is divided by it).
+#[inline]
+pub fn russian_roulette_keep(throughput: &mut Spectrum, rng: &mut Sampler, keep: f64) -> bool {
+    match survival(throughput.max_value() / keep, rng) {
+        Some(q) => {
+            *throughput *= 1.0 / q;
+            true
+        }
+        None => false,
+    }
+}
+
+/// [`russian_roulette_keep`] for a scalar throughput (≥ 0).
+#[inline]
+pub fn roulette_scalar(throughput: &mut f64, rng: &mut Sampler, keep: f64) -> bool {
+    match survival(*throughput / keep, rng) {
+        Some(q) => {
+            *throughput /= q;
+            true
+        }
+        None => false,
+    }
+}
+
+/// Plays the roulette with survival probability min(1, `ratio`): the
+/// probability the throughput must be divided by, or None when the path ends
+/// (always for a ratio ≤ 0 or NaN).
+#[inline]
+fn survival(ratio: f64, rng: &mut Sampler) -> Option<f64> {
+    let q = ratio.min(1.0);
+    if !(q > 0.0) {
+        return None;
+    }
+    if q < 1.0 && rng.next() >= q {
+        return None;
+    }
+    Some(q)
+}
+
+/// The three uniform numbers (u_choice, u1, u2) of vertex `j` of a sampled
+/// walk: the caller's (from Mitsuba's sample1/sample2) at the first vertex,
+/// the walk's own stream after it.
+#[inline]
+pub fn vertex_numbers(j: u32, first: (f64, f64, f64), rng: &mut Sampler) -> (f64, f64, f64) {
+    if j == 0 {
+        first
+    } else {
+        let (a, b) = rng.next2();
+        (rng.next(), a, b)
+    }
+}
+
+/// Cosine-distributed direction about the unit vector n (density ⟨ω,n⟩⁺/π).
+#[inline]
+pub fn cosine_about(n: DVec3, u1: f64, u2: f64) -> DVec3 {
+    // Orthonormal basis (Duff et al. 2017).
+    let sign = if n.z >= 0.0 { 1.0 } else { -1.0 };
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    let t = DVec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
+    let bt = DVec3::new(b, sign + n.y * n.y * a, -n.y);
+    let r = u1.sqrt();
+    let (sp, cp) = (2.0 * PI * u2).sin_cos();
+    let z = (1.0 - u1).max(0.0).sqrt();
+    (t * (r * cp) + bt * (r * sp) + n * z).normalize()
+}

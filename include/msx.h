@@ -59,6 +59,12 @@
 #define MSX_DEFAULT_AUTO_TOLERANCE 0.01
 
 /*
+ Relative IOR of `MsxMaterial::ior` when a caller sets none: Mitsuba's BK7
+ glass, the default `int_ior` of `roughdielectric`.
+ */
+#define MSX_DEFAULT_IOR 1.5046
+
+/*
  Largest accepted `MsxParams::max_bounces`.
  */
 #define MSX_MAX_BOUNCES_LIMIT 1024
@@ -79,11 +85,6 @@
  Scattering orders a simulation tallies apart: 1, 2, 3 and 4+ (index 3).
  */
 #define MSX_SIM_ORDERS 4
-
-/*
- Default tolerance: 1 % of the scattered energy may be omitted.
- */
-#define DEFAULT_TOLERANCE 0.01
 
 /*
  Opaque BSDF handle.

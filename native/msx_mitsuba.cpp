@@ -301,7 +301,7 @@ private:
     std::string m_surface, m_distribution, m_model, m_estimator;
     uint32_t m_lobe = +BSDFFlags::GlossyReflection;
     bool m_isotropic = true, m_constant = false;
-    float m_ior = 1.5046f;
+    float m_ior = (float) MSX_DEFAULT_IOR;
     ref<Texture> m_alpha_u, m_alpha_v, m_eta, m_k, m_specular_reflectance, m_specular_transmittance, m_reflectance;
     MsxMaterial m_material{};
 };

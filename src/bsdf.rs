@@ -3,20 +3,17 @@
 //! [`Material`], since Mitsuba evaluates textures at the hit.
 
 use crate::microfacet::{Distribution, Microfacet};
-use crate::models::analytic::{compensated, compensated_dielectric, fastmsx};
-use crate::models::invariance::{conductor as invariance, dielectric as invariance_dielectric, general as invariance_general};
-use crate::models::posfree::{
-    self, bdpt_conductor as posfree_bdpt, bdpt_dielectric as posfree_bdpt_dielectric, bdpt_diffuse as posfree_bdpt_diffuse,
-    dielectric as posfree_dielectric, diffuse as posfree_diffuse, Segments,
-};
-use crate::models::single::{conductor as single, dielectric as single_dielectric};
-use crate::models::{auto, heitz, ConductorFresnel, Microsurface, WalkOptions};
-use crate::tables::albedo::AlbedoTable;
-use crate::rng::{hash_words, Sampler};
+use crate::models::analytic::{Compensated, FastMsx};
+use crate::models::auto::{self, Auto};
+use crate::models::heitz::Heitz;
+use crate::models::invariance::Invariance;
+use crate::models::posfree::{PosFree, Segments};
+use crate::models::single::Single;
+use crate::models::{Call, ConductorFresnel, Microsurface, ScatteringModel, Stream};
 use crate::spectrum::{Spectrum, MAX_CHANNELS};
 use glam::DVec3;
-use std::f64::consts::FRAC_1_PI;
 use std::fmt;
+use std::sync::{Arc, OnceLock};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Surface {
@@ -70,29 +67,50 @@ impl Model {
     }
 }
 
-/// Models implemented for a surface (README.md's parameter table), in the order of the docs.
-pub fn models_for(surface: Surface) -> &'static [Model] {
-    match surface {
-        Surface::Conductor => &[
-            Model::Single,
-            Model::Uncorrelated,
-            Model::Correlated,
-            Model::Heitz,
-            Model::Invariance,
-            Model::FastMsx,
-            Model::Compensated,
-            Model::Auto,
-        ],
-        Surface::Dielectric => &[Model::Single, Model::Uncorrelated, Model::Correlated, Model::Heitz, Model::Invariance, Model::Compensated, Model::Auto],
-        Surface::Diffuse => &[Model::Uncorrelated, Model::Correlated, Model::Heitz, Model::Invariance, Model::Auto],
+/// Every model, in the order of the docs.
+pub const ALL_MODELS: [Model; 8] =
+    [Model::Single, Model::Uncorrelated, Model::Correlated, Model::Heitz, Model::Invariance, Model::FastMsx, Model::Compensated, Model::Auto];
+
+/// The code of a model: the one place that maps the configuration to an
+/// implementation of [`ScatteringModel`].
+fn implementation(model: Model, estimator: Estimator, surface: Surface, dist: Distribution, tolerance: f64) -> Arc<dyn ScatteringModel> {
+    match model {
+        Model::Single => Arc::new(Single),
+        Model::Uncorrelated => Arc::new(PosFree { segments: Segments::Uncorrelated, estimator }),
+        Model::Correlated => Arc::new(PosFree { segments: Segments::Correlated, estimator }),
+        Model::Heitz => Arc::new(Heitz),
+        Model::Invariance => Arc::new(Invariance),
+        Model::FastMsx => Arc::new(FastMsx),
+        Model::Compensated => Arc::new(Compensated),
+        Model::Auto => Arc::new(Auto::new(surface, dist, tolerance, estimator)),
     }
 }
 
-/// Models that accept `estimator="bdpt"`.
+/// Per surface: its models, and those of them that accept `estimator="bdpt"`,
+/// as the implementations declare them.
+fn support() -> &'static [(Vec<Model>, Vec<Model>); 3] {
+    static SUPPORT: OnceLock<[(Vec<Model>, Vec<Model>); 3]> = OnceLock::new();
+    SUPPORT.get_or_init(|| {
+        [Surface::Conductor, Surface::Dielectric, Surface::Diffuse].map(|surface| {
+            let imps: Vec<_> = ALL_MODELS
+                .iter()
+                .map(|&m| (m, implementation(m, Estimator::Pt, surface, Distribution::Ggx, auto::DEFAULT_TOLERANCE)))
+                .filter(|(_, imp)| imp.surfaces().contains(&surface))
+                .collect();
+            let bdpt = imps.iter().filter(|(_, imp)| imp.estimators().contains(&Estimator::Bdpt)).map(|(m, _)| *m).collect();
+            (imps.into_iter().map(|(m, _)| m).collect(), bdpt)
+        })
+    })
+}
+
+/// Models implemented for a surface, in the order of the docs.
+pub fn models_for(surface: Surface) -> &'static [Model] {
+    &support()[surface as usize].0
+}
+
+/// Models that accept `estimator="bdpt"` on a surface.
 pub fn bdpt_models(surface: Surface) -> &'static [Model] {
-    match surface {
-        Surface::Conductor | Surface::Dielectric | Surface::Diffuse => &[Model::Uncorrelated, Model::Correlated, Model::Auto],
-    }
+    &support()[surface as usize].1
 }
 
 /// Bounce cap when the user gives none. Russian roulette ends most paths far
@@ -169,7 +187,7 @@ impl Material {
             eta: Spectrum::ZERO,
             k: Spectrum::ONE,
             specular_reflectance: Spectrum::ONE,
-            ior: 1.5046,
+            ior: crate::microfacet::dielectric::BK7_IOR,
             specular_transmittance: Spectrum::ONE,
             reflectance: Spectrum::ONE,
             radiance: true,
@@ -247,8 +265,7 @@ pub struct BsdfSample {
 #[derive(Clone, Debug)]
 pub struct Bsdf {
     cfg: Config,
-    /// `auto`: where order 1 alone is within the configured tolerance.
-    auto_rule: Option<std::sync::Arc<auto::OrderOneRule>>,
+    model: Arc<dyn ScatteringModel>,
 }
 
 fn finite_unit(v: DVec3) -> Option<DVec3> {
@@ -309,57 +326,47 @@ impl Bsdf {
                 message: format!("must be 1..={MAX_BOUNCES_LIMIT}, got {}", cfg.max_bounces),
             });
         }
-        let auto_rule = (cfg.model == Model::Auto).then(|| {
-            let surface = match cfg.surface {
-                Surface::Conductor => auto::TableSurface::Conductor,
-                Surface::Dielectric => auto::TableSurface::Dielectric,
-                Surface::Diffuse => auto::TableSurface::Diffuse,
-            };
-            std::sync::Arc::new(auto::OrderOneRule::new(surface, cfg.distribution, cfg.tolerance))
-        });
-        Ok(Bsdf { cfg, auto_rule })
+        let model = implementation(cfg.model, cfg.estimator, cfg.surface, cfg.distribution, cfg.tolerance);
+        Ok(Bsdf { cfg, model })
     }
 
     pub fn config(&self) -> &Config {
         &self.cfg
     }
 
-    fn microfacet(&self, mat: &Material) -> Microfacet {
-        Microfacet::new(self.cfg.distribution, mat.alpha_u, mat.alpha_v)
-    }
-
-    fn fresnel(&self, mat: &Material) -> ConductorFresnel {
-        ConductorFresnel::new(mat.eta, mat.k, self.cfg.channels)
-    }
-
-    /// The model a call runs and its bounce cap: the configured ones, except
-    /// that `auto` runs `correlated`, with one bounce where models/auto.rs
-    /// finds order 1 alone within the tolerance for this call's roughness,
-    /// incidence and IOR.
-    fn resolve(&self, mat: &Material, wi: DVec3) -> (Model, u32) {
-        let Some(rule) = &self.auto_rule else { return (self.cfg.model, self.cfg.max_bounces) };
-        if wi.z < 0.0 && self.cfg.surface == Surface::Conductor {
-            // Below the macro surface the tables (built for ω_i above) do not apply: the full model.
-            return (Model::Correlated, self.cfg.max_bounces);
-        }
-        let eta = match self.cfg.surface {
-            Surface::Dielectric if wi.z > 0.0 => mat.ior,
-            Surface::Dielectric => 1.0 / mat.ior,
-            _ => 1.0,
+    /// What the model sees of one call: the material as microfacet statistics
+    /// and a microsurface, the orders (clamped to the bounce cap) and the
+    /// words its random stream derives from.
+    fn call(&self, mat: &Material, orders: (u32, u32), words: &[u64]) -> Call {
+        let surf = match self.cfg.surface {
+            Surface::Conductor => Microsurface::Conductor(ConductorFresnel::new(mat.eta, mat.k, self.cfg.channels)),
+            Surface::Dielectric => Microsurface::Dielectric { eta: mat.ior, radiance: mat.radiance },
+            Surface::Diffuse => Microsurface::Diffuse { albedo: mat.reflectance },
         };
-        (Model::Correlated, rule.cap(mat.alpha_u.max(mat.alpha_v), wi.z.abs(), eta, self.cfg.max_bounces))
+        Call {
+            mf: Microfacet::new(self.cfg.distribution, mat.alpha_u, mat.alpha_v),
+            surf,
+            max_bounces: self.cfg.max_bounces,
+            orders: (orders.0.max(1), orders.1.min(self.cfg.max_bounces)),
+            stream: Stream::new(self.cfg.seed, words),
+        }
     }
 
-    /// Walk options of `model` (segment terms of the position-free models;
-    /// the others ignore them) with the bounce cap `max_bounces`.
-    fn walk_options(model: Model, max_bounces: u32) -> WalkOptions {
-        let segments = if model == Model::Uncorrelated { Segments::Uncorrelated } else { Segments::Correlated };
-        WalkOptions { segments, max_bounces, orders: (1, max_bounces) }
+    /// Mitsuba's tints of a value of (ω_i, ω_o): specular_reflectance on a
+    /// conductor and on a dielectric's reflection, specular_transmittance on
+    /// a transmission.
+    fn tinted(&self, mat: &Material, wi: DVec3, wo: DVec3, v: Spectrum) -> Spectrum {
+        match self.cfg.surface {
+            Surface::Conductor => v * mat.specular_reflectance,
+            Surface::Dielectric if wi.z * wo.z > 0.0 => mat.specular_reflectance * v,
+            Surface::Dielectric => mat.specular_transmittance * v,
+            Surface::Diffuse => v,
+        }
     }
 
-    /// A random stream determined by the BSDF's `seed` and the call's inputs.
-    fn seeded(&self, words: &[u64]) -> Sampler {
-        Sampler::new(hash_words(&[self.cfg.seed, hash_words(words)]))
+    /// The words of an evaluation's random stream: the key and both directions.
+    fn eval_words(key: u64, wi: DVec3, wo: DVec3) -> [u64; 7] {
+        [key, wi.x.to_bits(), wi.y.to_bits(), wi.z.to_bits(), wo.x.to_bits(), wo.y.to_bits(), wo.z.to_bits()]
     }
 
     /// f(ω_i, ω_o)·|cos θ_o| per channel. `key` decorrelates calls (the plugin
@@ -374,164 +381,29 @@ impl Bsdf {
     pub fn eval_orders(&self, mat: &Material, wi: DVec3, wo: DVec3, key: u64, orders: (u32, u32)) -> Spectrum {
         let (Some(wi), Some(wo)) = (finite_unit(wi), finite_unit(wo)) else { return Spectrum::ZERO };
         let Some(mat) = mat.usable(self.cfg.surface, self.cfg.channels) else { return Spectrum::ZERO };
-        self.eval_checked(&mat, wi, wo, key, orders)
-    }
-
-    /// `eval_orders` on inputs already checked (unit directions, usable material).
-    fn eval_checked(&self, mat: &Material, wi: DVec3, wo: DVec3, key: u64, orders: (u32, u32)) -> Spectrum {
         if orders.0 > orders.1 {
             return Spectrum::ZERO;
         }
-        let mf = self.microfacet(mat);
-        let first = orders.0 <= 1;
-        let (model, max_bounces) = self.resolve(mat, wi);
-        let mut opts = Self::walk_options(model, max_bounces);
-        opts.orders = (orders.0.max(1), orders.1.min(max_bounces));
-        let rng = || self.seeded(&[key, wi.x.to_bits(), wi.y.to_bits(), wi.z.to_bits(), wo.x.to_bits(), wo.y.to_bits(), wo.z.to_bits()]);
-        match self.cfg.surface {
-            Surface::Conductor => {
-                let fresnel = self.fresnel(mat);
-                let v = match model {
-                    Model::Single if first => single::eval(&mf, &fresnel, wi, wo),
-                    Model::FastMsx if first => fastmsx::eval(&mf, &fresnel, wi, wo),
-                    Model::Compensated if first => compensated::eval(&mf, &fresnel, wi, wo),
-                    Model::Single | Model::FastMsx | Model::Compensated => Spectrum::ZERO,
-                    Model::Uncorrelated | Model::Correlated | Model::Auto => match self.cfg.estimator {
-                        Estimator::Pt => posfree::conductor::eval_pt(&mf, &fresnel, wi, wo, &opts, &mut rng()),
-                        Estimator::Bdpt => posfree_bdpt::eval_bdpt(&mf, &fresnel, wi, wo, &opts, &mut rng()),
-                    },
-                    Model::Heitz => heitz::eval(&mf, &Microsurface::Conductor(fresnel), wi, wo, &opts, &mut rng()),
-                    Model::Invariance => invariance::eval(&mf, &fresnel, wi, wo, &opts, &mut rng()),
-                };
-                v * mat.specular_reflectance
-            }
-            Surface::Dielectric => {
-                let Some(eta) = valid_ior(mat.ior) else { return Spectrum::ZERO };
-                let v = match model {
-                    Model::Single if first => single_dielectric::eval(&mf, eta, wi, wo, mat.radiance).0,
-                    Model::Compensated if first => compensated_dielectric::eval(&mf, eta, wi, wo, mat.radiance),
-                    Model::Uncorrelated | Model::Correlated => match self.cfg.estimator {
-                        Estimator::Pt => posfree_dielectric::eval_pt(&mf, eta, mat.radiance, wi, wo, &opts, &mut rng()).0,
-                        Estimator::Bdpt => posfree_bdpt_dielectric::eval_bdpt(&mf, eta, mat.radiance, wi, wo, &opts, &mut rng()),
-                    },
-                    Model::Heitz => {
-                        let surf = Microsurface::Dielectric { eta, radiance: mat.radiance };
-                        heitz::eval(&mf, &surf, wi, wo, &opts, &mut rng()).0[0]
-                    }
-                    Model::Invariance => invariance_dielectric::eval(&mf, eta, mat.radiance, wi, wo, &opts, &mut rng()),
-                    _ => 0.0,
-                };
-                self.dielectric_tint(mat, wi, wo) * v
-            }
-            Surface::Diffuse => match model {
-                Model::Uncorrelated | Model::Correlated => match self.cfg.estimator {
-                    Estimator::Pt => posfree_diffuse::eval_pt(&mf, mat.reflectance, wi, wo, &opts, &mut rng()),
-                    Estimator::Bdpt => posfree_bdpt_diffuse::eval_bdpt(&mf, mat.reflectance, wi, wo, &opts, &mut rng()),
-                },
-                Model::Heitz => heitz::eval(&mf, &Microsurface::Diffuse { albedo: mat.reflectance }, wi, wo, &opts, &mut rng()),
-                Model::Invariance => {
-                    invariance_general::eval(&mf, &Microsurface::Diffuse { albedo: mat.reflectance }, wi, wo, &opts, &mut rng())
-                }
-                _ => Spectrum::ZERO,
-            },
-        }
+        let call = self.call(&mat, orders, &Self::eval_words(key, wi, wo));
+        self.tinted(&mat, wi, wo, self.model.eval(&call, wi, wo))
     }
 
-    /// Mitsuba's tints: specular_reflectance on reflection, specular_transmittance on transmission.
-    fn dielectric_tint(&self, mat: &Material, wi: DVec3, wo: DVec3) -> Spectrum {
-        if wi.z * wo.z > 0.0 {
-            mat.specular_reflectance
-        } else {
-            mat.specular_transmittance
-        }
-    }
-
-    /// Density reported for MIS. Exact for `single`, `fastmsx` and
-    /// `compensated` (they sample with `single`'s sampler); for the conductor
-    /// random walks the exact order-1 density plus a cosine lobe with the
-    /// remaining mass (see `conductor_walk_pdf`); for dielectrics a mixture of
-    /// the single-scattering density and a cosine lobe on both sides weighted by
-    /// [`diffuse_fraction`] (Heitz 2016); a cosine lobe for the diffuse microsurface.
+    /// Density reported for MIS (docs/conventions.md): exact for `single`,
+    /// `fastmsx` and `compensated` (they sample with `single`'s sampler), the
+    /// densities of models/mis.rs for the random walks.
     pub fn pdf(&self, mat: &Material, wi: DVec3, wo: DVec3) -> f64 {
         let (Some(wi), Some(wo)) = (finite_unit(wi), finite_unit(wo)) else { return 0.0 };
         let Some(mat) = mat.usable(self.cfg.surface, self.cfg.channels) else { return 0.0 };
-        self.pdf_checked(&mat, wi, wo)
+        self.model.pdf(&self.call(&mat, (1, u32::MAX), &[]), wi, wo)
     }
 
-    /// `pdf` on inputs already checked (unit directions, usable material).
-    fn pdf_checked(&self, mat: &Material, wi: DVec3, wo: DVec3) -> f64 {
-        let mf = self.microfacet(mat);
-        let (model, _) = self.resolve(mat, wi);
-        match self.cfg.surface {
-            Surface::Conductor => match model {
-                Model::Single | Model::FastMsx | Model::Compensated => single::pdf(&mf, wi, wo),
-                _ => {
-                    if wo.z <= 0.0 || wi.z == 0.0 {
-                        0.0
-                    } else if wi.z < 0.0 {
-                        // The position-free walks also start below the macro surface (normal mapping):
-                        // a cosine lobe for MIS there. Heitz and invariance do not (their walks start above).
-                        if matches!(model, Model::Uncorrelated | Model::Correlated) {
-                            wo.z * FRAC_1_PI
-                        } else {
-                            0.0
-                        }
-                    } else {
-                        self.conductor_walk_pdf(model, &mf, wi, wo)
-                    }
-                }
-            },
-            Surface::Dielectric => {
-                let Some(eta) = valid_ior(mat.ior) else { return 0.0 };
-                let ss = single_dielectric::pdf(&mf, eta, wi, wo);
-                match model {
-                    Model::Single | Model::Compensated => ss,
-                    _ => {
-                        let k = diffuse_fraction(&mf);
-                        (1.0 - k) * ss + k * wo.z.abs() * 0.5 * FRAC_1_PI
-                    }
-                }
-            }
-            Surface::Diffuse => {
-                if wi.z <= 0.0 || wo.z <= 0.0 {
-                    0.0
-                } else {
-                    wo.z * FRAC_1_PI
-                }
-            }
-        }
-    }
-
-    /// MIS density of the conductor random walks: the exact density of leaving
-    /// after one bounce (visible-normal reflection × exit probability: G1(ω_o)
-    /// uncorrelated, L_0/(L_0 + Λ_o) height-correlated, which order 1 of heitz
-    /// and invariance share) plus a cosine lobe carrying the remaining mass
-    /// 1 − E_1(ω_i) from the order-1 albedo table, floored at 1e-3 so that no
-    /// direction the walk can reach has density 0. Integrates to 1 up to the
-    /// table's interpolation error.
-    fn conductor_walk_pdf(&self, model: Model, mf: &Microfacet, wi: DVec3, wo: DVec3) -> f64 {
-        let table = AlbedoTable::get(mf.dist);
-        let alpha = (mf.alpha_u * mf.alpha_v).sqrt();
-        let lambda_o = mf.lambda(wo);
-        let (exit, e1) = if model == Model::Uncorrelated {
-            (1.0 / (1.0 + lambda_o), table.e1_uncorrelated(alpha, wi.z))
-        } else {
-            let l0 = 1.0 + mf.lambda(wi);
-            (l0 / (l0 + lambda_o), table.e1_correlated(alpha, wi.z))
-        };
-        mf.reflect_pdf(wi, wo) * exit + (1.0 - e1).max(1e-3) * wo.z * FRAC_1_PI
-    }
-
-    /// `eval` and `pdf` together, with the inputs checked once. The conductor's
-    /// `single` shares the half vector, D and G1(ω_i) between the two.
+    /// `eval` and `pdf` together, with the inputs checked once.
     pub fn eval_pdf(&self, mat: &Material, wi: DVec3, wo: DVec3, key: u64) -> (Spectrum, f64) {
         let (Some(wi), Some(wo)) = (finite_unit(wi), finite_unit(wo)) else { return (Spectrum::ZERO, 0.0) };
         let Some(mat) = mat.usable(self.cfg.surface, self.cfg.channels) else { return (Spectrum::ZERO, 0.0) };
-        if self.cfg.surface == Surface::Conductor && self.cfg.model == Model::Single {
-            let (f, p) = single::eval_pdf(&self.microfacet(&mat), &self.fresnel(&mat), wi, wo);
-            return (f * mat.specular_reflectance, p);
-        }
-        (self.eval_checked(&mat, wi, wo, key, (1, u32::MAX)), self.pdf_checked(&mat, wi, wo))
+        let call = self.call(&mat, (1, u32::MAX), &Self::eval_words(key, wi, wo));
+        let (v, pdf) = self.model.eval_pdf(&call, wi, wo);
+        (self.tinted(&mat, wi, wo, v), pdf)
     }
 
     /// Samples ω_o given Mitsuba's `sample1` and `sample2`; the random walks
@@ -550,83 +422,14 @@ impl Bsdf {
         let mat = &mat.usable(self.cfg.surface, self.cfg.channels)?;
         let clamp01 = |u: f64| if u.is_finite() { u.clamp(0.0, 1.0 - f64::EPSILON / 2.0) } else { 0.5 };
         let (s1, u1, u2) = (clamp01(sample1), clamp01(sample2.0), clamp01(sample2.1));
-        let mf = self.microfacet(mat);
-        let (model, max_bounces) = self.resolve(mat, wi);
-        let opts = Self::walk_options(model, max_bounces);
-        let rng = || self.seeded(&[s1.to_bits(), u1.to_bits(), u2.to_bits(), wi.x.to_bits(), wi.z.to_bits()]);
-        let first = (s1, u1, u2);
-        let (wo, pdf, weight, order) = match self.cfg.surface {
-            Surface::Conductor => {
-                let fresnel = self.fresnel(mat);
-                let with1 = |(wo, pdf, w)| (wo, pdf, w, 1);
-                let (wo, pdf, w, order) = match model {
-                    Model::Single => with1(single::sample(&mf, &fresnel, wi, u1, u2)?),
-                    Model::FastMsx => with1(fastmsx::sample(&mf, &fresnel, wi, u1, u2)?),
-                    Model::Compensated => with1(compensated::sample(&mf, &fresnel, wi, u1, u2)?),
-                    Model::Uncorrelated | Model::Correlated | Model::Auto | Model::Heitz | Model::Invariance => {
-                        let (wo, w, order) = match model {
-                            Model::Heitz => heitz::sample(&mf, &Microsurface::Conductor(fresnel), wi, first, &opts, &mut rng())?,
-                            Model::Invariance => invariance::sample(&mf, &fresnel, wi, first, &opts, &mut rng())?,
-                            _ => posfree::conductor::sample_walk(&mf, &fresnel, wi, first, &opts, &mut rng())?,
-                        };
-                        (wo, self.pdf(mat, wi, wo), w, order)
-                    }
-                };
-                (wo, pdf, w * mat.specular_reflectance, order)
-            }
-            Surface::Dielectric => {
-                let eta = valid_ior(mat.ior)?;
-                let (wo, pdf, w, order) = match model {
-                    Model::Single => {
-                        let (wo, pdf, w, _) = single_dielectric::sample(&mf, eta, wi, s1, u1, u2, mat.radiance)?;
-                        (wo, pdf, w, 1)
-                    }
-                    Model::Compensated => {
-                        let (wo, pdf, w) = compensated_dielectric::sample(&mf, eta, wi, s1, u1, u2, mat.radiance)?;
-                        (wo, pdf, w, 1)
-                    }
-                    Model::Heitz => {
-                        let surf = Microsurface::Dielectric { eta, radiance: mat.radiance };
-                        let (wo, w, order) = heitz::sample(&mf, &surf, wi, first, &opts, &mut rng())?;
-                        (wo, self.pdf(mat, wi, wo), w.0[0], order)
-                    }
-                    Model::Invariance => {
-                        let (wo, w, order) = invariance_dielectric::sample(&mf, eta, mat.radiance, wi, first, &opts, &mut rng())?;
-                        (wo, self.pdf(mat, wi, wo), w, order)
-                    }
-                    _ => {
-                        let (wo, w, order) = posfree_dielectric::sample_walk(&mf, eta, mat.radiance, wi, first, &opts, &mut rng())?;
-                        (wo, self.pdf(mat, wi, wo), w, order)
-                    }
-                };
-                (wo, pdf, self.dielectric_tint(mat, wi, wo) * w, order)
-            }
-            Surface::Diffuse => {
-                let (wo, w, order) = match model {
-                    Model::Heitz => heitz::sample(&mf, &Microsurface::Diffuse { albedo: mat.reflectance }, wi, first, &opts, &mut rng())?,
-                    Model::Invariance => {
-                        invariance_general::sample(&mf, &Microsurface::Diffuse { albedo: mat.reflectance }, wi, first, &opts, &mut rng())?
-                    }
-                    _ => posfree_diffuse::sample_walk(&mf, mat.reflectance, wi, first, &opts, &mut rng())?,
-                };
-                (wo, self.pdf(mat, wi, wo), w, order)
-            }
+        let words = [s1.to_bits(), u1.to_bits(), u2.to_bits(), wi.x.to_bits(), wi.z.to_bits()];
+        let s = self.model.sample(&self.call(mat, (1, u32::MAX), &words), wi, (s1, u1, u2))?;
+        let pdf = match s.pdf {
+            Some(p) => p,
+            None => self.pdf(mat, wi, s.wo),
         };
         // Raw values: the C ABI rejects a sample whose pdf is not > 0 and
         // counts any non-finite or negative value (docs/conventions.md).
-        Some((BsdfSample { wo, pdf, weight }, order))
+        Some((BsdfSample { wo: s.wo, pdf, weight: self.tinted(mat, wi, s.wo, s.weight) }, s.order))
     }
-}
-
-/// A dielectric's relative IOR if usable (finite, > 0).
-fn valid_ior(eta: f64) -> Option<f64> {
-    (eta.is_finite() && eta > 0.0).then_some(eta)
-}
-
-/// Weight of the cosine lobe in the MIS density of the multiple-scattering
-/// models: grows with roughness like the multiply scattered energy does
-/// (≈ 5 % at α = 0.1, 33 % at α = 1).
-pub fn diffuse_fraction(mf: &Microfacet) -> f64 {
-    let a = (mf.alpha_u * mf.alpha_v).sqrt();
-    (a / (a + 2.0)).min(0.75)
 }

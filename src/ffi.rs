@@ -44,6 +44,9 @@ pub const MSX_MODE_IMPORTANCE: u32 = 1;
 pub const MSX_DEFAULT_MAX_BOUNCES: u32 = 64;
 /// `MsxParams::auto_tolerance` used when it is 0.
 pub const MSX_DEFAULT_AUTO_TOLERANCE: f64 = 0.01;
+/// Relative IOR of `MsxMaterial::ior` when a caller sets none: Mitsuba's BK7
+/// glass, the default `int_ior` of `roughdielectric`.
+pub const MSX_DEFAULT_IOR: f64 = 1.5046;
 /// Largest accepted `MsxParams::max_bounces`.
 pub const MSX_MAX_BOUNCES_LIMIT: u32 = 1024;
 /// Channels per call at most.
@@ -57,6 +60,7 @@ const _: () = assert!(MSX_DEFAULT_MAX_BOUNCES == crate::bsdf::DEFAULT_MAX_BOUNCE
 const _: () = assert!(MSX_MAX_BOUNCES_LIMIT == crate::bsdf::MAX_BOUNCES_LIMIT);
 const _: () = assert!(MSX_MAX_CHANNELS as usize == MAX_CHANNELS);
 const _: () = assert!(MSX_DEFAULT_AUTO_TOLERANCE == crate::models::auto::DEFAULT_TOLERANCE);
+const _: () = assert!(MSX_DEFAULT_IOR == crate::microfacet::dielectric::BK7_IOR);
 const _: () = assert!(MSX_ALPHA_MIN == crate::microfacet::ALPHA_MIN && MSX_ALPHA_MAX == crate::microfacet::ALPHA_MAX);
 
 /// Static configuration of a BSDF.
@@ -145,7 +149,7 @@ impl Default for MsxMaterial {
             eta: [0.0; 4],
             k: [1.0; 4],
             specular_reflectance: [1.0; 4],
-            ior: 1.5046,
+            ior: MSX_DEFAULT_IOR as f32,
             specular_transmittance: [1.0; 4],
             reflectance: [0.5; 4],
             mode: MSX_MODE_RADIANCE,
@@ -674,7 +678,7 @@ fn inputs(b: &MsxBatchIn) -> Result<Inputs, String> {
             r(&b.specular_reflectance[2], 1.0, "specular_reflectance")?,
             r(&b.specular_reflectance[3], 1.0, "specular_reflectance")?,
         ],
-        ior: r(&b.ior, 1.5046, "ior")?,
+        ior: r(&b.ior, MSX_DEFAULT_IOR as f32, "ior")?,
         spec_t: [
             r(&b.specular_transmittance[0], 1.0, "specular_transmittance")?,
             r(&b.specular_transmittance[1], 1.0, "specular_transmittance")?,

@@ -29,6 +29,12 @@ impl Spectrum {
     }
 }
 
+impl Default for Spectrum {
+    fn default() -> Self {
+        Spectrum::ZERO
+    }
+}
+
 impl Add for Spectrum {
     type Output = Spectrum;
     fn add(self, o: Spectrum) -> Spectrum {

@@ -13,7 +13,7 @@ mod common;
 
 use common::*;
 use glam::DVec3;
-use msx::models::auto::{self, TableSurface};
+use msx::models::auto;
 use msx::rng::Sampler;
 use msx::{Bsdf, Config, Distribution, Estimator, Material, Model, Spectrum, Surface};
 use std::f64::consts::PI;
@@ -42,17 +42,9 @@ fn material(surface: Surface, alpha_u: f64, alpha_v: f64, ior: f64) -> Material 
     m
 }
 
-fn table_surface(s: Surface) -> TableSurface {
-    match s {
-        Surface::Conductor => TableSurface::Conductor,
-        Surface::Dielectric => TableSurface::Dielectric,
-        Surface::Diffuse => TableSurface::Diffuse,
-    }
-}
-
 fn cap(surface: Surface, dist: Distribution, m: &Material, wi: DVec3, tol: f64, max_bounces: u32) -> u32 {
     let eta = if wi.z > 0.0 { m.ior } else { 1.0 / m.ior };
-    auto::OrderOneRule::new(table_surface(surface), dist, tol).cap(m.alpha_u.max(m.alpha_v), wi.z.abs(), eta, max_bounces)
+    auto::OrderOneRule::new(surface, dist, tol).cap(m.alpha_u.max(m.alpha_v), wi.z.abs(), eta, max_bounces)
 }
 
 const SURFACES: [Surface; 3] = [Surface::Conductor, Surface::Dielectric, Surface::Diffuse];

@@ -15,7 +15,8 @@ mod common;
 use common::*;
 use glam::DVec3;
 use msx::models::posfree::{self, Segments};
-use msx::models::posfree::bdpt_conductor as posfree_bdpt;
+use msx::models::posfree::conductor as posfree_bdpt;
+use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
 use msx::models::{ConductorFresnel, WalkOptions};
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet, Spectrum};
@@ -176,7 +177,7 @@ fn bdpt_furnace() {
 fn bdpt_vs_pt_variance_and_time() {
     println!(
         "=== variance per call (channel 0 = red, copper) and ns per call, all orders; bdpt = default K_b = {}, bdpt6 = K_b = 6 ===",
-        posfree_bdpt::DEFAULT_BDPT_ORDERS
+        DEFAULT_BDPT_ORDERS
     );
     println!(
         "{:<4} {:<9} {:>4} {:<13} {:>11} {:>11} {:>11} {:>7} {:>7} {:>7} {:>6} {:>6} {:>6} {:>6}",

@@ -14,7 +14,8 @@ use common::*;
 use glam::DVec3;
 use msx::microfacet::fresnel::dielectric_full;
 use msx::models::posfree::Segments;
-use msx::models::posfree::bdpt_dielectric as bd;
+use msx::models::posfree::dielectric as bd;
+use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
 use msx::models::posfree::dielectric as pfd;
 use msx::models::WalkOptions;
 use msx::rng::Sampler;
@@ -215,7 +216,7 @@ fn bdpt_furnace() {
 /// Not pass/fail: variance per call and time per call of bdpt vs pt.
 #[test]
 fn bdpt_vs_pt_variance_and_time() {
-    println!("=== dielectric η = 1.5, GGX, all orders: variance and ns per call, pt vs bdpt (K_b = {}) ===", bd::DEFAULT_BDPT_ORDERS);
+    println!("=== dielectric η = 1.5, GGX, all orders: variance and ns per call, pt vs bdpt (K_b = {}) ===", DEFAULT_BDPT_ORDERS);
     println!(
         "{:<4} {:>4} {:<12} {:>11} {:>11} {:>7} {:>7} {:>6} {:>6}",
         "seg", "α", "pair", "var pt", "var bdpt", "ns pt", "ns bd", "var×", "eff×"

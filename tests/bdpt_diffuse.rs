@@ -15,7 +15,8 @@ mod common;
 use common::*;
 use glam::DVec3;
 use msx::models::posfree::Segments;
-use msx::models::posfree::bdpt_diffuse as bd;
+use msx::models::posfree::diffuse as bd;
+use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
 use msx::models::posfree::diffuse as pfd;
 use msx::models::WalkOptions;
 use msx::rng::Sampler;
@@ -144,7 +145,7 @@ fn bdpt_furnace() {
 /// Not pass/fail: variance per call and time per call of bdpt vs pt.
 #[test]
 fn bdpt_vs_pt_variance_and_time() {
-    println!("=== diffuse, all orders, channel 0 (albedo 0.9): variance and ns per call, pt vs bdpt (K_b = {}) ===", bd::DEFAULT_BDPT_ORDERS);
+    println!("=== diffuse, all orders, channel 0 (albedo 0.9): variance and ns per call, pt vs bdpt (K_b = {}) ===", DEFAULT_BDPT_ORDERS);
     println!("{:<4} {:<9} {:>4} {:<13} {:>11} {:>11} {:>7} {:>7} {:>6} {:>6}", "seg", "dist", "α", "pair", "var pt", "var bdpt", "ns pt", "ns bd", "var×", "eff×");
     let n = 40_000;
     let mut seed = 7000u64;

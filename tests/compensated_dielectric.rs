@@ -22,7 +22,8 @@ use common::{Checker, Stat, UNIFORM_SPHERE_PDF};
 use glam::DVec3;
 use msx::microfacet::fresnel::dielectric_full;
 use msx::microfacet::{reflect, refract};
-use msx::models::analytic::compensated_dielectric::{self as cd, DielectricAlbedoTable};
+use msx::models::analytic::compensated_dielectric as cd;
+use msx::tables::dielectric_albedo::{self as table, DielectricAlbedoTable};
 use msx::models::single::dielectric as single_dielectric;
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet};
@@ -143,7 +144,7 @@ fn table_cost() {
         let t0 = Instant::now();
         let table = DielectricAlbedoTable::compute(dist);
         let dt = t0.elapsed().as_secs_f64();
-        println!("{dist:?}: table of {}×{}×{}×2 entries ({}² normals each (μ, α)) computed in {dt:.3} s (threads: {:?}); E(1, 0.5, 1.5) = {:.5}", cd::N_MU, cd::N_ALPHA, cd::N_ETA, cd::GRID, std::thread::available_parallelism().map(|n| n.get()).ok(), table.e(0.5, 1.0, 1.5));
+        println!("{dist:?}: table of {}×{}×{}×2 entries ({}² normals each (μ, α)) computed in {dt:.3} s (threads: {:?}); E(1, 0.5, 1.5) = {:.5}", table::MU.n, table::ALPHA.n, table::N_ETA, table::GRID, std::thread::available_parallelism().map(|n| n.get()).ok(), table.e(0.5, 1.0, 1.5));
     }
 }
 
@@ -168,7 +169,7 @@ fn table_matches_monte_carlo() {
                         let est = albedo(|wo| single_dielectric::eval(&mf, eta, wi, wo, false).0, &prop, 100_000, seed);
                         let eta_r = if inside { 1.0 / eta } else { eta };
                         let tab = table.e(alpha, wi.z.abs(), eta_r);
-                        let direct = cd::single_albedo(dist, alpha, wi.z.abs(), eta_r, 64);
+                        let direct = table::single_albedo(dist, alpha, wi.z.abs(), eta_r, 64);
                         let label = format!("{dist:?} η={eta} {} α={alpha} θ={theta}", if inside { "inside" } else { "outside" });
                         println!("  {label}: table {tab:.5}, direct quadrature {direct:.5} (interp. err {:+.2e})", tab - direct);
                         ck.close(&format!("{label}: E table"), (tab, 0.0), est[2], ALLOW_REL, 0.0);

@@ -251,7 +251,7 @@ class Config:
         # Defaults of the other surfaces' values (unused by this surface).
         self.material = "none"
         self.eta = self.k = None
-        self.ior = 1.5046
+        self.ior = lib.MSX_DEFAULT_IOR
         self.specular_transmittance = None
         self.reflectance = None
         if self.surface == "conductor":

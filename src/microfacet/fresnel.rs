@@ -74,7 +74,10 @@ pub fn conductor4(cos_i: f64, eta: &[f64; 4], k: &[f64; 4]) -> [f64; 4] {
 
 /// Unpolarised Fresnel reflectance of a dielectric interface with relative IOR
 /// `eta` = η_t/η_i, for incidence cosine `cos_i` (taken in absolute value).
-/// Returns 1 under total internal reflection.
+/// Returns 1 under total internal reflection. The same function as
+/// [`dielectric_full`] seen from the incident side, in the arithmetic of the
+/// random walks of Heitz 2016 and Cui 2023 (src/microfacet/dielectric.rs
+/// explains why both stay).
 #[inline]
 pub fn dielectric(cos_i: f64, eta: f64) -> f64 {
     let ci = cos_i.abs().min(1.0);

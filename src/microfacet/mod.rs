@@ -7,6 +7,7 @@
 //! so Λ ≥ 0 for upward and Λ ≤ −1 for downward directions.
 
 pub mod beckmann;
+pub mod dielectric;
 pub mod fresnel;
 pub mod ggx;
 pub mod mitsuba;

@@ -3,38 +3,32 @@
 //! single-scattering albedo of `single` (for `compensated`) and the order-1
 //! albedos of the multiple-scattering models (for the MIS density).
 
+use super::{Axis, Grid, Warp};
 use crate::microfacet::{mitsuba, reflect, Distribution, Microfacet};
+use crate::tables;
 use glam::DVec3;
 use std::sync::OnceLock;
 
-/// Table resolution: cos θ nodes (uniform in μ²) and roughness nodes uniform
-/// in √α over [1e-4, 4] (E varies fastest with α at high roughness, where a
-/// log-α grid was measured 3 % off between nodes).
-const N_MU: usize = 32;
-const N_ALPHA: usize = 48;
-const SQRT_ALPHA_MIN: f64 = 0.01;
-const SQRT_ALPHA_MAX: f64 = 2.0;
+/// Roughness nodes uniform in √α over [1e-4, 4] (E varies fastest with α
+/// at high roughness, where a log-α grid was measured 3 % off between nodes).
+const ALPHA: Axis = Axis::ends(Warp::Sqrt, 0.01, 2.0, 48);
+/// cos θ nodes at the centres of 32 equal cells of μ² (denser near grazing).
+const MU: Axis = Axis::centred(Warp::Square, 0.0, 1.0, 32);
 /// Stratified quadrature grid per table entry (GRID × GRID visible normals).
 const GRID: usize = 32;
 
-/// Directional albedos with F = 1 for one distribution, over (μ, α):
+/// Directional albedos with F = 1 for one distribution, over (α, μ):
 /// `single` (Mitsuba's separable G, for `compensated`) and order 1 of the
 /// uncorrelated and height-correlated models (for the MIS density), plus E_avg(α).
 pub struct AlbedoTable {
-    e: Vec<f64>,        // [alpha][mu], single
-    e1_uncorr: Vec<f64>, // [alpha][mu], ∫ D G1(ω_i) G1(ω_o) / (4 cos θ_i)
-    e1_corr: Vec<f64>,   // [alpha][mu], ∫ D G2(ω_i, ω_o) / (4 cos θ_i)
-    e_avg: Vec<f64>,    // [alpha]
-}
-
-fn mu_node(i: usize) -> f64 {
-    // Nodes from grazing to normal incidence, denser near grazing.
-    let t = (i as f64 + 0.5) / N_MU as f64;
-    t.sqrt()
-}
-
-fn alpha_node(j: usize) -> f64 {
-    (SQRT_ALPHA_MIN + (SQRT_ALPHA_MAX - SQRT_ALPHA_MIN) * j as f64 / (N_ALPHA - 1) as f64).powi(2)
+    /// `single`, clamped into [1e-6, 1].
+    e: Grid<2>,
+    /// ∫ D G1(ω_i) G1(ω_o) / (4 cos θ_i).
+    e1_uncorr: Grid<2>,
+    /// ∫ D G2(ω_i, ω_o) / (4 cos θ_i).
+    e1_corr: Grid<2>,
+    /// 2∫E(μ)μ dμ of `single`.
+    e_avg: Grid<1>,
 }
 
 /// Directional albedos with F = 1 at (α, μ): (single with Mitsuba's G1,
@@ -73,25 +67,24 @@ pub fn single_albedo(dist: Distribution, alpha: f64, mu: f64) -> f64 {
 
 impl AlbedoTable {
     fn compute(dist: Distribution) -> Self {
-        let mut e = vec![0.0; N_ALPHA * N_MU];
-        let mut e1_uncorr = vec![0.0; N_ALPHA * N_MU];
-        let mut e1_corr = vec![0.0; N_ALPHA * N_MU];
-        let mut e_avg = vec![0.0; N_ALPHA];
-        for j in 0..N_ALPHA {
-            let alpha = alpha_node(j);
+        // Per α row: the three albedos at every μ node, and E_avg.
+        let rows = tables::build(ALPHA.n, 3 * MU.n + 1, |j, row: &mut [f64]| {
+            let alpha = ALPHA.node(j);
             let mut avg = 0.0;
-            for i in 0..N_MU {
-                let (single, uncorr, corr) = albedos(dist, alpha, mu_node(i));
+            for i in 0..MU.n {
+                let (single, uncorr, corr) = albedos(dist, alpha, MU.node(i));
                 let v = single.clamp(1e-6, 1.0);
-                e[j * N_MU + i] = v;
-                e1_uncorr[j * N_MU + i] = uncorr.clamp(0.0, 1.0);
-                e1_corr[j * N_MU + i] = corr.clamp(0.0, 1.0);
+                row[i] = v;
+                row[MU.n + i] = uncorr.clamp(0.0, 1.0);
+                row[2 * MU.n + i] = corr.clamp(0.0, 1.0);
                 // 2∫E μ dμ with μ = √t: dμ·2μ = dt, so a midpoint rule in t.
-                avg += v / N_MU as f64;
+                avg += v / MU.n as f64;
             }
-            e_avg[j] = avg;
-        }
-        AlbedoTable { e, e1_uncorr, e1_corr, e_avg }
+            row[3 * MU.n] = avg;
+        });
+        let part = |k: usize| Grid { axes: [ALPHA, MU], values: rows.chunks(3 * MU.n + 1).flat_map(|r| r[k * MU.n..(k + 1) * MU.n].to_vec()).collect() };
+        let e_avg = Grid { axes: [ALPHA], values: rows.chunks(3 * MU.n + 1).map(|r| r[3 * MU.n]).collect() };
+        AlbedoTable { e: part(0), e1_uncorr: part(1), e1_corr: part(2), e_avg }
     }
 
     pub fn get(dist: Distribution) -> &'static AlbedoTable {
@@ -103,40 +96,22 @@ impl AlbedoTable {
         }
     }
 
-    fn alpha_coord(alpha: f64) -> (usize, f64) {
-        let x = ((alpha.sqrt() - SQRT_ALPHA_MIN) / (SQRT_ALPHA_MAX - SQRT_ALPHA_MIN) * (N_ALPHA - 1) as f64).clamp(0.0, (N_ALPHA - 1) as f64);
-        let j = (x.floor() as usize).min(N_ALPHA - 2);
-        (j, x - j as f64)
-    }
-
-    /// Bilinear interpolation in (μ², √α).
-    fn lerp(table: &[f64], alpha: f64, mu: f64) -> f64 {
-        let (j, fa) = Self::alpha_coord(alpha);
-        let x = (mu.clamp(0.0, 1.0).powi(2) * N_MU as f64 - 0.5).clamp(0.0, (N_MU - 1) as f64);
-        let i = (x.floor() as usize).min(N_MU - 2);
-        let fm = x - i as f64;
-        let at = |jj: usize| table[jj * N_MU + i] * (1.0 - fm) + table[jj * N_MU + i + 1] * fm;
-        at(j) * (1.0 - fa) + at(j + 1) * fa
-    }
-
     /// E(μ, α) of `single` (F = 1).
     pub fn e(&self, alpha: f64, mu: f64) -> f64 {
-        Self::lerp(&self.e, alpha, mu)
+        self.e.at([alpha, mu])
     }
 
     /// Order-1 albedo (F = 1) of the uncorrelated (separable exact G1) model.
     pub fn e1_uncorrelated(&self, alpha: f64, mu: f64) -> f64 {
-        Self::lerp(&self.e1_uncorr, alpha, mu)
+        self.e1_uncorr.at([alpha, mu])
     }
 
     /// Order-1 albedo (F = 1) with the height-correlated G2 (correlated, heitz, invariance).
     pub fn e1_correlated(&self, alpha: f64, mu: f64) -> f64 {
-        Self::lerp(&self.e1_corr, alpha, mu)
+        self.e1_corr.at([alpha, mu])
     }
 
     pub fn e_avg(&self, alpha: f64) -> f64 {
-        let (j, fa) = Self::alpha_coord(alpha);
-        self.e_avg[j] * (1.0 - fa) + self.e_avg[j + 1] * fa
+        self.e_avg.at([alpha])
     }
 }
-

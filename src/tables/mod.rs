@@ -1,4 +1,164 @@
 //! Tables the models read at run time, computed by this project's own
-//! quadrature on first use and cached for the process.
+//! quadrature on first use and cached for the process, on one grid system:
+//! an [`Axis`] places its nodes uniformly in a warped coordinate, a [`Grid`]
+//! interpolates multilinearly between them, and [`build`] fills the rows of a
+//! table over the available threads (the values do not depend on the split).
+//!
+//! | file | table | used by |
+//! |---|---|---|
+//! | `albedo.rs` | conductor albedos with F = 1 over (α, μ): `single`, order 1 of the walks | `compensated`, the MIS density of the conductor walks |
+//! | `dielectric_albedo.rs` | E_r + E_t of `single` on a dielectric over (α, η, μ), both sides | `compensated` on dielectrics |
+//! | `multiple_scattering.rs` | the multiply scattered fraction T₁ of `correlated` over (η, α, μ) | `auto` |
 
 pub mod albedo;
+pub mod dielectric_albedo;
+pub mod multiple_scattering;
+
+/// The coordinate in which an axis places its nodes uniformly.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Warp {
+    /// x itself.
+    Identity,
+    /// √x (roughness: the albedos change fastest at high α).
+    Sqrt,
+    /// x² (cosines: denser towards grazing incidence), x clamped into [0, 1].
+    Square,
+    /// ln x (roughness and IOR ratios over decades).
+    Ln,
+    /// √(1 − 1/x²), the cosine of the critical angle of a relative IOR x ≥ 1
+    /// (nodes crowd near 1, where the total-internal-reflection cone opens).
+    CriticalCosine,
+}
+
+impl Warp {
+    /// u = warp(x).
+    #[inline]
+    pub fn apply(self, x: f64) -> f64 {
+        match self {
+            Warp::Identity => x,
+            Warp::Sqrt => x.sqrt(),
+            Warp::Square => x.clamp(0.0, 1.0).powi(2),
+            Warp::Ln => x.ln(),
+            Warp::CriticalCosine => (1.0 - 1.0 / (x * x)).max(0.0).sqrt(),
+        }
+    }
+
+    /// x = warp⁻¹(u).
+    #[inline]
+    pub fn invert(self, u: f64) -> f64 {
+        match self {
+            Warp::Identity => u,
+            Warp::Sqrt => u.powi(2),
+            Warp::Square => u.sqrt(),
+            Warp::Ln => u.exp(),
+            Warp::CriticalCosine => 1.0 / (1.0 - u * u).sqrt(),
+        }
+    }
+}
+
+/// `n` nodes uniform in the warped coordinate u = warp(x) between `lo` and
+/// `hi` (given as u): at the ends (`centred = false`: u_i = lo + (hi − lo)·i/(n − 1))
+/// or at the centres of n equal cells (`centred = true`: u_i = lo + (hi − lo)·(i + ½)/n).
+#[derive(Clone, Copy, Debug)]
+pub struct Axis {
+    pub warp: Warp,
+    pub lo: f64,
+    pub hi: f64,
+    pub n: usize,
+    pub centred: bool,
+}
+
+impl Axis {
+    /// Nodes at the ends of `n − 1` equal steps of warp(x) from `lo` to `hi` (u values).
+    pub const fn ends(warp: Warp, lo: f64, hi: f64, n: usize) -> Axis {
+        Axis { warp, lo, hi, n, centred: false }
+    }
+
+    /// Nodes at the centres of `n` equal cells of warp(x) from `lo` to `hi` (u values).
+    pub const fn centred(warp: Warp, lo: f64, hi: f64, n: usize) -> Axis {
+        Axis { warp, lo, hi, n, centred: true }
+    }
+
+    /// The value of node `i`.
+    #[inline]
+    pub fn node(&self, i: usize) -> f64 {
+        let u = if self.centred {
+            self.lo + (self.hi - self.lo) * ((i as f64 + 0.5) / self.n as f64)
+        } else {
+            self.lo + (self.hi - self.lo) * i as f64 / (self.n - 1) as f64
+        };
+        self.warp.invert(u)
+    }
+
+    /// The fractional node position of x, clamped to the axis (NaN counts as
+    /// the first node).
+    #[inline]
+    pub fn position(&self, x: f64) -> f64 {
+        let t = (self.warp.apply(x) - self.lo) / (self.hi - self.lo);
+        let t = if self.centred { t * self.n as f64 - 0.5 } else { t * (self.n - 1) as f64 };
+        if t.is_nan() {
+            0.0
+        } else {
+            t.clamp(0.0, (self.n - 1) as f64)
+        }
+    }
+
+    /// The cell (lower node) holding x and the fraction of the way to the next node.
+    #[inline]
+    pub fn locate(&self, x: f64) -> (usize, f64) {
+        let t = self.position(x);
+        let i = (t.floor() as usize).min(self.n - 2);
+        (i, t - i as f64)
+    }
+}
+
+/// Values on the product of `D` axes, the last axis varying fastest.
+#[derive(Clone, Debug)]
+pub struct Grid<const D: usize> {
+    pub axes: [Axis; D],
+    pub values: Vec<f64>,
+}
+
+impl<const D: usize> Grid<D> {
+    /// Number of values on the product of `axes`.
+    pub fn size(axes: &[Axis; D]) -> usize {
+        axes.iter().map(|a| a.n).product()
+    }
+
+    /// Multilinear interpolation at `x` (clamped to the grid).
+    pub fn at(&self, x: [f64; D]) -> f64 {
+        let cells: [(usize, f64); D] = std::array::from_fn(|d| self.axes[d].locate(x[d]));
+        self.mix(&cells, 0, 0)
+    }
+
+    /// Interpolates along axes `d..` below the flat index `base` of axes `..d`.
+    fn mix(&self, cells: &[(usize, f64); D], d: usize, base: usize) -> f64 {
+        if d == D {
+            return self.values[base];
+        }
+        let (i, f) = cells[d];
+        let n = self.axes[d].n;
+        let lower = self.mix(cells, d + 1, base * n + i);
+        let upper = self.mix(cells, d + 1, base * n + i + 1);
+        lower * (1.0 - f) + upper * f
+    }
+}
+
+/// Fills `rows` rows of `row_len` values each, row by row over the available
+/// threads (at most 8): `fill(row, out)` computes row `row`.
+pub fn build<T: Copy + Default + Send>(rows: usize, row_len: usize, fill: impl Fn(usize, &mut [T]) + Sync) -> Vec<T> {
+    let mut values = vec![T::default(); rows * row_len];
+    let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1).clamp(1, 8);
+    let per = rows.div_ceil(threads).max(1);
+    std::thread::scope(|s| {
+        for (t, chunk) in values.chunks_mut(per * row_len).enumerate() {
+            let fill = &fill;
+            s.spawn(move || {
+                for (r, out) in chunk.chunks_mut(row_len).enumerate() {
+                    fill(t * per + r, out);
+                }
+            });
+        }
+    });
+    values
+}

@@ -1,6 +1,10 @@
 //! What every random walk over the microsurface shares, whichever paper it
 //! implements: Russian roulette, the uniform numbers of a sampled vertex and
-//! the Lambertian direction of a diffuse facet.
+//! the Lambertian direction of a diffuse facet; and the bidirectional
+//! estimator of a position-free path integral (`bdpt.rs`), written once for
+//! every surface.
+
+pub mod bdpt;
 
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;

@@ -50,6 +50,7 @@
 
 use crate::models::{Microsurface, WalkOptions};
 use crate::walk::{cosine_about, russian_roulette};
+use crate::microfacet::dielectric::{eta_seen, radiance_scale, refract_unit, valid_ior};
 use crate::microfacet::{fresnel, reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
@@ -149,22 +150,6 @@ pub fn flip_height(t: f64) -> f64 {
 // ---------------------------------------------------------------------------
 // Small geometry helpers.
 
-/// Refraction of `w` (pointing away from the facet, w·m = `cos_i` > 0) through
-/// the facet m with relative IOR `eta` = η_t/η_i. `None` under TIR.
-#[inline]
-pub(crate) fn refract(w: DVec3, m: DVec3, cos_i: f64, eta: f64) -> Option<DVec3> {
-    let sin2_t = (1.0 - cos_i * cos_i).max(0.0) / (eta * eta);
-    if sin2_t >= 1.0 {
-        return None;
-    }
-    let cos_t = (1.0 - sin2_t).sqrt();
-    let o = m * (cos_i / eta - cos_t) - w / eta;
-    let len = o.length();
-    if !(len > 0.0) || !len.is_finite() {
-        return None;
-    }
-    Some(o / len)
-}
 
 #[inline]
 pub(crate) fn local(v: DVec3, outside: bool) -> DVec3 {
@@ -261,32 +246,8 @@ impl<'a> Mat<'a> {
     }
 }
 
-/// Relative IOR η_t/η_i seen from the current side.
-#[inline]
-pub(crate) fn eta_side(eta: f64, outside: bool) -> f64 {
-    if outside {
-        eta
-    } else {
-        1.0 / eta
-    }
-}
 
-/// 1/η_rel² for a dielectric result that crossed the macro surface in
-/// Radiance mode (η_rel from the ω_i side to the ω_o side), else 1.
-#[inline]
-pub(crate) fn radiance_scale(eta: f64, radiance: bool, wi_outside: bool, wo_outside: bool) -> f64 {
-    if radiance && wi_outside != wo_outside {
-        let e = eta_side(eta, wi_outside);
-        1.0 / (e * e)
-    } else {
-        1.0
-    }
-}
 
-#[inline]
-pub(crate) fn valid_dielectric_eta(eta: f64) -> bool {
-    eta.is_finite() && eta > 0.0
-}
 
 /// Result of scattering at a vertex: the new travel direction (local frame of
 /// the new side), whether the side changed, and the vertex weight.
@@ -309,12 +270,11 @@ fn scatter(mat: &Mat, wi: DVec3, m: DVec3, outside: bool, ua: f64, ub: f64) -> O
         Mat::Conductor(fr) => Some(Scatter { dir: reflect(wi, m), crossed: false, weight: fr.eval(c) }),
         Mat::Diffuse(albedo) => Some(Scatter { dir: cosine_about(m, ua, ub), crossed: false, weight: *albedo }),
         Mat::Dielectric { eta, .. } => {
-            let e = eta_side(*eta, outside);
-            let f = fresnel::dielectric(c, e);
-            if ua < f {
+            let e = eta_seen(*eta, outside);
+            if ua < fresnel::dielectric(c, e) {
                 return Some(Scatter { dir: reflect(wi, m), crossed: false, weight: Spectrum::ONE });
             }
-            match refract(wi, m, c, e) {
+            match refract_unit(wi, m, c, e) {
                 // In the new side's frame (point reflection) the ray travels upward.
                 Some(o) => Some(Scatter { dir: -o, crossed: true, weight: Spectrum::ONE }),
                 None => Some(Scatter { dir: reflect(wi, m), crossed: false, weight: Spectrum::ONE }),
@@ -371,7 +331,7 @@ fn valid_incidence(mat: &Mat, wi: DVec3) -> bool {
     }
     match mat {
         Mat::Conductor(_) | Mat::Diffuse(_) => wi.z > 0.0,
-        Mat::Dielectric { eta, .. } => wi.z != 0.0 && valid_dielectric_eta(*eta),
+        Mat::Dielectric { eta, .. } => wi.z != 0.0 && valid_ior(*eta),
     }
 }
 
@@ -443,7 +403,7 @@ pub fn eval_from(mf: &Microfacet, surf: &Microsurface, wo: DVec3, state: WalkSta
                     None => Spectrum::ZERO,
                 },
                 Mat::Dielectric { eta, .. } => {
-                    let e = eta_side(eta, outside);
+                    let e = eta_seen(eta, outside);
                     if wo_outside == outside {
                         Spectrum::splat(dielectric_phase(mf, wi_l, wo_l, e, true) * masking_at(mf, wo_l, t))
                     } else {
@@ -589,6 +549,36 @@ pub fn sample_from(
         if !russian_roulette(&mut throughput, rng) {
             return None;
         }
+    }
+}
+
+/// `model="heitz"`.
+#[derive(Clone, Copy, Debug)]
+pub struct Heitz;
+
+impl super::ScatteringModel for Heitz {
+    fn surfaces(&self) -> &'static [crate::bsdf::Surface] {
+        use crate::bsdf::Surface;
+        &[Surface::Conductor, Surface::Dielectric, Surface::Diffuse]
+    }
+
+    fn eval(&self, call: &super::Call, wi: DVec3, wo: DVec3) -> Spectrum {
+        let v = eval(&call.mf, &call.surf, wi, wo, &call.walk(super::posfree::Segments::Correlated), &mut call.rng());
+        match call.surf {
+            // The dielectric walk carries one value in every channel.
+            Microsurface::Dielectric { .. } => Spectrum::splat(v.0[0]),
+            _ => v,
+        }
+    }
+
+    fn pdf(&self, call: &super::Call, wi: DVec3, wo: DVec3) -> f64 {
+        super::mis::walk_pdf(call, super::mis::OrderOneExit::HeightCorrelated, false, wi, wo)
+    }
+
+    fn sample(&self, call: &super::Call, wi: DVec3, first: (f64, f64, f64)) -> Option<super::Sampled> {
+        let (wo, w, order) = sample(&call.mf, &call.surf, wi, first, &call.walk(super::posfree::Segments::Correlated), &mut call.rng())?;
+        let weight = if let Microsurface::Dielectric { .. } = call.surf { Spectrum::splat(w.0[0]) } else { w };
+        Some(super::Sampled { wo, weight, order, pdf: None })
     }
 }
 

@@ -61,6 +61,7 @@
 use crate::models::heitz::{self, WalkState};
 use crate::models::{Microsurface, WalkOptions};
 use crate::walk::{russian_roulette, vertex_numbers};
+use crate::microfacet::dielectric::{eta_seen, radiance_scale, refract_unit, valid_ior};
 use crate::microfacet::{fresnel, reflect, Microfacet};
 use crate::models::posfree::dielectric::l_beta;
 use crate::rng::Sampler;
@@ -241,18 +242,13 @@ impl PieceChain {
     }
 }
 
-/// Relative IOR η_t/η_i seen from the current side (η outside, 1/η inside).
-#[inline]
-fn eta_side(eta: f64, outside: bool) -> f64 {
-    heitz::eta_side(eta, outside)
-}
 
 /// One unbiased estimate of f(ω_i, ω_o)·|cos θ_o| of the rough dielectric
 /// (Heitz's microsurface, relative IOR `eta` = η_int/η_ext) with the heights
 /// of the first run integrated out (module docs), orders `opts.orders`, at most
 /// `opts.max_bounces` vertices. Radiance mode scales a transmission by 1/η_rel².
 pub fn eval(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> f64 {
-    if !wi.is_finite() || !wo.is_finite() || wi.z == 0.0 || wo.z == 0.0 || !heitz::valid_dielectric_eta(eta) {
+    if !wi.is_finite() || !wo.is_finite() || wi.z == 0.0 || wo.z == 0.0 || !valid_ior(eta) {
         return 0.0;
     }
     let last = opts.orders.1.min(opts.max_bounces);
@@ -262,7 +258,7 @@ pub fn eval(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opt
     let surf = Microsurface::Dielectric { eta, radiance };
     let outside = wi.z > 0.0;
     let same_side = (wo.z > 0.0) == outside;
-    let e = eta_side(eta, outside);
+    let e = eta_seen(eta, outside);
     let wo_l = heitz::local(wo, outside);
     // Λ of ω_o in the frame of the medium it leaves into.
     let lambda_o = if same_side { mf.lambda(wo_l) } else { mf.lambda(-wo_l) };
@@ -300,7 +296,7 @@ pub fn eval(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opt
         let c = w.dot(m);
         let f = fresnel::dielectric(c, e);
         if rng.next() >= f {
-            if let Some(o) = heitz::refract(w, m, c, e) {
+            if let Some(o) = refract_unit(w, m, c, e) {
                 // Leave the exact part: sample the vertex depth, continue as Heitz.
                 let tau = chain.sample_depth(rng);
                 let state = WalkState::after_refraction(outside, o, -tau, Spectrum::splat(throughput), order + 1);
@@ -331,7 +327,7 @@ pub fn eval(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opt
         }
         w = -d;
     }
-    let scale = heitz::radiance_scale(eta, radiance, outside, wo.z > 0.0);
+    let scale = radiance_scale(eta, radiance, outside, wo.z > 0.0);
     let v = result * scale;
     if v.is_finite() && v > 0.0 {
         v
@@ -357,7 +353,7 @@ pub fn sample(
     opts: &WalkOptions,
     rng: &mut Sampler,
 ) -> Option<(DVec3, f64, u32)> {
-    if !wi.is_finite() || wi.z == 0.0 || !heitz::valid_dielectric_eta(eta) {
+    if !wi.is_finite() || wi.z == 0.0 || !valid_ior(eta) {
         return None;
     }
     let last = opts.orders.1.min(opts.max_bounces);
@@ -366,7 +362,7 @@ pub fn sample(
     }
     let surf = Microsurface::Dielectric { eta, radiance };
     let outside = wi.z > 0.0;
-    let e = eta_side(eta, outside);
+    let e = eta_seen(eta, outside);
     let mut w = heitz::local(wi, outside);
     let l0 = mf.abs_lambda(-w);
     if !l0.is_finite() {
@@ -374,7 +370,7 @@ pub fn sample(
     }
     let mut chain = PieceChain::new(l0);
     let finish = |wo: DVec3, weight: f64, order: u32| -> Option<(DVec3, f64, u32)> {
-        let weight = weight * heitz::radiance_scale(eta, radiance, outside, wo.z > 0.0);
+        let weight = weight * radiance_scale(eta, radiance, outside, wo.z > 0.0);
         (wo.is_finite() && wo.z != 0.0 && weight.is_finite() && order >= opts.orders.0).then_some((wo, weight, order))
     };
     for j in 0..last {
@@ -384,7 +380,7 @@ pub fn sample(
         let c = w.dot(m);
         let f = fresnel::dielectric(c, e);
         if u_choice >= f {
-            if let Some(o) = heitz::refract(w, m, c, e) {
+            if let Some(o) = refract_unit(w, m, c, e) {
                 let tau = chain.sample_depth(rng);
                 let state = WalkState::after_refraction(outside, o, -tau, Spectrum::ONE, order + 1);
                 let (wo, weight, k) = heitz::sample_from(mf, &surf, state, None, opts, rng)?;

@@ -15,3 +15,46 @@ pub mod general;
 pub mod recursion;
 
 pub use recursion::{p_exit, p_exit_error_study, p_exit_with_bound, segment_term, segment_term_monotone, MonotoneExit};
+
+use super::mis::{walk_pdf, OrderOneExit};
+use super::posfree::Segments;
+use super::{Call, Microsurface, Sampled, ScatteringModel};
+use crate::bsdf::Surface;
+use crate::spectrum::Spectrum;
+use glam::DVec3;
+
+/// `model="invariance"`.
+#[derive(Clone, Copy, Debug)]
+pub struct Invariance;
+
+impl ScatteringModel for Invariance {
+    fn surfaces(&self) -> &'static [Surface] {
+        &[Surface::Conductor, Surface::Dielectric, Surface::Diffuse]
+    }
+
+    fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
+        let (opts, mf, rng) = (&call.walk(Segments::Correlated), &call.mf, &mut call.rng());
+        match call.surf {
+            Microsurface::Conductor(fresnel) => conductor::eval(mf, &fresnel, wi, wo, opts, rng),
+            Microsurface::Dielectric { eta, radiance } => Spectrum::splat(dielectric::eval(mf, eta, radiance, wi, wo, opts, rng)),
+            Microsurface::Diffuse { .. } => general::eval(mf, &call.surf, wi, wo, opts, rng),
+        }
+    }
+
+    fn pdf(&self, call: &Call, wi: DVec3, wo: DVec3) -> f64 {
+        walk_pdf(call, OrderOneExit::HeightCorrelated, false, wi, wo)
+    }
+
+    fn sample(&self, call: &Call, wi: DVec3, first: (f64, f64, f64)) -> Option<Sampled> {
+        let (opts, mf, rng) = (&call.walk(Segments::Correlated), &call.mf, &mut call.rng());
+        let (wo, weight, order) = match call.surf {
+            Microsurface::Conductor(fresnel) => conductor::sample(mf, &fresnel, wi, first, opts, rng)?,
+            Microsurface::Dielectric { eta, radiance } => {
+                let (wo, w, order) = dielectric::sample(mf, eta, radiance, wi, first, opts, rng)?;
+                (wo, Spectrum::splat(w), order)
+            }
+            Microsurface::Diffuse { .. } => general::sample(mf, &call.surf, wi, first, opts, rng)?,
+        };
+        Some(Sampled { wo, weight, order, pdf: None })
+    }
+}

@@ -1,11 +1,12 @@
 //! Position-free multiple scattering on specular conductor facets (Wang et
 //! al. 2022 §3, eqs. 1–2, 7–11, 17–18): the PT estimator with next-event
-//! estimation and the random-walk sampler. The pair factors of the segment
+//! estimation, the random-walk sampler and the vertex terms of the
+//! bidirectional estimator (`walk/bdpt.rs`). The pair factors of the segment
 //! models are in `mod.rs`.
 
 use super::{roulette_importance, Segments};
 use crate::models::{ConductorFresnel, WalkOptions};
-use crate::walk::{russian_roulette_keep, vertex_numbers};
+use crate::walk::{bdpt, russian_roulette_keep, vertex_numbers};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
@@ -176,4 +177,227 @@ pub fn sample_walk(
         w = -d_next;
     }
     None
+}
+
+// ---------------------------------------------------------------------------
+// The bidirectional estimator (Wang 2022 §4.2, eqs. 27–29; src/walk/bdpt.rs).
+//
+// With L_j = |Λ(d_j)| and the pair factors of `mod.rs`, eq. 1 factors into
+// one term per vertex j, each depending on the two directions around it only:
+//
+//   f = Π_{j=0}^{k−1} φ_j(d_j, d_{j+1}),
+//   φ_j = F_j·D(h_j)/(4|cos d_j|) · g_j,    h_j = normalize(−d_j + d_{j+1}),
+//   g_j = cont(L_j, d_{j+1})/L_j   (j < k−1;  cont = Segments::continue_up for
+//                                   an upward d_{j+1}, 1 for a downward one)
+//   g_{k−1} = Segments::last(L_{k−1}, Λ(ω_o)).
+//
+// Sampling densities (solid angle), with A(ω) = ∫⟨ω,m⟩D(m)dm the projected
+// area (A(−d_j) = |cos d_j|·L_j):
+// - camera step at vertex j: m ~ D_{−d_j}, d_{j+1} = reflect(−d_j, m):
+//   pf_j = D_{−d_j}(h_j)/(4⟨−d_j,h_j⟩) = D(h_j) / (4 A(−d_j)), so φ_j/pf_j = F_j·cont;
+// - light step at vertex j: m ~ D_{d_{j+1}}, −d_j = reflect(d_{j+1}, m):
+//   pr_j = D(h_j) / (4 A(d_{j+1})) (the sign flip d ↦ −d preserves solid angle),
+//   so φ_j/pr_j = F_j·A(d_{j+1})·g_j/|cos d_j| (D cancels).
+
+/// Smith quantities of a direction d from one Λ evaluation:
+/// (L = |Λ(d)|, A(d), A(−d)), with A(d) = |cos d|·|Λ(−d)| and A(−d) = |cos d|·L.
+/// Λ of the upward direction with the same slope, u ≥ 0, gives |Λ(d)| = u
+/// (d up) or 1 + u (d down) without cancellation (docs/paper-notes.md).
+#[inline]
+pub(crate) fn smith(mf: &Microfacet, d: DVec3) -> (f64, f64, f64) {
+    let u = mf.lambda(DVec3::new(d.x, d.y, d.z.abs()));
+    let c = d.z.abs();
+    if d.z >= 0.0 {
+        (u, c * (1.0 + u), c * u)
+    } else {
+        (1.0 + u, c * u, c * (1.0 + u))
+    }
+}
+
+/// g_j · L_j for a middle vertex: the continue factor of the next direction.
+#[inline]
+pub(crate) fn cont(seg: Segments, l: f64, next: DVec3, l_next: f64) -> f64 {
+    if next.z > 0.0 {
+        seg.continue_up(l, l_next)
+    } else {
+        1.0
+    }
+}
+
+/// A camera vertex: d_s, L_s, A(−d_s) and the prefix f/p (Π F·cont).
+#[derive(Clone, Copy, Default)]
+pub(crate) struct CamVertex {
+    pub d: DVec3,
+    pub l: f64,
+    pub area_back: f64,
+    pub thr: Spectrum,
+}
+
+/// A light vertex: e_t = d_{k−t}, |Λ(e_t)|, A(e_t) and Π φ/pr of its t steps.
+#[derive(Clone, Copy, Default)]
+pub(crate) struct LightVertex {
+    pub e: DVec3,
+    pub l: f64,
+    pub area: f64,
+    pub w: Spectrum,
+}
+
+/// The conductor's vertex terms for `walk::bdpt`.
+struct Bidirectional<'a> {
+    mf: &'a Microfacet,
+    fresnel: &'a ConductorFresnel,
+    seg: Segments,
+    wi: DVec3,
+    wo: DVec3,
+    lambda_o: f64,
+}
+
+impl Bidirectional<'_> {
+    /// g_j of the vertex between an arriving direction with |Λ| = `l` and the
+    /// next direction `next` (|Λ(next)| = `l_next`; ω_o when `last`).
+    #[inline]
+    fn g(&self, l: f64, next: DVec3, l_next: f64, last: bool) -> f64 {
+        if last {
+            self.seg.last(l, self.lambda_o)
+        } else {
+            cont(self.seg, l, next, l_next) / l
+        }
+    }
+}
+
+impl bdpt::BdptSurface for Bidirectional<'_> {
+    type Cam = CamVertex;
+    type Light = LightVertex;
+    /// φ_s and the cosine of the connecting facet.
+    type Conn = (f64, f64);
+    type Value = Spectrum;
+
+    fn camera_start(&self) -> CamVertex {
+        let l0 = 1.0 + self.mf.lambda(self.wi);
+        CamVertex { d: -self.wi, l: l0, area_back: self.mf.projected_area(self.wi), thr: Spectrum::ONE }
+    }
+
+    fn camera_ready(&self, v: &CamVertex) -> bool {
+        v.l > 0.0 && v.l.is_finite() && v.area_back > 0.0
+    }
+
+    fn camera_step(&self, v: &mut CamVertex, s: usize, rng: &mut Sampler) -> Option<bdpt::Step<CamVertex>> {
+        let w = -v.d;
+        let (u1, u2) = rng.next2();
+        let m = self.mf.sample_visible(w, u1, u2)?;
+        let cos_wm = w.dot(m);
+        if cos_wm <= 0.0 {
+            return None;
+        }
+        let d_next = reflect(w, m);
+        let (l_next, area_next, area_back_next) = smith(self.mf, d_next);
+        let dm = self.mf.d(m);
+        let pf = dm / (4.0 * v.area_back);
+        if !(pf > 0.0) || !pf.is_finite() || !(area_next > 0.0) {
+            return None;
+        }
+        let p_rev = if s >= 1 { dm / (4.0 * area_next) } else { 0.0 };
+        let thr = v.thr * self.fresnel.eval(cos_wm) * cont(self.seg, v.l, d_next, l_next);
+        Some(bdpt::Step { vertex: CamVertex { d: d_next, l: l_next, area_back: area_back_next, thr }, p_in: pf, p_rev })
+    }
+
+    fn light_start(&self) -> LightVertex {
+        LightVertex { e: self.wo, l: self.lambda_o, area: self.mf.projected_area(self.wo), w: Spectrum::ONE }
+    }
+
+    fn light_ready(&self, v: &LightVertex) -> bool {
+        v.area > 0.0 && v.area.is_finite()
+    }
+
+    fn light_step(&self, v: &LightVertex, t: usize, rng: &mut Sampler) -> Option<bdpt::Step<LightVertex>> {
+        let (u1, u2) = rng.next2();
+        let m = self.mf.sample_visible(v.e, u1, u2)?;
+        let cos_em = v.e.dot(m);
+        if cos_em <= 0.0 {
+            return None;
+        }
+        let e_next = -reflect(v.e, m); // d_j, arriving at vertex j = k−1−t
+        let (l_next, area_next, area_back_next) = smith(self.mf, e_next);
+        let cos_next = e_next.z.abs();
+        if !(l_next > 0.0) || !l_next.is_finite() || !(cos_next > 0.0) {
+            return None;
+        }
+        let dm = self.mf.d(m);
+        let pr = dm / (4.0 * v.area);
+        if !(pr > 0.0) || !pr.is_finite() || !(area_back_next > 0.0) {
+            return None;
+        }
+        // φ_j / pr_j = F·A(d_{j+1})·g_j / |cos d_j|.
+        let g = self.g(l_next, v.e, v.l, t == 0);
+        let w = v.w * self.fresnel.eval(cos_em) * (v.area * g / cos_next);
+        let p_rev = if t >= 1 { dm / (4.0 * area_back_next) } else { 0.0 };
+        Some(bdpt::Step { vertex: LightVertex { e: e_next, l: l_next, area: area_next, w }, p_in: pr, p_rev })
+    }
+
+    fn connect(&self, cv: &CamVertex, lv: &LightVertex, s: usize, t: usize) -> Option<bdpt::Connection<(f64, f64)>> {
+        if !(cv.thr.max_value() > 0.0) || !(lv.w.max_value() > 0.0) {
+            return None;
+        }
+        let cos_s = cv.d.z.abs();
+        if !(cv.l > 0.0) || !cv.l.is_finite() || !(cos_s > 0.0) || !(lv.area > 0.0) {
+            return None;
+        }
+        let h = -cv.d + lv.e;
+        let len = h.length();
+        if !(len > 0.0) {
+            return None;
+        }
+        let h = h / len;
+        let cos_h = -cv.d.dot(h);
+        if h.z <= 0.0 || cos_h <= 0.0 {
+            return None;
+        }
+        let dh = self.mf.d(h);
+        if !(dh > 0.0) {
+            return None;
+        }
+        let phi = dh * self.g(cv.l, lv.e, lv.l, t == 0) / (4.0 * cos_s);
+        let pr = if s >= 1 { dh / (4.0 * lv.area) } else { 0.0 };
+        let pf = if t >= 1 { dh / (4.0 * cv.area_back) } else { 0.0 };
+        Some(bdpt::Connection { pr, pf, data: (phi, cos_h) })
+    }
+
+    fn weighted(&self, conn: &bdpt::Connection<(f64, f64)>, cv: &CamVertex, lv: &LightVertex, denom: f64) -> Option<Spectrum> {
+        let (phi, cos_h) = conn.data;
+        let weight = phi / denom;
+        weight.is_finite().then(|| cv.thr * lv.w * self.fresnel.eval(cos_h) * weight)
+    }
+
+    fn pt_tail(&self, cv: &CamVertex, kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
+        let state = PtState { w: -cv.d, l: cv.l, throughput: cv.thr };
+        pt_walk(self.mf, self.fresnel, self.wo, self.lambda_o, self.seg, state, kb, orders, kb + RR_START, rng)
+    }
+}
+
+/// BDPT estimate of f(ω_i, ω_o)·cos θ_o with the default number of
+/// bidirectional orders ([`bdpt::DEFAULT_BDPT_ORDERS`]).
+pub fn eval_bdpt(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
+    eval_bdpt_with(mf, fresnel, wi, wo, opts, bdpt::DEFAULT_BDPT_ORDERS, rng)
+}
+
+/// BDPT estimate with orders 1..=`bdpt_orders` bidirectional (clamped to
+/// 1..=[`bdpt::MAX_BDPT_ORDERS`]) and higher orders by path tracing.
+pub fn eval_bdpt_with(
+    mf: &Microfacet,
+    fresnel: &ConductorFresnel,
+    wi: DVec3,
+    wo: DVec3,
+    opts: &WalkOptions,
+    bdpt_orders: u32,
+    rng: &mut Sampler,
+) -> Spectrum {
+    if wi.z < 0.0 && wo.z > 0.0 {
+        // ω_i below the macro surface (normal mapping): the PT estimator, which covers it (same expectation).
+        return eval_pt(mf, fresnel, wi, wo, opts, rng);
+    }
+    if wi.z <= 0.0 || wo.z <= 0.0 {
+        return Spectrum::ZERO;
+    }
+    let surface = Bidirectional { mf, fresnel, seg: opts.segments, wi, wo, lambda_o: mf.lambda(wo) };
+    bdpt::estimate(&surface, (opts.orders.0.max(1), opts.orders.1.min(opts.max_bounces)), bdpt_orders, rng)
 }

@@ -64,9 +64,10 @@
 
 use super::{roulette_importance, Segments};
 use crate::models::WalkOptions;
-use crate::walk::roulette_scalar;
+use crate::walk::{bdpt, roulette_scalar};
+use crate::microfacet::dielectric::{eta_seen, radiance_scale, reflect_or_refract, valid_ior};
 use crate::microfacet::fresnel::dielectric_full;
-use crate::microfacet::{reflect, refract, Microfacet};
+use crate::microfacet::Microfacet;
 use crate::rng::Sampler;
 use glam::DVec3;
 
@@ -200,7 +201,7 @@ impl State {
     fn new(mf: &Microfacet, eta: f64, wi: DVec3) -> State {
         let side = if wi.z > 0.0 { 1.0 } else { -1.0 };
         let w = side * wi;
-        State { w, l: mf.abs_lambda(-w), side, eta_f: if side > 0.0 { eta } else { 1.0 / eta } }
+        State { w, l: mf.abs_lambda(-w), side, eta_f: eta_seen(eta, side > 0.0) }
     }
 }
 
@@ -213,28 +214,16 @@ fn scatter(mf: &Microfacet, st: &mut State, u_choice: f64, u1: f64, u2: f64) -> 
     if !(cos_wm > 0.0) {
         return None;
     }
-    let (f, cos_t, _eta_it, eta_ti) = dielectric_full(cos_wm, st.eta_f);
-    if u_choice < f {
-        Some((reflect(st.w, m), false, f))
-    } else {
-        let d = refract(st.w, m, cos_t, eta_ti);
-        // Switch to the other medium's frame.
-        st.side = -st.side;
-        st.eta_f = 1.0 / st.eta_f;
-        Some((-d, true, f))
+    let (d, refracted, f) = reflect_or_refract(st.w, m, cos_wm, st.eta_f, u_choice);
+    if !refracted {
+        return Some((d, false, f));
     }
+    // Switch to the other medium's frame.
+    st.side = -st.side;
+    st.eta_f = 1.0 / st.eta_f;
+    Some((-d, true, f))
 }
 
-/// Radiance-mode factor (η_i/η_o)² of the macro pair (1 for reflection or Importance mode).
-#[inline]
-fn mode_scale(eta: f64, radiance: bool, wi: DVec3, wo_z: f64) -> f64 {
-    if radiance && wi.z * wo_z < 0.0 {
-        let eta_r = if wi.z > 0.0 { eta } else { 1.0 / eta };
-        1.0 / (eta_r * eta_r)
-    } else {
-        1.0
-    }
-}
 
 /// First vertex at which Russian roulette may end a path (as posfree.rs).
 const RR_START: u32 = 1;
@@ -249,7 +238,7 @@ pub(crate) const RR_NEE_GAIN: f64 = 100.0;
 
 #[inline]
 fn valid_inputs(eta: f64, wi: DVec3) -> bool {
-    eta > 0.0 && eta.is_finite() && wi.z != 0.0 && wi.is_finite()
+    valid_ior(eta) && wi.z != 0.0 && wi.is_finite()
 }
 
 /// PT estimator with next-event estimation to ω_o at every vertex: one unbiased
@@ -260,29 +249,49 @@ pub fn eval_pt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, 
     if !valid_inputs(eta, wi) || wo.z == 0.0 || !wo.is_finite() {
         return (0.0, is_reflection);
     }
-    let seg = opts.segments;
-    let mut st = State::new(mf, eta, wi);
+    let orders = (opts.orders.0, opts.orders.1.min(opts.max_bounces));
+    let result = pt_walk(mf, opts.segments, wo, State::new(mf, eta, wi), 1.0, 0, orders, RR_START, rng);
+    (result * radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0), is_reflection)
+}
+
+/// The PT-with-NEE walk from vertex `first_vertex` (0-based) on, the light
+/// arriving in `st` with throughput `throughput`: at each vertex close the
+/// path towards ω_o (by reflection on ω_o's side, by transmission across),
+/// play Russian roulette from vertex `rr_start` on, then scatter. Orders
+/// `orders` (the upper one within the bounce cap). No Radiance-mode 1/η² (the
+/// caller applies it once). Shared by `eval_pt` and the BDPT's tail.
+#[allow(clippy::too_many_arguments)]
+fn pt_walk(
+    mf: &Microfacet,
+    seg: Segments,
+    wo: DVec3,
+    mut st: State,
+    mut throughput: f64,
+    first_vertex: u32,
+    orders: (u32, u32),
+    rr_start: u32,
+    rng: &mut Sampler,
+) -> f64 {
     // ω_o's Λ in the frame of the medium it exits into (upward there).
     let wo_up = if wo.z > 0.0 { wo } else { -wo };
     let lambda_o = mf.lambda(wo_up);
-    let mut throughput = 1.0f64;
     let mut result = 0.0f64;
-    for j in 0..opts.max_bounces {
+    for j in first_vertex..orders.1 {
         let order = j + 1;
         // Next-event value at this vertex (without the throughput): ω_o on the
         // walk's side is reached by reflection, otherwise by transmission.
         let o = st.side * wo; // ω_o in the current frame
         let lst = last(seg, o.z < 0.0, st.l, lambda_o);
-        let v = if order >= opts.orders.0 && order <= opts.orders.1 {
+        let v = if order >= orders.0 {
             lst * if o.z > 0.0 { vertex_reflect(mf, st.eta_f, st.w, o) } else { vertex_transmit(mf, st.eta_f, st.w, o) }
         } else {
             0.0
         };
-        if j >= RR_START && !roulette_scalar(&mut throughput, rng, 1.0 / roulette_importance(v, lst, RR_NEE_GAIN)) {
+        if j >= rr_start && !roulette_scalar(&mut throughput, rng, 1.0 / roulette_importance(v, lst, RR_NEE_GAIN)) {
             break;
         }
         result += throughput * v;
-        if order >= opts.orders.1 {
+        if order >= orders.1 {
             break;
         }
         let u_choice = rng.next();
@@ -300,7 +309,7 @@ pub fn eval_pt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, 
         }
         st.w = -d;
     }
-    (result * mode_scale(eta, radiance, wi, wo.z), is_reflection)
+    result
 }
 
 /// Random-walk sampler: at each vertex m ~ D_w, reflect with probability F or
@@ -341,7 +350,7 @@ pub fn sample_walk(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, first: 
             };
             if u_exit >= c {
                 let wo = st.side * d;
-                return Some((wo, mode_scale(eta, radiance, wi, wo.z), j + 1));
+                return Some((wo, radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0), j + 1));
             }
             st.l = lambda;
         } else {
@@ -350,4 +359,280 @@ pub fn sample_walk(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, first: 
         st.w = -d;
     }
     None
+}
+
+// ---------------------------------------------------------------------------
+// The bidirectional estimator (Wang 2022 §4.2 applied to eqs. 2–3, 12–23;
+// src/walk/bdpt.rs).
+//
+// Directions with media: every d_j is kept in global coordinates together
+// with the medium it travels in (side σ_j = +1 outside, −1 inside); in that
+// medium's frame it is σ_j·d_j (the frames above). σ_0 = sign(ω_i.z),
+// σ_k = sign(ω_o.z); the inner media are whatever the subpaths sampled. Vertex
+// j is a reflection when σ_j = σ_{j+1} and a refraction otherwise, so any
+// camera vertex can be joined to any light vertex.
+//
+// Factors: with v(a → b) the vertex term of light arriving along a (medium
+// σ_a) and leaving along b (medium σ_b), evaluated in a's frame (w = −σ_a a,
+// o = σ_a b, η_f of σ_a) and L_j = |Λ(σ_j d_j)|, the forward path contribution
+// is f = Π_{j<k} φ_j with φ_j = v(d_j → d_{j+1})·g_j, g_j = c_j/L_j (j < k−1)
+// and g_{k−1} = last(…), times Radiance mode's 1/η_r² of the macro pair once.
+//
+// Densities: sampling m ~ D_w (w = −σ_a a) and reflecting with probability F /
+// refracting with 1 − F gives b the density q(a → b) = v(a → b)/|Λ(σ_a a)|.
+// The camera step at vertex j samples d_{j+1} with pf_j = q(d_j → d_{j+1});
+// the light step samples the reversed ray: it arrives along −d_{j+1} in medium
+// σ_{j+1} and scatters with the same sampler to −d_j, so
+// pr_j = q(−d_{j+1} → −d_j).
+
+/// A path direction: global coordinates, medium side, |Λ| of it and of its
+/// reverse in its own frame.
+#[derive(Clone, Copy)]
+struct Dir {
+    g: DVec3,
+    side: f64,
+    /// |Λ(σ d)|: L of the vertex it arrives at.
+    l: f64,
+    /// |Λ(−σ d)|: normaliser of the reversed sampling from this direction.
+    r: f64,
+}
+
+impl Default for Dir {
+    fn default() -> Self {
+        Dir { g: DVec3::ZERO, side: 1.0, l: 0.0, r: 0.0 }
+    }
+}
+
+impl Dir {
+    fn new(mf: &Microfacet, g: DVec3, side: f64) -> Dir {
+        let loc = side * g;
+        let u = mf.lambda(DVec3::new(loc.x, loc.y, loc.z.abs()));
+        let (l, r) = if loc.z >= 0.0 { (u, 1.0 + u) } else { (1.0 + u, u) };
+        Dir { g, side, l, r }
+    }
+
+    #[inline]
+    fn reversed(&self) -> Dir {
+        Dir { g: -self.g, side: self.side, l: self.r, r: self.l }
+    }
+
+    /// Λ(σ d) when σ d points up (its own frame), else None.
+    #[inline]
+    fn lambda_up(&self) -> Option<f64> {
+        if self.side * self.g.z > 0.0 {
+            Some(self.l)
+        } else {
+            None
+        }
+    }
+
+    /// The walk state of light arriving along this direction.
+    fn state(&self, eta: f64) -> State {
+        State { w: -self.side * self.g, l: self.l, side: self.side, eta_f: eta_seen(eta, self.side > 0.0) }
+    }
+}
+
+
+/// The camera vertex: d_s and the prefix f/p (Π c).
+#[derive(Clone, Copy, Default)]
+struct CamDir {
+    d: Dir,
+    thr: f64,
+}
+
+/// The light vertex: e_t = d_{k−t} and Π φ/pr of its t steps.
+#[derive(Clone, Copy, Default)]
+struct LightDir {
+    e: Dir,
+    w: f64,
+}
+
+/// The dielectric's vertex terms for `walk::bdpt`.
+struct Bidirectional<'a> {
+    mf: &'a Microfacet,
+    eta: f64,
+    seg: Segments,
+    d0: Dir,
+    dk: Dir,
+    wo: DVec3,
+}
+
+impl Bidirectional<'_> {
+    /// v(a → b): vertex term in a's frame.
+    #[inline]
+    fn vtx(&self, a: &Dir, b: &Dir) -> f64 {
+        let w = -a.side * a.g;
+        let o = a.side * b.g;
+        let ef = eta_seen(self.eta, a.side > 0.0);
+        if a.side == b.side {
+            vertex_reflect(self.mf, ef, w, o)
+        } else {
+            vertex_transmit(self.mf, ef, w, o)
+        }
+    }
+
+    /// c of b after a vertex from a (1 for b going down in its frame).
+    #[inline]
+    fn cont(&self, a: &Dir, b: &Dir) -> f64 {
+        match b.lambda_up() {
+            Some(lam) => continue_up(self.seg, a.side != b.side, a.l, lam),
+            None => 1.0,
+        }
+    }
+
+    /// g_j for the vertex from a to b; `b_is_last`: b = ω_o.
+    #[inline]
+    fn g(&self, a: &Dir, b: &Dir, b_is_last: bool) -> f64 {
+        if b_is_last {
+            last(self.seg, a.side != b.side, a.l, self.dk.l)
+        } else {
+            self.cont(a, b) / a.l
+        }
+    }
+
+    /// One sampling step from a (arriving): m ~ D_w, reflect with probability F.
+    #[inline]
+    fn scatter(&self, a: &Dir, rng: &mut Sampler) -> Option<Dir> {
+        let w = -a.side * a.g;
+        let u_choice = rng.next();
+        let (u1, u2) = rng.next2();
+        let m = self.mf.sample_visible(w, u1, u2)?;
+        let cos_wm = w.dot(m);
+        if !(cos_wm > 0.0) {
+            return None;
+        }
+        let (o, refracted, _) = reflect_or_refract(w, m, cos_wm, eta_seen(self.eta, a.side > 0.0), u_choice);
+        let side = if refracted { -a.side } else { a.side };
+        let g = a.side * o;
+        if !g.is_finite() || g.z == 0.0 {
+            return None;
+        }
+        let d = Dir::new(self.mf, g, side);
+        if !(d.l > 0.0) || !d.l.is_finite() || !(d.r > 0.0) || !d.r.is_finite() {
+            return None;
+        }
+        Some(d)
+    }
+}
+
+/// q(a → b) given v(a → b): the sampling density of b.
+#[inline]
+fn dens(v: f64, a: &Dir) -> f64 {
+    let p = v / a.l;
+    if p.is_finite() {
+        p
+    } else {
+        0.0
+    }
+}
+
+impl bdpt::BdptSurface for Bidirectional<'_> {
+    type Cam = CamDir;
+    type Light = LightDir;
+    /// φ_s.
+    type Conn = f64;
+    type Value = f64;
+
+    fn camera_start(&self) -> CamDir {
+        CamDir { d: self.d0, thr: 1.0 }
+    }
+
+    fn camera_ready(&self, v: &CamDir) -> bool {
+        v.d.l > 0.0 && v.d.l.is_finite() && v.thr > 0.0
+    }
+
+    fn camera_step(&self, v: &mut CamDir, s: usize, rng: &mut Sampler) -> Option<bdpt::Step<CamDir>> {
+        let dn = self.scatter(&v.d, rng)?;
+        let pf = dens(self.vtx(&v.d, &dn), &v.d);
+        if !(pf > 0.0) {
+            return None;
+        }
+        let p_rev = if s >= 1 { dens(self.vtx(&dn.reversed(), &v.d.reversed()), &dn.reversed()) } else { 0.0 };
+        let thr = v.thr * self.cont(&v.d, &dn);
+        Some(bdpt::Step { vertex: CamDir { d: dn, thr }, p_in: pf, p_rev })
+    }
+
+    fn light_start(&self) -> LightDir {
+        LightDir { e: self.dk, w: 1.0 }
+    }
+
+    fn light_ready(&self, v: &LightDir) -> bool {
+        v.w > 0.0
+    }
+
+    fn light_step(&self, v: &LightDir, t: usize, rng: &mut Sampler) -> Option<bdpt::Step<LightDir>> {
+        let rev = v.e.reversed();
+        let b = self.scatter(&rev, rng)?;
+        let dj = b.reversed(); // d_j, forward direction arriving at vertex j
+        let pr = dens(self.vtx(&rev, &b), &rev);
+        if !(pr > 0.0) || !(dj.l > 0.0) || !dj.l.is_finite() {
+            return None;
+        }
+        let vv = self.vtx(&dj, &v.e);
+        let w = v.w * (vv * self.g(&dj, &v.e, t == 0)) / pr;
+        let p_rev = if t >= 1 { dens(vv, &dj) } else { 0.0 };
+        Some(bdpt::Step { vertex: LightDir { e: dj, w: if w.is_finite() { w } else { 0.0 } }, p_in: pr, p_rev })
+    }
+
+    fn connect(&self, cv: &CamDir, lv: &LightDir, s: usize, t: usize) -> Option<bdpt::Connection<f64>> {
+        if !(cv.thr > 0.0) || !(lv.w > 0.0) || !(cv.d.l > 0.0) || !cv.d.l.is_finite() {
+            return None;
+        }
+        let v = self.vtx(&cv.d, &lv.e);
+        if !(v > 0.0) {
+            return None;
+        }
+        let phi = v * self.g(&cv.d, &lv.e, t == 0);
+        let pr = if s >= 1 {
+            let rev = lv.e.reversed();
+            dens(self.vtx(&rev, &cv.d.reversed()), &rev)
+        } else {
+            0.0
+        };
+        let pf = if t >= 1 { dens(v, &cv.d) } else { 0.0 };
+        Some(bdpt::Connection { pr, pf, data: phi })
+    }
+
+    fn weighted(&self, conn: &bdpt::Connection<f64>, cv: &CamDir, lv: &LightDir, denom: f64) -> Option<f64> {
+        let c = cv.thr * conn.data * lv.w / denom;
+        c.is_finite().then_some(c)
+    }
+
+    fn pt_tail(&self, cv: &CamDir, kb: u32, orders: (u32, u32), rng: &mut Sampler) -> f64 {
+        pt_walk(self.mf, self.seg, self.wo, cv.d.state(self.eta), cv.thr, kb, orders, kb + RR_START, rng)
+    }
+}
+
+/// BDPT estimate of f(ω_i, ω_o)·|cos θ_o| (orders `opts.orders`), default K_b.
+pub fn eval_bdpt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> f64 {
+    eval_bdpt_with(mf, eta, radiance, wi, wo, opts, bdpt::DEFAULT_BDPT_ORDERS, rng)
+}
+
+/// BDPT estimate with orders 1..=`bdpt_orders` bidirectional (clamped to
+/// 1..=[`bdpt::MAX_BDPT_ORDERS`]) and higher orders by path tracing.
+#[allow(clippy::too_many_arguments)]
+pub fn eval_bdpt_with(
+    mf: &Microfacet,
+    eta: f64,
+    radiance: bool,
+    wi: DVec3,
+    wo: DVec3,
+    opts: &WalkOptions,
+    bdpt_orders: u32,
+    rng: &mut Sampler,
+) -> f64 {
+    if !valid_inputs(eta, wi) || wo.z == 0.0 || !wo.is_finite() {
+        return 0.0;
+    }
+    let side_i = if wi.z > 0.0 { 1.0 } else { -1.0 };
+    let side_o = if wo.z > 0.0 { 1.0 } else { -1.0 };
+    let surface =
+        Bidirectional { mf, eta, seg: opts.segments, d0: Dir::new(mf, -wi, side_i), dk: Dir::new(mf, wo, side_o), wo };
+    let result = bdpt::estimate(&surface, (opts.orders.0.max(1), opts.orders.1.min(opts.max_bounces)), bdpt_orders, rng);
+    let value = result * radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0);
+    if value.is_finite() && value > 0.0 {
+        value
+    } else {
+        0.0
+    }
 }

@@ -6,7 +6,6 @@
 //! | `conductor.rs` | specular conductor facets: PT with next-event estimation (eqs. 24–26), the random-walk sampler (§4.3) |
 //! | `dielectric.rs` | a rough dielectric interface (vertex terms eqs. 2–3, segment terms eqs. 12–23) |
 //! | `diffuse.rs` | Lambertian facets (Fig. 6 "rough diffuse") |
-//! | `bdpt_*.rs` | the bidirectional estimator (§4.2, eqs. 27–29) of each surface |
 //!
 //!
 //! A path is d_0 = −ω_i, b_0, d_1, …, b_{k−1}, d_k = ω_o (eq. 1): vertex terms
@@ -30,9 +29,6 @@
 //! the refraction rows of `dielectric.rs`), and so is the Russian roulette of
 //! the walks (`roulette_importance`, docs/estimators.md).
 
-pub mod bdpt_conductor;
-pub mod bdpt_dielectric;
-pub mod bdpt_diffuse;
 pub mod conductor;
 pub mod dielectric;
 pub mod diffuse;
@@ -95,3 +91,62 @@ pub(crate) fn roulette_importance(nee: f64, last: f64, gain: f64) -> f64 {
 /// the vertices the next-event term does not see; at 0.05 it changed no
 /// measured variance (a safety net, not a tuning knob).
 pub(crate) const RR_LAST_WEIGHT: f64 = 0.05;
+
+use super::mis::{walk_pdf, OrderOneExit};
+use super::{Call, Microsurface, Sampled, ScatteringModel};
+use crate::bsdf::{Estimator, Surface};
+use crate::spectrum::Spectrum;
+use glam::DVec3;
+
+/// `model="uncorrelated"` / `"correlated"` with `estimator` PT or BDPT.
+#[derive(Clone, Copy, Debug)]
+pub struct PosFree {
+    pub segments: Segments,
+    pub estimator: Estimator,
+}
+
+impl ScatteringModel for PosFree {
+    fn surfaces(&self) -> &'static [Surface] {
+        &[Surface::Conductor, Surface::Dielectric, Surface::Diffuse]
+    }
+
+    fn estimators(&self) -> &'static [Estimator] {
+        &[Estimator::Pt, Estimator::Bdpt]
+    }
+
+    fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
+        let (opts, mf, rng) = (&call.walk(self.segments), &call.mf, &mut call.rng());
+        match (call.surf, self.estimator) {
+            (Microsurface::Conductor(fresnel), Estimator::Pt) => conductor::eval_pt(mf, &fresnel, wi, wo, opts, rng),
+            (Microsurface::Conductor(fresnel), Estimator::Bdpt) => conductor::eval_bdpt(mf, &fresnel, wi, wo, opts, rng),
+            (Microsurface::Dielectric { eta, radiance }, Estimator::Pt) => Spectrum::splat(dielectric::eval_pt(mf, eta, radiance, wi, wo, opts, rng).0),
+            (Microsurface::Dielectric { eta, radiance }, Estimator::Bdpt) => {
+                Spectrum::splat(dielectric::eval_bdpt(mf, eta, radiance, wi, wo, opts, rng))
+            }
+            (Microsurface::Diffuse { albedo }, Estimator::Pt) => diffuse::eval_pt(mf, albedo, wi, wo, opts, rng),
+            (Microsurface::Diffuse { albedo }, Estimator::Bdpt) => diffuse::eval_bdpt(mf, albedo, wi, wo, opts, rng),
+        }
+    }
+
+    fn pdf(&self, call: &Call, wi: DVec3, wo: DVec3) -> f64 {
+        let exit = match self.segments {
+            Segments::Uncorrelated => OrderOneExit::Separable,
+            Segments::Correlated => OrderOneExit::HeightCorrelated,
+        };
+        // The position-free walks also start below the macro surface (normal mapping).
+        walk_pdf(call, exit, true, wi, wo)
+    }
+
+    fn sample(&self, call: &Call, wi: DVec3, first: (f64, f64, f64)) -> Option<Sampled> {
+        let (opts, mf, rng) = (&call.walk(self.segments), &call.mf, &mut call.rng());
+        let (wo, weight, order) = match call.surf {
+            Microsurface::Conductor(fresnel) => conductor::sample_walk(mf, &fresnel, wi, first, opts, rng)?,
+            Microsurface::Dielectric { eta, radiance } => {
+                let (wo, w, order) = dielectric::sample_walk(mf, eta, radiance, wi, first, opts, rng)?;
+                (wo, Spectrum::splat(w), order)
+            }
+            Microsurface::Diffuse { albedo } => diffuse::sample_walk(mf, albedo, wi, first, opts, rng)?,
+        };
+        Some(Sampled { wo, weight, order, pdf: None })
+    }
+}

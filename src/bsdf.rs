@@ -79,7 +79,7 @@ fn implementation(model: Model, estimator: Estimator, surface: Surface, dist: Di
         Model::Uncorrelated => Arc::new(PosFree { segments: Segments::Uncorrelated, estimator }),
         Model::Correlated => Arc::new(PosFree { segments: Segments::Correlated, estimator }),
         Model::Heitz => Arc::new(Heitz),
-        Model::Invariance => Arc::new(Invariance),
+        Model::Invariance => Arc::new(Invariance { estimator }),
         Model::FastMsx => Arc::new(FastMsx),
         Model::Compensated => Arc::new(Compensated),
         Model::Auto => Arc::new(Auto::new(surface, dist, tolerance, estimator)),
@@ -97,7 +97,7 @@ fn support() -> &'static [(Vec<Model>, Vec<Model>); 3] {
                 .map(|&m| (m, implementation(m, Estimator::Pt, surface, Distribution::Ggx, auto::DEFAULT_TOLERANCE)))
                 .filter(|(_, imp)| imp.surfaces().contains(&surface))
                 .collect();
-            let bdpt = imps.iter().filter(|(_, imp)| imp.estimators().contains(&Estimator::Bdpt)).map(|(m, _)| *m).collect();
+            let bdpt = imps.iter().filter(|(_, imp)| imp.estimators(surface).contains(&Estimator::Bdpt)).map(|(m, _)| *m).collect();
             (imps.into_iter().map(|(m, _)| m).collect(), bdpt)
         })
     })

@@ -134,8 +134,8 @@ impl ScatteringModel for Auto {
         self.full.surfaces()
     }
 
-    fn estimators(&self) -> &'static [Estimator] {
-        self.full.estimators()
+    fn estimators(&self, surface: Surface) -> &'static [Estimator] {
+        self.full.estimators(surface)
     }
 
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {

@@ -103,8 +103,8 @@ pub struct Sampled {
 pub trait ScatteringModel: Send + Sync + std::fmt::Debug {
     /// The surfaces the model is defined for.
     fn surfaces(&self) -> &'static [Surface];
-    /// The estimators `eval` accepts (every model has `Pt`).
-    fn estimators(&self) -> &'static [Estimator] {
+    /// The estimators `eval` accepts on a surface (every model has `Pt`).
+    fn estimators(&self, _surface: Surface) -> &'static [Estimator] {
         &[Estimator::Pt]
     }
     /// One estimate of f(ω_i, ω_o)·|cos θ_o| restricted to `call.orders`

@@ -29,7 +29,7 @@
 //!   Σ_{s'<s} p_{s'}/p_s = a_s(1 + a_{s−1}(1 + … (1 + a_1))),   a_u = pr_u/pf_{u−1},
 //!   Σ_{s'>s} p_{s'}/p_s = b_s(1 + b_{s+1}(1 + … (1 + b_{k−2}))), b_u = pf_u/pr_{u+1},
 //!
-//! whose inner parts are accumulated along each subpath ([`Vertex::mis`]: a_u
+//! whose inner parts are accumulated along each subpath ([`Mis`]: a_u
 //! with u < s only involves camera directions, b_u with u > s only light
 //! directions); a_s and b_s involve the connection and come from
 //! [`BdptSurface::connect`]. A surface may report surrogate densities (any
@@ -112,33 +112,36 @@ pub trait BdptSurface {
     fn light_step(&self, v: &Self::Light, t: usize, rng: &mut Sampler) -> Option<Step<Self::Light>>;
 
     /// The connection of camera vertex s with light vertex t (order s+t+1),
-    /// None when it carries nothing.
-    fn connect(&self, cam: &Self::Cam, light: &Self::Light, s: usize, t: usize) -> Option<Connection<Self::Conn>>;
+    /// None when it carries nothing. `cam` = vertices 0..=s of the camera
+    /// subpath, `light` = vertices 0..=t of the light subpath (a surface whose
+    /// segment term depends on whole paths reads them all; the others the last).
+    fn connect(&self, cam: &[Self::Cam], light: &[Self::Light]) -> Option<Connection<Self::Conn>>;
     /// The weighted contribution of a connection, `denom` = Σ_{s'} p_{s'}/p_s;
     /// None when it is not finite.
     fn weighted(&self, conn: &Connection<Self::Conn>, cam: &Self::Cam, light: &Self::Light, denom: f64) -> Option<Self::Value>;
 
-    /// Orders above K_b by path tracing from camera vertex K_b (its order
-    /// K_b + 1 next), orders `orders`.
-    fn pt_tail(&self, cam: &Self::Cam, kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Self::Value;
+    /// Orders above K_b by path tracing from the end of the camera subpath
+    /// `cam` (vertices 0..=K_b; order K_b + 1 next), orders `orders`.
+    fn pt_tail(&self, cam: &[Self::Cam], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Self::Value;
 }
 
-/// A subpath vertex with its sampling density and the accumulated MIS ratio.
-#[derive(Clone, Default)]
-struct Vertex<V> {
-    v: V,
-    /// Density with which the subpath sampled this vertex (pf_{s−1} or pr of e_t).
+/// What the balance heuristic keeps of a subpath vertex: the density with
+/// which the subpath sampled it (pf_{s−1}, or pr of e_t) and the accumulated
+/// ratio chain (camera: B_{s−1} = a_{s−1}(1 + a_{s−2}(1 + …)); light: E_{t−1}
+/// likewise with b; 0 for s, t ≤ 1).
+#[derive(Clone, Copy, Default)]
+struct Mis {
     p_in: f64,
-    /// Camera: B_{s−1} = a_{s−1}(1 + a_{s−2}(1 + …)); light: E_{t−1}
-    /// likewise with b; 0 for s, t ≤ 1.
-    mis: f64,
+    chain: f64,
 }
 
-/// The subpaths extend the ratio chain of their end vertex by one step:
-/// `p_rev / p_in · (1 + mis)` (a_s(1 + B_{s−1}) for the camera, b likewise).
-#[inline]
-fn chain<V>(end: &Vertex<V>, p_rev: f64) -> f64 {
-    p_rev / end.p_in * (1.0 + end.mis)
+impl Mis {
+    /// The ratio chain extended by one step: `p_rev / p_in · (1 + chain)`
+    /// (a_s(1 + B_{s−1}) for the camera, b likewise).
+    #[inline]
+    fn extend(&self, p_rev: f64) -> f64 {
+        p_rev / self.p_in * (1.0 + self.chain)
+    }
 }
 
 /// The BDPT estimate of f(ω_i, ω_o)·|cos θ_o| over the orders
@@ -146,71 +149,86 @@ fn chain<V>(end: &Vertex<V>, p_rev: f64) -> f64 {
 /// `bdpt_orders` (clamped to 1..=[`MAX_BDPT_ORDERS`]) bidirectionally, the
 /// rest by the surface's path tracer.
 pub fn estimate<S: BdptSurface>(surface: &S, orders: (u32, u32), bdpt_orders: u32, rng: &mut Sampler) -> S::Value {
+    // The subpaths live on the stack, sized for the orders at hand: filling 33
+    // vertices per call, as K_b ≤ 32 would need, cost more than the rest of
+    // the default K_b = 3 estimate.
+    let kb = orders.1.min(bdpt_orders.clamp(1, MAX_BDPT_ORDERS));
+    if kb <= 4 {
+        estimate_on::<S, 5>(surface, orders, kb, rng)
+    } else if kb <= 8 {
+        estimate_on::<S, 9>(surface, orders, kb, rng)
+    } else {
+        estimate_on::<S, { MAX_BDPT_ORDERS as usize + 1 }>(surface, orders, kb, rng)
+    }
+}
+
+/// `estimate` with subpaths of at most N vertices (K_b < N).
+fn estimate_on<S: BdptSurface, const N: usize>(surface: &S, orders: (u32, u32), kb: u32, rng: &mut Sampler) -> S::Value {
     let (o_lo, o_hi) = orders;
     let mut result = S::Value::default();
     if o_lo > o_hi {
         return result;
     }
-    let kb = o_hi.min(bdpt_orders.clamp(1, MAX_BDPT_ORDERS)); // orders ≤ kb: bidirectional
-    let pt_tail = o_hi > kb;
+    let pt_tail = o_hi > kb; // orders ≤ kb: bidirectional
 
     // ---- camera subpath d_0..d_{n_c} (n_c = kb − 1, or kb if the PT tail needs d_kb)
     let n_c_target = if pt_tail { kb } else { kb - 1 } as usize;
-    let mut cam: [Vertex<S::Cam>; MAX_BDPT_ORDERS as usize + 1] = std::array::from_fn(|_| Vertex::default());
-    cam[0].v = surface.camera_start();
+    let mut cam: [S::Cam; N] = std::array::from_fn(|_| S::Cam::default());
+    let mut cam_mis = [Mis::default(); N];
+    cam[0] = surface.camera_start();
     let mut n_c = 0usize;
     loop {
         let s = n_c;
-        if !surface.camera_ready(&cam[s].v) {
+        if !surface.camera_ready(&cam[s]) {
             break;
         }
         if s == n_c_target {
             if !pt_tail {
-                surface.camera_last(&mut cam[s].v, rng);
+                surface.camera_last(&mut cam[s], rng);
             }
             break;
         }
-        let Some(step) = surface.camera_step(&mut cam[s].v, s, rng) else { break };
-        let mis = if s >= 1 { chain(&cam[s], step.p_rev) } else { 0.0 };
-        cam[s + 1] = Vertex { v: step.vertex, p_in: step.p_in, mis };
+        let Some(step) = surface.camera_step(&mut cam[s], s, rng) else { break };
+        let chain = if s >= 1 { cam_mis[s].extend(step.p_rev) } else { 0.0 };
+        cam[s + 1] = step.vertex;
+        cam_mis[s + 1] = Mis { p_in: step.p_in, chain };
         n_c += 1;
     }
 
     if o_lo <= kb {
         // ---- light subpath e_0 = ω_o, e_1 = d_{k−1}, … (n_l = kb − 1 sampled)
-        let mut lig: [Vertex<S::Light>; MAX_BDPT_ORDERS as usize + 1] = std::array::from_fn(|_| Vertex::default());
-        lig[0].v = surface.light_start();
+        let mut lig: [S::Light; N] = std::array::from_fn(|_| S::Light::default());
+        let mut lig_mis = [Mis::default(); N];
+        lig[0] = surface.light_start();
         let mut n_l = 0usize;
         while n_l + 1 < kb as usize {
             let t = n_l;
-            if !surface.light_ready(&lig[t].v) {
+            if !surface.light_ready(&lig[t]) {
                 break;
             }
-            let Some(step) = surface.light_step(&lig[t].v, t, rng) else { break };
-            let mis = if t >= 1 { chain(&lig[t], step.p_rev) } else { 0.0 };
-            lig[t + 1] = Vertex { v: step.vertex, p_in: step.p_in, mis };
+            let Some(step) = surface.light_step(&lig[t], t, rng) else { break };
+            let chain = if t >= 1 { lig_mis[t].extend(step.p_rev) } else { 0.0 };
+            lig[t + 1] = step.vertex;
+            lig_mis[t + 1] = Mis { p_in: step.p_in, chain };
             n_l += 1;
         }
 
         // ---- connections: order k, strategy s, t = k − 1 − s
         for k in o_lo as usize..=kb as usize {
-            // `s` is the strategy (camera vertices), not only an index into `cam`.
-            #[allow(clippy::needless_range_loop)]
             for s in 0..k {
                 let t = k - 1 - s;
                 if s > n_c || t > n_l {
                     continue;
                 }
-                let (cv, lv) = (&cam[s], &lig[t]);
-                let Some(conn) = surface.connect(&cv.v, &lv.v, s, t) else { continue };
+                let Some(conn) = surface.connect(&cam[..=s], &lig[..=t]) else { continue };
                 let mut denom = 1.0;
                 if s >= 1 {
-                    denom += chain(cv, conn.pr);
+                    denom += cam_mis[s].extend(conn.pr);
                 }
                 if t >= 1 {
-                    denom += chain(lv, conn.pf);
+                    denom += lig_mis[t].extend(conn.pf);
                 }
-                if let Some(v) = surface.weighted(&conn, &cv.v, &lv.v, denom) {
+                if let Some(v) = surface.weighted(&conn, &cam[s], &lig[t], denom) {
                     result += v;
                 }
             }
@@ -219,7 +237,7 @@ pub fn estimate<S: BdptSurface>(surface: &S, orders: (u32, u32), bdpt_orders: u3
 
     // ---- orders kb+1 ..= o_hi: the camera subpath continues as PT with NEE.
     if pt_tail && n_c == kb as usize {
-        result += surface.pt_tail(&cam[kb as usize].v, kb, (o_lo, o_hi), rng);
+        result += surface.pt_tail(&cam[..=kb as usize], kb, (o_lo, o_hi), rng);
     }
     result
 }

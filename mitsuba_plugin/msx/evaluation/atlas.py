@@ -30,9 +30,9 @@ import msx
 from msx.core import CoreBsdf, pexit_study
 
 CONDUCTOR_MODELS = [("single", "pt"), ("uncorrelated", "pt"), ("uncorrelated", "bdpt"), ("correlated", "pt"),
-                    ("correlated", "bdpt"), ("heitz", "pt"), ("invariance", "pt"), ("auto", "pt"),
-                    ("compensated", "pt"), ("fastmsx", "pt")]
-DIELECTRIC_MODELS = [m for m in CONDUCTOR_MODELS if m[0] != "fastmsx"]
+                    ("correlated", "bdpt"), ("heitz", "pt"), ("invariance", "pt"), ("invariance", "bdpt"),
+                    ("auto", "pt"), ("compensated", "pt"), ("fastmsx", "pt")]
+DIELECTRIC_MODELS = [m for m in CONDUCTOR_MODELS if m[0] != "fastmsx" and m != ("invariance", "bdpt")]
 SURFACES = {"conductor": CONDUCTOR_MODELS, "dielectric_outside": DIELECTRIC_MODELS,
             "dielectric_inside": DIELECTRIC_MODELS}
 ETA = 1.5

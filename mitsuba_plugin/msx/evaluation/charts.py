@@ -25,6 +25,7 @@ STYLE = {
     "correlated bdpt": dict(color="tab:blue", ls=":", marker="s"),
     "heitz": dict(color="tab:red", ls="-", marker="^"),
     "invariance": dict(color="tab:green", ls="-", marker="v"),
+    "invariance bdpt": dict(color="tab:green", ls=":", marker="s"),
     "auto": dict(color="tab:purple", ls="-", marker="d"),
     "compensated": dict(color="tab:brown", ls="-", marker="P"),
     "fastmsx": dict(color="tab:pink", ls="-", marker="*"),

@@ -16,10 +16,12 @@ Row = tuple
 
 CONDUCTOR_ROWS = [("builtin", "-"), ("single", "pt"), ("uncorrelated", "pt"), ("uncorrelated", "bdpt"),
                   ("correlated", "pt"), ("correlated", "bdpt"), ("heitz", "pt"), ("invariance", "pt"),
-                  ("auto", "pt"), ("compensated", "pt"), ("fastmsx", "pt")]
-DIELECTRIC_ROWS = [r for r in CONDUCTOR_ROWS if r[0] != "fastmsx"]
+                  ("invariance", "bdpt"), ("auto", "pt"), ("compensated", "pt"), ("fastmsx", "pt")]
+# fastmsx is conductor-only; invariance's BDPT needs the whole path's segment term, which a
+# dielectric path only has up to its first refraction (src/models/invariance/mod.rs).
+DIELECTRIC_ROWS = [r for r in CONDUCTOR_ROWS if r[0] != "fastmsx" and r != ("invariance", "bdpt")]
 # Estimators of the Smith multiple-scattering BSDF itself (unbiased against the reference).
-UNBIASED = {("heitz", "pt"), ("invariance", "pt")}
+UNBIASED = {("heitz", "pt"), ("invariance", "pt"), ("invariance", "bdpt")}
 
 
 def row_label(row) -> str:

@@ -15,7 +15,7 @@ body{font-family:system-ui,sans-serif;max-width:1250px;margin:2em auto;padding:0
 h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}h3{margin-top:1.5em}
 table{border-collapse:collapse;font-size:.85em;margin:.6em 0}td,th{border:1px solid #ccc;padding:.25em .5em;text-align:right}
 th{background:#f3f3f3}td.l,th.l{text-align:left}img{max-width:100%;border:1px solid #eee}
-.ok{color:#080;font-weight:bold}.bad{color:#b00;font-weight:bold}.note{color:#555;font-size:.9em}
+.ok{color:#080;font-weight:bold}.bad{color:#b00;font-weight:bold}.warn{color:#b60;font-weight:bold}.note{color:#555;font-size:.9em}
 .box{background:#f7f9fc;border:1px solid #dde5f0;padding:.6em 1em;border-radius:4px}
 """
 
@@ -93,21 +93,23 @@ def _scene_section(rep):
     ratio = sp["ratio"]
     verdict = ("meets" if ratio <= 0.25 else "misses") if math.isfinite(ratio) else "cannot evaluate"
     out.append(f'<p class="box">Speed target: heitz reaches relative MSE {_e(sp["target"])} at {sp["spp"]} spp in '
-               f"{_sec(sp['heitz_seconds'])}; invariance needs {_sec(sp['invariance_seconds'])} for the same error: "
+               f"{_sec(sp['heitz_seconds'])}; {html.escape(sp['best'])} (the faster invariance estimator here) needs "
+               f"{_sec(sp['best_seconds'])} for the same error: "
                f"<b>{ratio:.2f} × heitz's time</b> (target ≤ 0.25: {verdict}"
                f"{'' if ratio <= 0.25 or not math.isfinite(ratio) else f', by {ratio / 0.25:.1f}×'}).</p>")
     if sp.get("single_seconds"):
         # Where the time goes: `single` costs what the route costs around any BSDF (ray tracing, the plugin's
         # per-call overhead); what a model adds to it is its own cost.
         own_h = sp["heitz_seconds"] - sp["single_seconds"]
-        own_i = sp["invariance_top_seconds"] - sp["single_seconds"]
-        share = own_i / sp["invariance_top_seconds"] if sp["invariance_top_seconds"] > 0 else float("nan")
-        own_ratio = sp["invariance_seconds"] * share / own_h if own_h > 0 else float("nan")
+        own_i = sp["best_top_seconds"] - sp["single_seconds"]
+        share = own_i / sp["best_top_seconds"] if sp["best_top_seconds"] > 0 else float("nan")
+        own_ratio = sp["best_seconds"] * share / own_h if own_h > 0 else float("nan")
         out.append(f'<p class="note">Where the time goes at {sp["spp"]} spp: <code>single</code> takes '
                    f'{_sec(sp["single_seconds"])} in this route ({sp["single_seconds"] / sp["builtin_seconds"]:.1f} × '
-                   f"the built-in), which every model pays; beyond it heitz adds {_sec(own_h)} and invariance "
+                   f"the built-in), which every model pays; beyond it heitz adds {_sec(own_h)} and {html.escape(sp['best'])} "
                    f"{_sec(own_i)}. Counting only the models' own cost (the share of each render beyond "
-                   f"<code>single</code>), invariance would reach heitz's error in {own_ratio:.2f} × heitz's time.</p>")
+                   f"<code>single</code>), {html.escape(sp['best'])} would reach heitz's error in {own_ratio:.2f} × "
+                   "heitz's time.</p>")
     out.append("<table><tr><th class=l>model</th><th>bias²</th><th>variance at top spp</th><th>slope (var vs spp)</th>"
                "<th>time to 1 %</th><th>time to 0.1 %</th><th>seconds at top spp</th><th>mean over object</th></tr>")
     for t in rep["table"]:
@@ -162,8 +164,10 @@ def page(ctx):
     parts.append(_which_model(ctx["scenes"]))
     parts.append("<h2>Physics checks of this run</h2><ul>")
     for c in ctx["checks"]:
-        parts.append(f"<li><span class={'ok' if c['ok'] else 'bad'}>{'ok' if c['ok'] else 'FAILED'}</span> "
-                     f"{html.escape(c['name'])}: {html.escape(c['detail'])}</li>")
+        cls, state = ("bad", "FAILED") if not c["ok"] else ("warn", "warning") if c.get("warning") else ("ok", "ok")
+        warning = f" — <b>{html.escape(c['warning'])}</b>" if c.get("warning") else ""
+        parts.append(f"<li><span class={cls}>{state}</span> {html.escape(c['name'])}: {html.escape(c['detail'])}"
+                     f"{warning}</li>")
     parts.append("</ul>")
     parts.append("<h2>Error against time</h2><p class='note'>Relative MSE = mean((I − R)²) / mean(R²) over the pixels "
                  "covered by the object (all channels), R the reference; one line per model × estimator over the spp "

@@ -27,7 +27,8 @@
 
 use super::recursion::MonotoneExit;
 use crate::models::{ConductorFresnel, WalkOptions};
-use crate::walk::{russian_roulette_keep, vertex_numbers};
+use crate::models::posfree::conductor::smith;
+use crate::walk::{bdpt, russian_roulette_keep, vertex_numbers};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
@@ -90,99 +91,136 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
     let connects = last >= 2 && opts.orders.0 <= CONNECT_MAX_ORDER;
     let light = if connects { LightVertex::sample(mf, fresnel, wo, pdf_scale_o, rng) } else { None };
     let l0 = mf.abs_lambda(-wi);
-    // w = −d_m, and 1/(4 A(w)) with its projected area A(w) = |cos d_m|·|Λ(d_m)|:
-    // reflect_pdf(w, x) = D(h)/(4 A(w)) for every x the vertex scatters into
-    // (ω_o for the NEE, y for the connection, the walk's own sample).
-    let mut w = wi;
-    let mut pdf_scale = 0.25 / (wi.z * l0);
-    // Density with which the walk sampled d_m from −d_{m−1} (the forward
-    // strategy's density in the MIS weight of the NEE at vertex m ≥ 1).
-    let mut pdf_walk = 0.0;
-    let mut dp = MonotoneExit::new(l0);
-    let mut throughput = Spectrum::ONE; // Π F · Π (H_j/H_{j−1}) / Π q
-    let mut result = Spectrum::ZERO;
-    for j in 0..last {
-        let order = j + 1;
-        if order >= opts.orders.0 {
-            // NEE: v_m/L_m = D(h)/(4 A(−d_m)) = reflect_pdf(w, ω_o).
-            let (d_h, cos_wh) = half_vector_d(mf, w, wo);
-            let mut value = d_h * pdf_scale;
-            if j > 0 && order <= CONNECT_MAX_ORDER && value > 0.0 {
-                // Balance heuristic against the connection, which samples
-                // y = d_m as reflect_pdf(ω_o, −d_m): the same half vector,
-                // D(h)/(4 A(ω_o)). (The power heuristic lowers the variance
-                // by 2 % at GGX α = 1 off-specular and raises it by 8 % at
-                // α = 0.5 grazing.)
-                let p_rev = d_h * pdf_scale_o;
-                value *= pdf_walk / (pdf_walk + p_rev);
-            }
-            if value > 0.0 && value.is_finite() {
-                value *= dp.exit_given_hits(lambda_o);
-                result += throughput * fresnel.eval(cos_wh) * value;
-            }
-        }
-        if order >= last {
-            break;
-        }
-        // Connection strategy for order + 1: d_{m+1} = y from the side of ω_o.
-        if order + 1 >= opts.orders.0 && order < CONNECT_MAX_ORDER {
-            if let Some(light) = &light {
-                result += throughput * light.connect(mf, fresnel, &dp, w, pdf_scale, lambda_o);
-            }
-        }
-        // Russian roulette on the weight carried so far (Π F · H_m), played
-        // after the estimates of this vertex: they always see the continuous
-        // hit probability (a near-vertical upward d_m hits with probability
-        // ∝ Λ(d_m) while its NEE phase value ∝ 1/Λ(d_m); a binary decision
-        // before the NEE multiplies the variance of order 2 ≈ 2×).
-        if j >= RR_START && !russian_roulette_keep(&mut throughput, rng, RR_KEEP) {
-            break;
-        }
-        let (u1, u2) = rng.next2();
-        let Some(m) = mf.sample_visible(w, u1, u2) else { break };
-        let cos_wm = w.dot(m);
-        if cos_wm <= 0.0 {
-            break;
-        }
-        let d_next = reflect(w, m);
-        // Along the upward run z only grows (module docs: d'.z > d.z for every
-        // front-facing facet, and exactly so in floating point:
-        // d'.z = d.z + 2(w·m)m.z with w·m, m.z > 0). Once an upward d.z ≥ ω_o.z
-        // no later vertex can reach ω_o: the NEE's half vector has
-        // h.z ∝ ω_o.z − d.z ≤ 0 (D = 0), and the connection's y has
-        // y.z ≤ ω_o.z ≤ d.z (D = 0 again, or a downward y after an upward
-        // direction: non-monotone). Every further estimate is exactly 0.
-        let up = d_next.z > 0.0;
-        if up && d_next.z >= wo.z {
-            break;
-        }
-        throughput *= fresnel.eval(cos_wm);
-        // m is the half vector of w and d_next: density D(m)/(4 A(w)), needed
-        // by the MIS weight of the next NEE while the connection serves it.
-        if order < CONNECT_MAX_ORDER {
-            pdf_walk = mf.d(m) * pdf_scale;
-        }
-        let l_next;
-        if up {
-            l_next = mf.lambda(d_next);
-            if !l_next.is_finite() {
-                break;
-            }
-            let cont = dp.push_up(l_next);
-            throughput *= cont;
-            if !(cont > 0.0) || !(throughput.max_value() > 0.0) {
-                break;
-            }
-        } else {
-            l_next = mf.abs_lambda(d_next);
-            if !l_next.is_finite() || !dp.push_down(l_next) {
-                break;
-            }
-        }
-        w = -d_next;
-        pdf_scale = 0.25 / (d_next.z.abs() * l_next);
+    let walk = Walk { mf, fresnel, wo, lambda_o, pdf_scale_o, connect_max: CONNECT_MAX_ORDER, light: light.as_ref() };
+    let state = WalkState { w: wi, pdf_scale: 0.25 / (wi.z * l0), pdf_walk: 0.0, dp: MonotoneExit::new(l0), throughput: Spectrum::ONE };
+    walk.from(state, 0, (opts.orders.0, last), rng)
+}
+
+/// A walk of `eval` arriving at a vertex: w = −d_m, 1/(4 A(w)) with the
+/// projected area A(w) = |cos d_m|·|Λ(d_m)| (reflect_pdf(w, x) = D(h)/(4 A(w))
+/// for every x the vertex scatters into: ω_o for the NEE, y for the
+/// connection, the walk's own sample), the density with which the walk
+/// sampled d_m from −d_{m−1} (the forward strategy's density in the MIS weight
+/// of the NEE at vertex m ≥ 1), the exit table of d_0..d_m and the throughput
+/// Π F · Π (H_j/H_{j−1}) / Π q.
+#[derive(Clone)]
+pub(crate) struct WalkState {
+    pub w: DVec3,
+    pub pdf_scale: f64,
+    pub pdf_walk: f64,
+    pub dp: MonotoneExit,
+    pub throughput: Spectrum,
+}
+
+/// What the walk of `eval` needs besides its state: ω_o, and the connection
+/// strategy for orders 2..=`connect_max` (none with `light` None and
+/// `connect_max` 0).
+pub(crate) struct Walk<'a> {
+    pub mf: &'a Microfacet,
+    pub fresnel: &'a ConductorFresnel,
+    pub wo: DVec3,
+    pub lambda_o: f64,
+    pub pdf_scale_o: f64,
+    pub connect_max: u32,
+    light: Option<&'a LightVertex>,
+}
+
+impl Walk<'_> {
+    /// The walk without the connection strategy (the BDPT's tail).
+    pub fn unidirectional<'a>(mf: &'a Microfacet, fresnel: &'a ConductorFresnel, wo: DVec3, lambda_o: f64) -> Walk<'a> {
+        Walk { mf, fresnel, wo, lambda_o, pdf_scale_o: 0.25 / (wo.z * (1.0 + lambda_o)), connect_max: 0, light: None }
     }
-    result
+
+    /// The estimates of the vertices from `first_vertex` (0-based) on, within
+    /// `orders` (the upper one within the bounce cap).
+    pub fn from(&self, state: WalkState, first_vertex: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
+        let (mf, fresnel, wo, lambda_o) = (self.mf, self.fresnel, self.wo, self.lambda_o);
+        let WalkState { mut w, mut pdf_scale, mut pdf_walk, mut dp, mut throughput } = state;
+        let last = orders.1;
+        let mut result = Spectrum::ZERO;
+        for j in first_vertex..last {
+            let order = j + 1;
+            if order >= orders.0 {
+                // NEE: v_m/L_m = D(h)/(4 A(−d_m)) = reflect_pdf(w, ω_o).
+                let (d_h, cos_wh) = half_vector_d(mf, w, wo);
+                let mut value = d_h * pdf_scale;
+                if j > 0 && order <= self.connect_max && value > 0.0 {
+                    // Balance heuristic against the connection, which samples
+                    // y = d_m as reflect_pdf(ω_o, −d_m): the same half vector,
+                    // D(h)/(4 A(ω_o)). (The power heuristic lowers the variance
+                    // by 2 % at GGX α = 1 off-specular and raises it by 8 % at
+                    // α = 0.5 grazing.)
+                    let p_rev = d_h * self.pdf_scale_o;
+                    value *= pdf_walk / (pdf_walk + p_rev);
+                }
+                if value > 0.0 && value.is_finite() {
+                    value *= dp.exit_given_hits(lambda_o);
+                    result += throughput * fresnel.eval(cos_wh) * value;
+                }
+            }
+            if order >= last {
+                break;
+            }
+            // Connection strategy for order + 1: d_{m+1} = y from the side of ω_o.
+            if order + 1 >= orders.0 && order < self.connect_max {
+                if let Some(light) = self.light {
+                    result += throughput * light.connect(mf, fresnel, &dp, w, pdf_scale, lambda_o);
+                }
+            }
+            // Russian roulette on the weight carried so far (Π F · H_m), played
+            // after the estimates of this vertex: they always see the continuous
+            // hit probability (a near-vertical upward d_m hits with probability
+            // ∝ Λ(d_m) while its NEE phase value ∝ 1/Λ(d_m); a binary decision
+            // before the NEE multiplies the variance of order 2 ≈ 2×).
+            if j >= RR_START && !russian_roulette_keep(&mut throughput, rng, RR_KEEP) {
+                break;
+            }
+            let (u1, u2) = rng.next2();
+            let Some(m) = mf.sample_visible(w, u1, u2) else { break };
+            let cos_wm = w.dot(m);
+            if cos_wm <= 0.0 {
+                break;
+            }
+            let d_next = reflect(w, m);
+            // Along the upward run z only grows (module docs: d'.z > d.z for every
+            // front-facing facet, and exactly so in floating point:
+            // d'.z = d.z + 2(w·m)m.z with w·m, m.z > 0). Once an upward d.z ≥ ω_o.z
+            // no later vertex can reach ω_o: the NEE's half vector has
+            // h.z ∝ ω_o.z − d.z ≤ 0 (D = 0), and the connection's y has
+            // y.z ≤ ω_o.z ≤ d.z (D = 0 again, or a downward y after an upward
+            // direction: non-monotone). Every further estimate is exactly 0.
+            let up = d_next.z > 0.0;
+            if up && d_next.z >= wo.z {
+                break;
+            }
+            throughput *= fresnel.eval(cos_wm);
+            // m is the half vector of w and d_next: density D(m)/(4 A(w)), needed
+            // by the MIS weight of the next NEE while the connection serves it.
+            if order < self.connect_max {
+                pdf_walk = mf.d(m) * pdf_scale;
+            }
+            let l_next;
+            if up {
+                l_next = mf.lambda(d_next);
+                if !l_next.is_finite() {
+                    break;
+                }
+                let cont = dp.push_up(l_next);
+                throughput *= cont;
+                if !(cont > 0.0) || !(throughput.max_value() > 0.0) {
+                    break;
+                }
+            } else {
+                l_next = mf.abs_lambda(d_next);
+                if !l_next.is_finite() || !dp.push_down(l_next) {
+                    break;
+                }
+            }
+            w = -d_next;
+            pdf_scale = 0.25 / (d_next.z.abs() * l_next);
+        }
+        result
+    }
 }
 
 /// (D(h), w·h) for the half vector h of w and x; (0, 0) when w does not see h.
@@ -317,4 +355,196 @@ pub fn sample(
         w = -d_next;
     }
     None
+}
+
+// ---------------------------------------------------------------------------
+// The bidirectional estimator (src/walk/bdpt.rs): Cui 2023 "the bidirectional
+// estimator is the same as Wang et al. except for the segment term". The
+// subpaths, their densities and the MIS weights are those of the position-free
+// conductor (src/models/posfree/conductor.rs); the segment term is the whole
+// path's S_k, which does not factor into pairs, so it is evaluated at each
+// connection from the directions of both subpaths.
+//
+// With v_j = F_j·D(h_j)/(4|cos d_j|) and S_k = p_exit(d_0..d_k)/Π L_j
+// (recursion.rs), f = Π_j F_j·pf_j · p_exit, pf_j = D(h_j)/(4 A(−d_j)) the
+// camera step's density and pr_j = D(h_j)/(4 A(d_{j+1})) the light step's.
+// Strategy s: f/p_s = [Π_{j<s} F_j] · F_s pf_s · [Π_{j>s} F_j A(d_{j+1})/A(−d_j)]
+// · p_exit(d_0..d_k): the camera weight is Π F, the light weight the last
+// bracket, and the connection adds F_s pf_s times the exit probability of the
+// whole path (the camera's exit table extended by the light's directions).
+
+/// A camera vertex: d_s, |Λ(d_s)|, A(−d_s) and Π F of the prefix.
+#[derive(Clone, Copy, Default)]
+pub(crate) struct BdptCam {
+    d: DVec3,
+    l: f64,
+    area_back: f64,
+    thr: Spectrum,
+}
+
+/// A light vertex: e_t = d_{k−t}, |Λ(e_t)|, A(e_t) and the weight of its t steps.
+#[derive(Clone, Copy, Default)]
+pub(crate) struct BdptLight {
+    e: DVec3,
+    l: f64,
+    area: f64,
+    w: Spectrum,
+}
+
+/// The invariance model's vertex terms for `walk::bdpt`.
+struct Bidirectional<'a> {
+    mf: &'a Microfacet,
+    fresnel: &'a ConductorFresnel,
+    wi: DVec3,
+    wo: DVec3,
+    lambda_o: f64,
+}
+
+/// The exit table of the directions d_0..d_m (|Λ| and direction, d_0 first);
+/// None on a non-monotone path.
+fn exit_table(mut dirs: impl Iterator<Item = (f64, DVec3)>) -> Option<MonotoneExit> {
+    let (l0, _) = dirs.next()?;
+    let mut dp = MonotoneExit::new(l0);
+    for (l, d) in dirs {
+        if d.z > 0.0 {
+            dp.push_up(l);
+        } else if !dp.push_down(l) {
+            return None;
+        }
+    }
+    Some(dp)
+}
+
+impl bdpt::BdptSurface for Bidirectional<'_> {
+    type Cam = BdptCam;
+    type Light = BdptLight;
+    /// F_s pf_s · p_exit and the cosine of the connecting facet.
+    type Conn = (f64, f64);
+    type Value = Spectrum;
+
+    fn camera_start(&self) -> BdptCam {
+        BdptCam { d: -self.wi, l: self.mf.abs_lambda(-self.wi), area_back: self.mf.projected_area(self.wi), thr: Spectrum::ONE }
+    }
+
+    fn camera_ready(&self, v: &BdptCam) -> bool {
+        v.l > 0.0 && v.l.is_finite() && v.area_back > 0.0
+    }
+
+    fn camera_step(&self, v: &mut BdptCam, s: usize, rng: &mut Sampler) -> Option<bdpt::Step<BdptCam>> {
+        let w = -v.d;
+        let (u1, u2) = rng.next2();
+        let m = self.mf.sample_visible(w, u1, u2)?;
+        let cos_wm = w.dot(m);
+        if cos_wm <= 0.0 {
+            return None;
+        }
+        let d_next = reflect(w, m);
+        let (l_next, area_next, area_back_next) = smith(self.mf, d_next);
+        let dm = self.mf.d(m);
+        let pf = dm / (4.0 * v.area_back);
+        if !(pf > 0.0) || !pf.is_finite() || !(area_next > 0.0) || !l_next.is_finite() {
+            return None;
+        }
+        let p_rev = if s >= 1 { dm / (4.0 * area_next) } else { 0.0 };
+        let vertex = BdptCam { d: d_next, l: l_next, area_back: area_back_next, thr: v.thr * self.fresnel.eval(cos_wm) };
+        Some(bdpt::Step { vertex, p_in: pf, p_rev })
+    }
+
+    fn light_start(&self) -> BdptLight {
+        BdptLight { e: self.wo, l: self.lambda_o, area: self.mf.projected_area(self.wo), w: Spectrum::ONE }
+    }
+
+    fn light_ready(&self, v: &BdptLight) -> bool {
+        v.area > 0.0 && v.area.is_finite()
+    }
+
+    fn light_step(&self, v: &BdptLight, t: usize, rng: &mut Sampler) -> Option<bdpt::Step<BdptLight>> {
+        let (u1, u2) = rng.next2();
+        let m = self.mf.sample_visible(v.e, u1, u2)?;
+        let cos_em = v.e.dot(m);
+        if cos_em <= 0.0 {
+            return None;
+        }
+        let e_next = -reflect(v.e, m); // d_j, arriving at vertex j = k−1−t
+        let (l_next, area_next, area_back_next) = smith(self.mf, e_next);
+        if !(l_next > 0.0) || !l_next.is_finite() || !(area_back_next > 0.0) {
+            return None;
+        }
+        let dm = self.mf.d(m);
+        let pr = dm / (4.0 * v.area);
+        if !(pr > 0.0) || !pr.is_finite() {
+            return None;
+        }
+        // v_j / (pr_j L_j) = F·A(d_{j+1})/A(−d_j).
+        let w = v.w * self.fresnel.eval(cos_em) * (v.area / area_back_next);
+        let p_rev = if t >= 1 { dm / (4.0 * area_back_next) } else { 0.0 };
+        Some(bdpt::Step { vertex: BdptLight { e: e_next, l: l_next, area: area_next, w }, p_in: pr, p_rev })
+    }
+
+    fn connect(&self, cam: &[BdptCam], light: &[BdptLight]) -> Option<bdpt::Connection<(f64, f64)>> {
+        let (s, t) = (cam.len() - 1, light.len() - 1);
+        let (cv, lv) = (&cam[s], &light[t]);
+        if !(cv.thr.max_value() > 0.0) || !(lv.w.max_value() > 0.0) {
+            return None;
+        }
+        let (d_h, cos_h) = half_vector_d(self.mf, -cv.d, lv.e);
+        if !(d_h > 0.0) {
+            return None;
+        }
+        // The exit probability of the whole path d_0..d_s, e_t, …, e_1, ω_o.
+        let dirs = cam.iter().map(|c| (c.l, c.d)).chain(light[1..].iter().rev().map(|v| (v.l, v.e)));
+        let exit = exit_table(dirs)?.exit_probability(self.lambda_o);
+        let pf_s = d_h / (4.0 * cv.area_back);
+        let phi = pf_s * exit;
+        if !(phi > 0.0) || !phi.is_finite() {
+            return None;
+        }
+        let pr = if s >= 1 { d_h / (4.0 * lv.area) } else { 0.0 };
+        let pf = if t >= 1 { pf_s } else { 0.0 };
+        Some(bdpt::Connection { pr, pf, data: (phi, cos_h) })
+    }
+
+    fn weighted(&self, conn: &bdpt::Connection<(f64, f64)>, cv: &BdptCam, lv: &BdptLight, denom: f64) -> Option<Spectrum> {
+        let (phi, cos_h) = conn.data;
+        let weight = phi / denom;
+        weight.is_finite().then(|| cv.thr * lv.w * self.fresnel.eval(cos_h) * weight)
+    }
+
+    fn pt_tail(&self, cam: &[BdptCam], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
+        let Some(dp) = exit_table(cam.iter().map(|c| (c.l, c.d))) else { return Spectrum::ZERO };
+        let cv = &cam[kb as usize];
+        let walk = Walk::unidirectional(self.mf, self.fresnel, self.wo, self.lambda_o);
+        let state = WalkState { w: -cv.d, pdf_scale: 0.25 / cv.area_back, pdf_walk: 0.0, throughput: cv.thr * dp.hit_probability(), dp };
+        walk.from(state, kb, orders, rng)
+    }
+}
+
+/// BDPT estimate of f(ω_i, ω_o)·cos θ_o of the invariance model with the
+/// default number of bidirectional orders ([`bdpt::DEFAULT_BDPT_ORDERS`]).
+pub fn eval_bdpt(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
+    eval_bdpt_with(mf, fresnel, wi, wo, opts, bdpt::DEFAULT_BDPT_ORDERS, rng)
+}
+
+/// BDPT estimate with orders 1..=`bdpt_orders` bidirectional (clamped to
+/// 1..=[`bdpt::MAX_BDPT_ORDERS`]) and higher orders by the walk of `eval`
+/// (without its connection strategy).
+pub fn eval_bdpt_with(
+    mf: &Microfacet,
+    fresnel: &ConductorFresnel,
+    wi: DVec3,
+    wo: DVec3,
+    opts: &WalkOptions,
+    bdpt_orders: u32,
+    rng: &mut Sampler,
+) -> Spectrum {
+    if !(wi.z > 0.0) || !(wo.z > 0.0) || !wi.is_finite() || !wo.is_finite() {
+        return Spectrum::ZERO;
+    }
+    let lambda_o = mf.lambda(wo);
+    if !lambda_o.is_finite() {
+        return Spectrum::ZERO;
+    }
+    let surface = Bidirectional { mf, fresnel, wi, wo, lambda_o };
+    let orders = (opts.orders.0.max(1), opts.orders.1.min(opts.max_bounces));
+    bdpt::estimate(&surface, orders, bdpt_orders, rng)
 }

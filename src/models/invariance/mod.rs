@@ -19,22 +19,36 @@ pub use recursion::{p_exit, p_exit_error_study, p_exit_with_bound, segment_term,
 use super::mis::{walk_pdf, OrderOneExit};
 use super::posfree::Segments;
 use super::{Call, Microsurface, Sampled, ScatteringModel};
-use crate::bsdf::Surface;
+use crate::bsdf::{Estimator, Surface};
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 
-/// `model="invariance"`.
+/// `model="invariance"`, with `estimator` PT or (conductors) BDPT.
 #[derive(Clone, Copy, Debug)]
-pub struct Invariance;
+pub struct Invariance {
+    pub estimator: Estimator,
+}
 
 impl ScatteringModel for Invariance {
     fn surfaces(&self) -> &'static [Surface] {
         &[Surface::Conductor, Surface::Dielectric, Surface::Diffuse]
     }
 
+    /// BDPT on conductors: its segment term S_k is the whole path's exit
+    /// probability (recursion.rs). On a dielectric the heights are integrated
+    /// only up to the first refraction (dielectric.rs), and the diffuse
+    /// microsurface's complete recursion has no BDPT here (yet): PT only.
+    fn estimators(&self, surface: Surface) -> &'static [Estimator] {
+        match surface {
+            Surface::Conductor => &[Estimator::Pt, Estimator::Bdpt],
+            _ => &[Estimator::Pt],
+        }
+    }
+
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
         let (opts, mf, rng) = (&call.walk(Segments::Correlated), &call.mf, &mut call.rng());
         match call.surf {
+            Microsurface::Conductor(fresnel) if self.estimator == Estimator::Bdpt => conductor::eval_bdpt(mf, &fresnel, wi, wo, opts, rng),
             Microsurface::Conductor(fresnel) => conductor::eval(mf, &fresnel, wi, wo, opts, rng),
             Microsurface::Dielectric { eta, radiance } => Spectrum::splat(dielectric::eval(mf, eta, radiance, wi, wo, opts, rng)),
             Microsurface::Diffuse { .. } => general::eval(mf, &call.surf, wi, wo, opts, rng),

@@ -334,7 +334,9 @@ impl bdpt::BdptSurface for Bidirectional<'_> {
         Some(bdpt::Step { vertex: LightVertex { e: e_next, l: l_next, area: area_next, w }, p_in: pr, p_rev })
     }
 
-    fn connect(&self, cv: &CamVertex, lv: &LightVertex, s: usize, t: usize) -> Option<bdpt::Connection<(f64, f64)>> {
+    fn connect(&self, cam: &[CamVertex], light: &[LightVertex]) -> Option<bdpt::Connection<(f64, f64)>> {
+        let (s, t) = (cam.len() - 1, light.len() - 1);
+        let (cv, lv) = (&cam[s], &light[t]);
         if !(cv.thr.max_value() > 0.0) || !(lv.w.max_value() > 0.0) {
             return None;
         }
@@ -368,7 +370,8 @@ impl bdpt::BdptSurface for Bidirectional<'_> {
         weight.is_finite().then(|| cv.thr * lv.w * self.fresnel.eval(cos_h) * weight)
     }
 
-    fn pt_tail(&self, cv: &CamVertex, kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
+    fn pt_tail(&self, cam: &[CamVertex], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
+        let cv = &cam[kb as usize];
         let state = PtState { w: -cv.d, l: cv.l, throughput: cv.thr };
         pt_walk(self.mf, self.fresnel, self.wo, self.lambda_o, self.seg, state, kb, orders, kb + RR_START, rng)
     }

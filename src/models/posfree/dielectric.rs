@@ -574,7 +574,9 @@ impl bdpt::BdptSurface for Bidirectional<'_> {
         Some(bdpt::Step { vertex: LightDir { e: dj, w: if w.is_finite() { w } else { 0.0 } }, p_in: pr, p_rev })
     }
 
-    fn connect(&self, cv: &CamDir, lv: &LightDir, s: usize, t: usize) -> Option<bdpt::Connection<f64>> {
+    fn connect(&self, cam: &[CamDir], light: &[LightDir]) -> Option<bdpt::Connection<f64>> {
+        let (s, t) = (cam.len() - 1, light.len() - 1);
+        let (cv, lv) = (&cam[s], &light[t]);
         if !(cv.thr > 0.0) || !(lv.w > 0.0) || !(cv.d.l > 0.0) || !cv.d.l.is_finite() {
             return None;
         }
@@ -598,7 +600,8 @@ impl bdpt::BdptSurface for Bidirectional<'_> {
         c.is_finite().then_some(c)
     }
 
-    fn pt_tail(&self, cv: &CamDir, kb: u32, orders: (u32, u32), rng: &mut Sampler) -> f64 {
+    fn pt_tail(&self, cam: &[CamDir], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> f64 {
+        let cv = &cam[kb as usize];
         pt_walk(self.mf, self.seg, self.wo, cv.d.state(self.eta), cv.thr, kb, orders, kb + RR_START, rng)
     }
 }

@@ -309,7 +309,9 @@ impl bdpt::BdptSurface for Bidirectional<'_> {
         Some(bdpt::Step { vertex, p_in: area_back_next, p_rev: if t >= 1 { v.area } else { 0.0 } })
     }
 
-    fn connect(&self, cv: &CamVertex, lv: &LightVertex, s: usize, t: usize) -> Option<bdpt::Connection<f64>> {
+    fn connect(&self, cam: &[CamVertex], light: &[LightVertex]) -> Option<bdpt::Connection<f64>> {
+        let (s, t) = (cam.len() - 1, light.len() - 1);
+        let (cv, lv) = (&cam[s], &light[t]);
         let m = cv.m?;
         if !(cv.thr.max_value() > 0.0) || !(lv.w.max_value() > 0.0) {
             return None;
@@ -330,7 +332,8 @@ impl bdpt::BdptSurface for Bidirectional<'_> {
         v.is_finite().then(|| cv.thr * lv.w * self.walk.albedo * v)
     }
 
-    fn pt_tail(&self, cv: &CamVertex, kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
+    fn pt_tail(&self, cam: &[CamVertex], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
+        let cv = &cam[kb as usize];
         self.walk.from(-cv.d, cv.l, cv.thr, kb, orders, rng)
     }
 }

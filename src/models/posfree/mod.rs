@@ -110,7 +110,7 @@ impl ScatteringModel for PosFree {
         &[Surface::Conductor, Surface::Dielectric, Surface::Diffuse]
     }
 
-    fn estimators(&self) -> &'static [Estimator] {
+    fn estimators(&self, _surface: Surface) -> &'static [Estimator] {
         &[Estimator::Pt, Estimator::Bdpt]
     }
 

@@ -4,7 +4,7 @@
 //!
 //! * `eval` integration: Σ eval(ω_i, ω_o)/q(ω_o) with ω_o from `common::VndfOutProposal`
 //!   (reflection about visible normals, density `reflect_pdf`, both validated by
-//!   tests/foundation.rs, mixed with a cosine lobe that covers the whole hemisphere);
+//!   tests/microfacet.rs, mixed with a cosine lobe that covers the whole hemisphere);
 //! * the mean `sample` weight (a failed sample counts 0).
 //!
 //! Tolerance: z·σ + 0.3 % (z = family-wise 3σ level, see `common`), σ the Monte

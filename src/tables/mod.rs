@@ -6,7 +6,7 @@
 //!
 //! | file | table | used by |
 //! |---|---|---|
-//! | `albedo.rs` | conductor albedos with F = 1 over (α, μ): `single`, order 1 of the walks | `compensated`, the MIS density of the conductor walks |
+//! | `src/tables/albedo.rs` | conductor albedos with F = 1 over (α, μ): `single`, order 1 of the walks | `compensated`, the MIS density of the conductor walks |
 //! | `dielectric_albedo.rs` | E_r + E_t of `single` on a dielectric over (α, η, μ), both sides | `compensated` on dielectrics |
 //! | `multiple_scattering.rs` | the multiply scattered fraction T₁ of `correlated` over (η, α, μ) | `auto` |
 

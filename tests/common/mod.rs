@@ -4,6 +4,8 @@
 //! reference formulas for D and Λ written independently of `msx::microfacet`.
 #![allow(dead_code)]
 
+pub mod dielectric;
+
 use glam::DVec3;
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet};
@@ -454,7 +456,7 @@ impl BinStats {
 }
 
 /// Proposal for outgoing directions in the upper hemisphere using msx's own
-/// visible-normal sampler (validated by tests/foundation.rs): reflection about
+/// visible-normal sampler (validated by tests/microfacet.rs): reflection about
 /// m ~ D_{ω_i} with density `Microfacet::reflect_pdf`, mixed with a cosine lobe of
 /// weight `k`. Samples below the horizon are returned as they are.
 #[derive(Clone, Copy, Debug)]
@@ -491,7 +493,7 @@ impl VndfOutProposal {
 }
 
 /// Full-sphere proposal for a dielectric: reflection and refraction about a
-/// visible normal of ω_i (msx's VNDF sampler, validated in tests/foundation.rs)
+/// visible normal of ω_i (msx's VNDF sampler, validated in tests/microfacet.rs)
 /// and the uniform sphere. Works in the local frame of ω_i's side.
 pub struct DielectricProposal {
     mf: Microfacet,

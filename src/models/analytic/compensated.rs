@@ -9,7 +9,7 @@
 //! E(μ) is the directional albedo of `single` with F = 1, E_avg = 2∫E(μ)μ dμ,
 //! F_avg = 2∫F(μ)μ dμ. With F = 1 the scaled lobe has albedo exactly 1 at the
 //! tabulated nodes; with Fresnel it adds F_ms·(1 − E) like Kulla-Conty's lobe.
-//! The albedo table (`albedo.rs`) is computed by this project's own code on
+//! The albedo table (`src/tables/albedo.rs`) is computed by this project's own code on
 //! first use (deterministic stratified quadrature over visible normals).
 
 pub use crate::tables::albedo::{single_albedo, AlbedoTable};

@@ -27,7 +27,7 @@
 
 use super::recursion::MonotoneExit;
 use crate::models::{ConductorFresnel, WalkOptions};
-use crate::models::posfree::conductor::smith;
+use crate::models::posfree::conductor::{self as posfree_conductor, CamVertex, ConductorSegments, LightVertex as WalkLight};
 use crate::walk::{bdpt, russian_roulette_keep, vertex_numbers};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
@@ -358,12 +358,12 @@ pub fn sample(
 }
 
 // ---------------------------------------------------------------------------
-// The bidirectional estimator (src/walk/bdpt.rs): Cui 2023 "the bidirectional
-// estimator is the same as Wang et al. except for the segment term". The
-// subpaths, their densities and the MIS weights are those of the position-free
-// conductor (src/models/posfree/conductor.rs); the segment term is the whole
-// path's S_k, which does not factor into pairs, so it is evaluated at each
-// connection from the directions of both subpaths.
+// The bidirectional estimator: Cui 2023 "the bidirectional estimator is the
+// same as Wang et al. except for the segment term", and so it is here — the
+// position-free conductor's (src/models/posfree/conductor.rs, on
+// src/walk/bdpt.rs) with `WholePath` as its segment term. S_k does not factor
+// into pairs, so it is evaluated at each connection from the directions of
+// both subpaths.
 //
 // With v_j = F_j·D(h_j)/(4|cos d_j|) and S_k = p_exit(d_0..d_k)/Π L_j
 // (recursion.rs), f = Π_j F_j·pf_j · p_exit, pf_j = D(h_j)/(4 A(−d_j)) the
@@ -373,32 +373,10 @@ pub fn sample(
 // bracket, and the connection adds F_s pf_s times the exit probability of the
 // whole path (the camera's exit table extended by the light's directions).
 
-/// A camera vertex: d_s, |Λ(d_s)|, A(−d_s) and Π F of the prefix.
-#[derive(Clone, Copy, Default)]
-pub(crate) struct BdptCam {
-    d: DVec3,
-    l: f64,
-    area_back: f64,
-    thr: Spectrum,
-}
-
-/// A light vertex: e_t = d_{k−t}, |Λ(e_t)|, A(e_t) and the weight of its t steps.
-#[derive(Clone, Copy, Default)]
-pub(crate) struct BdptLight {
-    e: DVec3,
-    l: f64,
-    area: f64,
-    w: Spectrum,
-}
-
-/// The invariance model's vertex terms for `walk::bdpt`.
-struct Bidirectional<'a> {
-    mf: &'a Microfacet,
-    fresnel: &'a ConductorFresnel,
-    wi: DVec3,
-    wo: DVec3,
-    lambda_o: f64,
-}
+/// The segment term of the invariance model for the position-free conductor's
+/// bidirectional estimator: bare pair factors 1/L_j, the whole path's exit
+/// probability at each connection, this model's walk above K_b.
+struct WholePath;
 
 /// The exit table of the directions d_0..d_m (|Λ| and direction, d_0 first);
 /// None on a non-monotone path.
@@ -415,105 +393,27 @@ fn exit_table(mut dirs: impl Iterator<Item = (f64, DVec3)>) -> Option<MonotoneEx
     Some(dp)
 }
 
-impl bdpt::BdptSurface for Bidirectional<'_> {
-    type Cam = BdptCam;
-    type Light = BdptLight;
-    /// F_s pf_s · p_exit and the cosine of the connecting facet.
-    type Conn = (f64, f64);
-    type Value = Spectrum;
-
-    fn camera_start(&self) -> BdptCam {
-        BdptCam { d: -self.wi, l: self.mf.abs_lambda(-self.wi), area_back: self.mf.projected_area(self.wi), thr: Spectrum::ONE }
+impl ConductorSegments for WholePath {
+    #[inline]
+    fn cont(&self, _l: f64, _next: DVec3, _l_next: f64) -> f64 {
+        1.0
     }
 
-    fn camera_ready(&self, v: &BdptCam) -> bool {
-        v.l > 0.0 && v.l.is_finite() && v.area_back > 0.0
+    #[inline]
+    fn last(&self, l: f64, _lambda_o: f64) -> f64 {
+        1.0 / l
     }
 
-    fn camera_step(&self, v: &mut BdptCam, s: usize, rng: &mut Sampler) -> Option<bdpt::Step<BdptCam>> {
-        let w = -v.d;
-        let (u1, u2) = rng.next2();
-        let m = self.mf.sample_visible(w, u1, u2)?;
-        let cos_wm = w.dot(m);
-        if cos_wm <= 0.0 {
-            return None;
-        }
-        let d_next = reflect(w, m);
-        let (l_next, area_next, area_back_next) = smith(self.mf, d_next);
-        let dm = self.mf.d(m);
-        let pf = dm / (4.0 * v.area_back);
-        if !(pf > 0.0) || !pf.is_finite() || !(area_next > 0.0) || !l_next.is_finite() {
-            return None;
-        }
-        let p_rev = if s >= 1 { dm / (4.0 * area_next) } else { 0.0 };
-        let vertex = BdptCam { d: d_next, l: l_next, area_back: area_back_next, thr: v.thr * self.fresnel.eval(cos_wm) };
-        Some(bdpt::Step { vertex, p_in: pf, p_rev })
-    }
-
-    fn light_start(&self) -> BdptLight {
-        BdptLight { e: self.wo, l: self.lambda_o, area: self.mf.projected_area(self.wo), w: Spectrum::ONE }
-    }
-
-    fn light_ready(&self, v: &BdptLight) -> bool {
-        v.area > 0.0 && v.area.is_finite()
-    }
-
-    fn light_step(&self, v: &BdptLight, t: usize, rng: &mut Sampler) -> Option<bdpt::Step<BdptLight>> {
-        let (u1, u2) = rng.next2();
-        let m = self.mf.sample_visible(v.e, u1, u2)?;
-        let cos_em = v.e.dot(m);
-        if cos_em <= 0.0 {
-            return None;
-        }
-        let e_next = -reflect(v.e, m); // d_j, arriving at vertex j = k−1−t
-        let (l_next, area_next, area_back_next) = smith(self.mf, e_next);
-        if !(l_next > 0.0) || !l_next.is_finite() || !(area_back_next > 0.0) {
-            return None;
-        }
-        let dm = self.mf.d(m);
-        let pr = dm / (4.0 * v.area);
-        if !(pr > 0.0) || !pr.is_finite() {
-            return None;
-        }
-        // v_j / (pr_j L_j) = F·A(d_{j+1})/A(−d_j).
-        let w = v.w * self.fresnel.eval(cos_em) * (v.area / area_back_next);
-        let p_rev = if t >= 1 { dm / (4.0 * area_back_next) } else { 0.0 };
-        Some(bdpt::Step { vertex: BdptLight { e: e_next, l: l_next, area: area_next, w }, p_in: pr, p_rev })
-    }
-
-    fn connect(&self, cam: &[BdptCam], light: &[BdptLight]) -> Option<bdpt::Connection<(f64, f64)>> {
-        let (s, t) = (cam.len() - 1, light.len() - 1);
-        let (cv, lv) = (&cam[s], &light[t]);
-        if !(cv.thr.max_value() > 0.0) || !(lv.w.max_value() > 0.0) {
-            return None;
-        }
-        let (d_h, cos_h) = half_vector_d(self.mf, -cv.d, lv.e);
-        if !(d_h > 0.0) {
-            return None;
-        }
-        // The exit probability of the whole path d_0..d_s, e_t, …, e_1, ω_o.
+    /// p_exit of d_0..d_s, e_t, …, e_1, ω_o.
+    fn whole_path(&self, cam: &[CamVertex], light: &[WalkLight], lambda_o: f64) -> Option<f64> {
         let dirs = cam.iter().map(|c| (c.l, c.d)).chain(light[1..].iter().rev().map(|v| (v.l, v.e)));
-        let exit = exit_table(dirs)?.exit_probability(self.lambda_o);
-        let pf_s = d_h / (4.0 * cv.area_back);
-        let phi = pf_s * exit;
-        if !(phi > 0.0) || !phi.is_finite() {
-            return None;
-        }
-        let pr = if s >= 1 { d_h / (4.0 * lv.area) } else { 0.0 };
-        let pf = if t >= 1 { pf_s } else { 0.0 };
-        Some(bdpt::Connection { pr, pf, data: (phi, cos_h) })
+        Some(exit_table(dirs)?.exit_probability(lambda_o))
     }
 
-    fn weighted(&self, conn: &bdpt::Connection<(f64, f64)>, cv: &BdptCam, lv: &BdptLight, denom: f64) -> Option<Spectrum> {
-        let (phi, cos_h) = conn.data;
-        let weight = phi / denom;
-        weight.is_finite().then(|| cv.thr * lv.w * self.fresnel.eval(cos_h) * weight)
-    }
-
-    fn pt_tail(&self, cam: &[BdptCam], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
+    fn pt_tail(&self, mf: &Microfacet, fresnel: &ConductorFresnel, wo: DVec3, lambda_o: f64, cam: &[CamVertex], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
         let Some(dp) = exit_table(cam.iter().map(|c| (c.l, c.d))) else { return Spectrum::ZERO };
         let cv = &cam[kb as usize];
-        let walk = Walk::unidirectional(self.mf, self.fresnel, self.wo, self.lambda_o);
+        let walk = Walk::unidirectional(mf, fresnel, wo, lambda_o);
         let state = WalkState { w: -cv.d, pdf_scale: 0.25 / cv.area_back, pdf_walk: 0.0, throughput: cv.thr * dp.hit_probability(), dp };
         walk.from(state, kb, orders, rng)
     }
@@ -540,11 +440,8 @@ pub fn eval_bdpt_with(
     if !(wi.z > 0.0) || !(wo.z > 0.0) || !wi.is_finite() || !wo.is_finite() {
         return Spectrum::ZERO;
     }
-    let lambda_o = mf.lambda(wo);
-    if !lambda_o.is_finite() {
+    if !mf.lambda(wo).is_finite() {
         return Spectrum::ZERO;
     }
-    let surface = Bidirectional { mf, fresnel, wi, wo, lambda_o };
-    let orders = (opts.orders.0.max(1), opts.orders.1.min(opts.max_bounces));
-    bdpt::estimate(&surface, orders, bdpt_orders, rng)
+    posfree_conductor::estimate_bdpt(mf, fresnel, &WholePath, wi, wo, opts, bdpt_orders, rng)
 }

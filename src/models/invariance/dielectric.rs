@@ -46,7 +46,7 @@
 //! conditional law of the vertex depth given the whole run, flipped, and the
 //! rest of the path is Heitz's walk (`heitz::eval_from` / `sample_from`) from
 //! that height: by the tower property the estimate stays unbiased, and it
-//! equals Heitz's walk in expectation (tests/invariance_dielectric.rs).
+//! equals Heitz's walk in expectation (tests/invariance/dielectric.rs).
 //!
 //! **Estimators.** `eval`: the first run draws visible normals, chooses
 //! reflection with probability F (Heitz's phase function), carries the exact
@@ -55,7 +55,7 @@
 //! roulette as in `invariance.rs`. `sample`: the same walk leaves along an
 //! upward direction with the exact probability 1 − H_{m+1}/H_m, so every
 //! sample weight is 1 (times Mitsuba's 1/η² for a Radiance-mode transmission).
-//! Transport modes as in `heitz.rs` (Importance-mode vertex terms; the
+//! Transport modes as in `src/models/heitz/mod.rs` (Importance-mode vertex terms; the
 //! Radiance-mode factor applied once per path).
 
 use crate::models::heitz::{self, WalkState};

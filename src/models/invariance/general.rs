@@ -6,7 +6,7 @@
 //! **Path contribution.** As in `invariance.rs`: a path d_0 = −ω_i, d_1, …,
 //! d_k = ω_o contributes (Π_{j<k} v_j)·S_k(d_0..d_k) to f·cos θ_o, with
 //! v_j = L_j·p(−d_j → d_{j+1}) (L_j = |Λ(d_j)|, p Heitz's diffuse phase function,
-//! see `posfree_diffuse.rs`). With p_exit(d_0..d_k) = (Π_{j<k} L_j)·S_k (Cui
+//! see `src/models/posfree/diffuse.rs`). With p_exit(d_0..d_k) = (Π_{j<k} L_j)·S_k (Cui
 //! eq. 7) this is Π_j p(−d_j → d_{j+1}) · p_exit(d_0..d_k): Heitz's random walk
 //! with the heights integrated out exactly.
 //!
@@ -35,7 +35,7 @@
 //! refraction Heitz's walk flips the height (C¹ ↦ 1 − C¹), the heights-integrated
 //! exit probabilities are no longer rational functions of the Λ values (already
 //! order 1 is a Beta function), so the S_k recursion above does not apply;
-//! `invariance_dielectric.rs` integrates the heights exactly up to the first
+//! `dielectric.rs` integrates the heights exactly up to the first
 //! refraction and samples them after it.
 
 use crate::models::{Microsurface, WalkOptions};

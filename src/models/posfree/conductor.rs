@@ -242,17 +242,58 @@ pub(crate) struct LightVertex {
     pub w: Spectrum,
 }
 
-/// The conductor's vertex terms for `walk::bdpt`.
-struct Bidirectional<'a> {
+/// The segment term of a conductor path as the bidirectional estimator uses
+/// it. Wang's models factor it into pair factors along the path (`Segments`:
+/// the continue factor of every middle vertex, the last segment's factor);
+/// a model whose segment term belongs to the whole path (Cui 2023's S_k,
+/// src/models/invariance/conductor.rs) sets the pair factors to the bare
+/// 1/L_j and supplies the whole path's factor at each connection. The PT tail
+/// above K_b is the model's own walk.
+pub(crate) trait ConductorSegments {
+    /// g_j·L_j of a middle vertex: what the path keeps of the segment from
+    /// light arriving with |Λ| = `l` to `next` (|Λ(next)| = `l_next`).
+    fn cont(&self, l: f64, next: DVec3, l_next: f64) -> f64;
+    /// p_{k−1}·e_k of the last vertex towards ω_o (Λ(ω_o) = `lambda_o`).
+    fn last(&self, l: f64, lambda_o: f64) -> f64;
+    /// The factor of the whole path d_0..d_s (`cam`), e_t..e_0 (`light`) at a
+    /// connection; None when the path cannot exist.
+    fn whole_path(&self, _cam: &[CamVertex], _light: &[LightVertex], _lambda_o: f64) -> Option<f64> {
+        Some(1.0)
+    }
+    /// The model's PT estimate of the orders above K_b from the end of `cam`.
+    #[allow(clippy::too_many_arguments)]
+    fn pt_tail(&self, mf: &Microfacet, fresnel: &ConductorFresnel, wo: DVec3, lambda_o: f64, cam: &[CamVertex], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum;
+}
+
+impl ConductorSegments for Segments {
+    #[inline]
+    fn cont(&self, l: f64, next: DVec3, l_next: f64) -> f64 {
+        cont(*self, l, next, l_next)
+    }
+
+    #[inline]
+    fn last(&self, l: f64, lambda_o: f64) -> f64 {
+        Segments::last(*self, l, lambda_o)
+    }
+
+    fn pt_tail(&self, mf: &Microfacet, fresnel: &ConductorFresnel, wo: DVec3, lambda_o: f64, cam: &[CamVertex], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
+        let cv = &cam[kb as usize];
+        let state = PtState { w: -cv.d, l: cv.l, throughput: cv.thr };
+        pt_walk(mf, fresnel, wo, lambda_o, *self, state, kb, orders, kb + RR_START, rng)
+    }
+}
+
+/// The conductor's vertex terms for `walk::bdpt`, with the segment term `seg`.
+struct Bidirectional<'a, S: ConductorSegments> {
     mf: &'a Microfacet,
     fresnel: &'a ConductorFresnel,
-    seg: Segments,
+    seg: &'a S,
     wi: DVec3,
     wo: DVec3,
     lambda_o: f64,
 }
 
-impl Bidirectional<'_> {
+impl<S: ConductorSegments> Bidirectional<'_, S> {
     /// g_j of the vertex between an arriving direction with |Λ| = `l` and the
     /// next direction `next` (|Λ(next)| = `l_next`; ω_o when `last`).
     #[inline]
@@ -260,12 +301,12 @@ impl Bidirectional<'_> {
         if last {
             self.seg.last(l, self.lambda_o)
         } else {
-            cont(self.seg, l, next, l_next) / l
+            self.seg.cont(l, next, l_next) / l
         }
     }
 }
 
-impl bdpt::BdptSurface for Bidirectional<'_> {
+impl<S: ConductorSegments> bdpt::BdptSurface for Bidirectional<'_, S> {
     type Cam = CamVertex;
     type Light = LightVertex;
     /// φ_s and the cosine of the connecting facet.
@@ -297,7 +338,7 @@ impl bdpt::BdptSurface for Bidirectional<'_> {
             return None;
         }
         let p_rev = if s >= 1 { dm / (4.0 * area_next) } else { 0.0 };
-        let thr = v.thr * self.fresnel.eval(cos_wm) * cont(self.seg, v.l, d_next, l_next);
+        let thr = v.thr * self.fresnel.eval(cos_wm) * self.seg.cont(v.l, d_next, l_next);
         Some(bdpt::Step { vertex: CamVertex { d: d_next, l: l_next, area_back: area_back_next, thr }, p_in: pf, p_rev })
     }
 
@@ -358,7 +399,7 @@ impl bdpt::BdptSurface for Bidirectional<'_> {
         if !(dh > 0.0) {
             return None;
         }
-        let phi = dh * self.g(cv.l, lv.e, lv.l, t == 0) / (4.0 * cos_s);
+        let phi = dh * self.g(cv.l, lv.e, lv.l, t == 0) / (4.0 * cos_s) * self.seg.whole_path(cam, light, self.lambda_o)?;
         let pr = if s >= 1 { dh / (4.0 * lv.area) } else { 0.0 };
         let pf = if t >= 1 { dh / (4.0 * cv.area_back) } else { 0.0 };
         Some(bdpt::Connection { pr, pf, data: (phi, cos_h) })
@@ -371,9 +412,7 @@ impl bdpt::BdptSurface for Bidirectional<'_> {
     }
 
     fn pt_tail(&self, cam: &[CamVertex], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
-        let cv = &cam[kb as usize];
-        let state = PtState { w: -cv.d, l: cv.l, throughput: cv.thr };
-        pt_walk(self.mf, self.fresnel, self.wo, self.lambda_o, self.seg, state, kb, orders, kb + RR_START, rng)
+        self.seg.pt_tail(self.mf, self.fresnel, self.wo, self.lambda_o, cam, kb, orders, rng)
     }
 }
 
@@ -401,6 +440,22 @@ pub fn eval_bdpt_with(
     if wi.z <= 0.0 || wo.z <= 0.0 {
         return Spectrum::ZERO;
     }
-    let surface = Bidirectional { mf, fresnel, seg: opts.segments, wi, wo, lambda_o: mf.lambda(wo) };
+    estimate_bdpt(mf, fresnel, &opts.segments, wi, wo, opts, bdpt_orders, rng)
+}
+
+/// The bidirectional estimate of a conductor with the segment term `seg`
+/// (ω_i and ω_o above the surface), orders `opts.orders`.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn estimate_bdpt<S: ConductorSegments>(
+    mf: &Microfacet,
+    fresnel: &ConductorFresnel,
+    seg: &S,
+    wi: DVec3,
+    wo: DVec3,
+    opts: &WalkOptions,
+    bdpt_orders: u32,
+    rng: &mut Sampler,
+) -> Spectrum {
+    let surface = Bidirectional { mf, fresnel, seg, wi, wo, lambda_o: mf.lambda(wo) };
     bdpt::estimate(&surface, (opts.orders.0.max(1), opts.orders.1.min(opts.max_bounces)), bdpt_orders, rng)
 }

@@ -9,7 +9,7 @@
 //! facet normals that face it have m.z > 0 and the same D (D(−m') = D(m') for
 //! GGX and Beckmann, anisotropic too), and its relative IOR is η_f = η_t/η_i
 //! (η outside, 1/η inside). So each vertex is the conductor vertex of
-//! `posfree.rs` plus a refraction branch; a refraction switches the frame, i.e.
+//! `conductor.rs` plus a refraction branch; a refraction switches the frame, i.e.
 //! negates the travel direction d. This is the rule of docs/paper-notes.md: a direction
 //! travelling outside exits upward with G1(d), inside it exits downward with
 //! G1(−d); otherwise it hits the surface again.

@@ -24,7 +24,7 @@
 //! never behind its own facet: the integrand of v_j vanishes unless
 //! d_{j+1}·m > 0 and −d_j·m > 0, and on that support every χ⁺ equals one. The
 //! segment terms therefore factor out of the m-integral and are the direction-
-//! only pair factors of the conductor (table in `posfree.rs`):
+//! only pair factors of the conductor (table in `mod.rs`):
 //!   middle, d_{j+1} up:   p_j e_{j+1} = cont(L_j, Λ(d_{j+1}))/L_j
 //!   middle, d_{j+1} down: p_j e_{j+1} = 1/L_j
 //!   last (ω_o up):        p_{k−1} e_k = Segments::last(L_{k−1}, Λ(ω_o)).
@@ -203,7 +203,7 @@ pub fn sample_walk(
 // computable and independent of the random normals. These weights are not the
 // optimal balance heuristic (the surrogate ignores the angular shape of I),
 // only a valid partition of unity; the variance gain measured in
-// tests/bdpt_diffuse.rs is what it is.
+// tests/posfree/diffuse_bdpt.rs is what it is.
 //
 
 /// A camera vertex: d_s, L_s, A(−d_s), the prefix f/p (a-weighted Π cont) and

@@ -4,11 +4,10 @@
 //!
 //! Statistical checks: |estimate − expected| ≤ z·σ (+ stated allowance), σ the
 //! combined Monte Carlo standard error, z the family-wise 3σ level of
-//! `common::family_sigmas`. Run with `--nocapture` for the measured values.
+//! `crate::common::family_sigmas`. Run with `--nocapture` for the measured values.
 
-mod common;
 
-use common::*;
+use crate::common::*;
 use glam::DVec3;
 use msx::bsdf::{Config, Material, Model};
 use msx::microfacet::{fresnel, mitsuba};

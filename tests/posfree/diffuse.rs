@@ -1,20 +1,19 @@
-//! Position-free rough diffuse microsurface (`models::posfree_diffuse`): white
+//! Position-free rough diffuse microsurface (`models::posfree::diffuse`): white
 //! furnace from eval integration and from the mean sample weight, reciprocity of
 //! the uncorrelated model, sampled moments = eval integration (Heitz 2016
 //! supplement §4.4.4), order 1 = single-scattering diffuse microfacet BRDF with
 //! the matching G (reference by numerical integration over m, written here
-//! from Heitz §3.3 with `common::ref_d` / `common::ref_lambda`).
+//! from Heitz §3.3 with `crate::common::ref_d` / `crate::common::ref_lambda`).
 //!
 //! Statistical checks: |estimate − expected| ≤ z·σ (+ stated allowance), σ the
 //! combined Monte Carlo standard error, z the family-wise 3σ level of
-//! `common::family_sigmas`. Run with `--nocapture` for the measured values.
+//! `crate::common::family_sigmas`. Run with `--nocapture` for the measured values.
 
 // Lints relaxed for this test file: per-channel statistics indexed by channel.
 #![allow(clippy::needless_range_loop)]
 
-mod common;
 
-use common::*;
+use crate::common::*;
 use glam::DVec3;
 use msx::models::posfree::Segments;
 use msx::models::posfree::diffuse::{eval_pt, sample_walk};

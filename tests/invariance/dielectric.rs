@@ -1,4 +1,4 @@
-//! The invariance model on the rough dielectric (`models::invariance_dielectric`):
+//! The invariance model on the rough dielectric (`models::invariance::dielectric`):
 //! the exact depth law of the first run against Cui's segment term and against
 //! a brute-force height simulation, order 1 = Walter with the height-correlated
 //! G2 (Beta form for transmission) exactly and with zero variance, the
@@ -8,11 +8,10 @@
 //!
 //! Statistical checks: |estimate − expected| ≤ z·σ (+ stated allowance), σ the
 //! combined Monte Carlo standard error, z the family-wise 3σ level of
-//! `common::family_sigmas`. Run with `--nocapture` for the measured values.
+//! `crate::common::family_sigmas`. Run with `--nocapture` for the measured values.
 
-mod common;
 
-use common::*;
+use crate::common::*;
 use glam::DVec3;
 use msx::microfacet::fresnel;
 use msx::models::invariance::dielectric::{self as idl, PieceChain};

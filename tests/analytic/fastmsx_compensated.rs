@@ -11,9 +11,8 @@
 // Lints relaxed for this test file: angles near 2π on purpose.
 #![allow(clippy::approx_constant)]
 
-mod common;
 
-use common::{Checker, Stat, VndfOutProposal};
+use crate::common::{Checker, Stat, VndfOutProposal};
 use glam::DVec3;
 use msx::models::analytic::compensated::{self, AlbedoTable};
 use msx::rng::Sampler;
@@ -51,8 +50,8 @@ fn fastmsx_is_single_plus_a_nonnegative_second_bounce() {
     for &alpha in &[0.1, 0.3, 0.6, 1.0] {
         for mat in [Material::mirror(alpha), copper(alpha)] {
             for _ in 0..300 {
-                let wi = common::cosine_hemisphere(rng.next(), rng.next());
-                let wo = common::cosine_hemisphere(rng.next(), rng.next());
+                let wi = crate::common::cosine_hemisphere(rng.next(), rng.next());
+                let wo = crate::common::cosine_hemisphere(rng.next(), rng.next());
                 let s = single.eval(&mat, wi, wo, 0);
                 let f = fast.eval(&mat, wi, wo, 0);
                 c.assert("fastmsx ≥ single per channel", (0..3).all(|k| f.0[k] >= s.0[k] - 1e-15));
@@ -74,14 +73,14 @@ fn fastmsx_is_single_plus_a_nonnegative_second_bounce() {
     println!("Fast-MSX furnace albedo (F = 1), GGX:");
     for &alpha in &[0.1, 0.5, 1.0, 2.0] {
         for &theta in &[0.0f64, 1.0, 1.45] {
-            let wi = common::dir(theta, 0.0);
+            let wi = crate::common::dir(theta, 0.0);
             let (a, se) = albedo(&fast, &Material::mirror(alpha), wi, 100_000, 5);
             let (s, _) = albedo(&single, &Material::mirror(alpha), wi, 100_000, 5);
             println!("  α = {alpha:<4} θ_i = {theta:<4}: fastmsx {a:.4} ± {se:.4}   (single {s:.4})");
             c.assert("fastmsx albedo finite and ≥ single's", a.is_finite() && a >= s);
         }
     }
-    let (wi, wo) = (common::dir(0.3, 0.0), common::dir(1.2, 2.0));
+    let (wi, wo) = (crate::common::dir(0.3, 0.0), crate::common::dir(1.2, 2.0));
     let m = Material::mirror(1.0);
     let r = (fast.eval(&m, wi, wo, 0).0[0] / wo.z) / (fast.eval(&m, wo, wi, 0).0[0] / wi.z) - 1.0;
     println!("Fast-MSX non-reciprocity f(i,o)/f(o,i) − 1 at θ 0.3 → 1.2, α = 1: {r:+.3}");
@@ -111,7 +110,7 @@ fn compensation_table_matches_monte_carlo_and_restores_energy() {
         let comp = bsdf(Model::Compensated, dist);
         for &alpha in &[0.1, 0.5, 1.0, 2.0] {
             for &theta in &[0.0f64, 1.0, 1.45] {
-                let wi = common::dir(theta, 0.0);
+                let wi = crate::common::dir(theta, 0.0);
                 let est = albedo(&comp, &Material::mirror(alpha), wi, 60_000, 17);
                 println!("  {dist:?} α = {alpha:<4} θ_i = {theta:<4}: compensated albedo {:.4} ± {:.4}", est.0, est.1);
                 c.close(&format!("{dist:?} compensated furnace α={alpha} θ={theta}"), est, (1.0, 0.0), 0.01, 0.0);
@@ -124,8 +123,8 @@ fn compensation_table_matches_monte_carlo_and_restores_energy() {
     for &alpha in &[0.2, 1.0] {
         let mat = copper(alpha);
         for _ in 0..200 {
-            let wi = common::cosine_hemisphere(rng.next(), rng.next());
-            let wo = common::cosine_hemisphere(rng.next(), rng.next());
+            let wi = crate::common::cosine_hemisphere(rng.next(), rng.next());
+            let wo = crate::common::cosine_hemisphere(rng.next(), rng.next());
             let (s, f) = (single.eval(&mat, wi, wo, 0), comp.eval(&mat, wi, wo, 0));
             c.assert("compensated ≥ single", (0..3).all(|k| f.0[k] >= s.0[k]));
             if let Some(smp) = comp.sample(&mat, wi, 0.5, (rng.next(), rng.next())) {
@@ -151,8 +150,8 @@ fn analytic_models_are_robust() {
                 let ratio = (rng.gen_range(0.0, (100.0f64).ln())).exp();
                 let mat = Material { alpha_u: a, alpha_v: a * ratio, ..copper(a) };
                 let th = rng.gen_range(0.0, std::f64::consts::FRAC_PI_2 - 1e-6);
-                let wi = common::dir(th, rng.gen_range(0.0, 6.28));
-                let wo = common::uniform_sphere(rng.next(), rng.next());
+                let wi = crate::common::dir(th, rng.gen_range(0.0, 6.28));
+                let wo = crate::common::uniform_sphere(rng.next(), rng.next());
                 let v = b.eval(&mat, wi, wo, 0);
                 assert!(v.0.iter().all(|x| x.is_finite() && *x >= 0.0), "{model:?} {dist:?} eval {v:?}");
                 let p = b.pdf(&mat, wi, wo);

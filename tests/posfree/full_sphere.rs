@@ -7,11 +7,10 @@
 //! - the BDPT estimator (which hands this case to PT) and the MIS pdf agree.
 //!
 //! Statistical checks: family-wise 3σ of the Monte Carlo standard error
-//! (`common::Checker`).
+//! (`crate::common::Checker`).
 
-mod common;
 
-use common::{cosine_hemisphere, dir, Checker, Stat};
+use crate::common::{cosine_hemisphere, dir, Checker, Stat};
 use glam::DVec3;
 use msx::rng::Sampler;
 use msx::{Bsdf, Config, Distribution, Estimator, Material, Model};

@@ -1,5 +1,5 @@
 //! The invariance-principle model (Cui et al. 2023) on the diffuse
-//! microsurface (`models::invariance_general`): the incremental complete
+//! microsurface (`models::invariance::general`): the incremental complete
 //! recursion against `invariance::segment_term`, furnace, equality in
 //! expectation with Heitz's random walk (albedo, energy per order, f at fixed
 //! pairs), reciprocity, sampled moments = eval integration, and variance /
@@ -7,11 +7,10 @@
 //!
 //! Statistical checks: |estimate − expected| ≤ z·σ (+ stated allowance), σ the
 //! combined Monte Carlo standard error, z the family-wise 3σ level of
-//! `common::family_sigmas`. Run with `--nocapture` for the measured values.
+//! `crate::common::family_sigmas`. Run with `--nocapture` for the measured values.
 
-mod common;
 
-use common::*;
+use crate::common::*;
 use glam::DVec3;
 use msx::models::invariance::general as ig;
 use msx::models::posfree::Segments;

@@ -1,16 +1,15 @@
 //! Bidirectional estimator of the position-free rough dielectric
-//! (`models::posfree_bdpt_dielectric`) against the PT estimator
-//! (`models::posfree_dielectric::eval_pt`), per scattering order and in total,
+//! (`models::posfree::dielectric::eval_bdpt`) against the PT estimator
+//! (`models::posfree::dielectric::eval_pt`), per scattering order and in total,
 //! reflection and transmission, from outside and inside, both segment models;
 //! furnace E_r + E_t = 1 (Importance mode); variance and time per call.
 //!
 //! Statistical checks: |estimate − expected| ≤ z·σ (+ stated allowance), σ the
 //! combined Monte Carlo standard error, z the family-wise 3σ level of
-//! `common::family_sigmas`. Run with `--nocapture` for the measured values.
+//! `crate::common::family_sigmas`. Run with `--nocapture` for the measured values.
 
-mod common;
 
-use common::*;
+use crate::common::*;
 use glam::DVec3;
 use msx::microfacet::fresnel::dielectric_full;
 use msx::models::posfree::Segments;

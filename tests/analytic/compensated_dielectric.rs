@@ -16,9 +16,8 @@
 //! comparable grid). The deterministic part of the table error (table vs the
 //! same quadrature with 64² normals at the query point) is printed.
 
-mod common;
 
-use common::{Checker, Stat, UNIFORM_SPHERE_PDF};
+use crate::common::{Checker, Stat, UNIFORM_SPHERE_PDF};
 use glam::DVec3;
 use msx::microfacet::fresnel::dielectric_full;
 use msx::microfacet::{reflect, refract};
@@ -33,7 +32,7 @@ const ALLOW_REL: f64 = 0.015;
 const DISTS: [Distribution; 2] = [Distribution::Ggx, Distribution::Beckmann];
 
 fn dir(theta: f64, phi: f64) -> DVec3 {
-    common::dir(theta, phi)
+    crate::common::dir(theta, phi)
 }
 
 /// Sphere proposal written for this test: with weight 0.1 the uniform sphere,
@@ -61,7 +60,7 @@ impl Proposal {
         let c = rng.next();
         let (u1, u2) = rng.next2();
         if c < Self::U {
-            return Some(common::uniform_sphere(u1, u2));
+            return Some(crate::common::uniform_sphere(u1, u2));
         }
         let m = self.mf.sample_visible(self.wi_up(), u1, u2)?;
         if c < Self::U + 0.5 * (1.0 - Self::U) {
@@ -220,9 +219,9 @@ fn compensated_at_least_single_and_weight_is_eval_over_pdf() {
                 let mf = Microfacet::new(dist, alpha, alpha * 0.7);
                 for _ in 0..300 {
                     let (a, b) = rng.next2();
-                    let wi = common::uniform_sphere(a, b);
+                    let wi = crate::common::uniform_sphere(a, b);
                     let (c, d) = rng.next2();
-                    let wo = common::uniform_sphere(c, d);
+                    let wo = crate::common::uniform_sphere(c, d);
                     for radiance in [false, true] {
                         let v = cd::eval(&mf, eta, wi, wo, radiance);
                         let v1 = single_dielectric::eval(&mf, eta, wi, wo, radiance).0;
@@ -272,11 +271,11 @@ fn robustness() {
                         1 => dir(std::f64::consts::FRAC_PI_2 + 1e-7, 0.3),
                         _ => {
                             let (a, b) = rng.next2();
-                            common::uniform_sphere(a, b)
+                            crate::common::uniform_sphere(a, b)
                         }
                     };
                     let (c, d) = rng.next2();
-                    let wo = if k % 3 == 0 { dir(std::f64::consts::FRAC_PI_2 - 1e-9, 2.0) } else { common::uniform_sphere(c, d) };
+                    let wo = if k % 3 == 0 { dir(std::f64::consts::FRAC_PI_2 - 1e-9, 2.0) } else { crate::common::uniform_sphere(c, d) };
                     max_scale = max_scale.max(cd::scale(&mf, eta, wi));
                     for radiance in [false, true] {
                         let v = cd::eval(&mf, eta, wi, wo, radiance);

@@ -13,12 +13,11 @@
 //! transmission calls up to 1 300× the mean.
 //!
 //! The same cells check that PT and BDPT, two unbiased estimators of the same
-//! BSDF, agree within the family-wise 3σ level of `common::family_sigmas`.
+//! BSDF, agree within the family-wise 3σ level of `crate::common::family_sigmas`.
 //! Run with `--nocapture` for the measured values.
 
-mod common;
 
-use common::*;
+use crate::common::*;
 use glam::DVec3;
 use msx::bsdf::{Config, Estimator, Material, Model, Surface};
 use msx::{Bsdf, Distribution};

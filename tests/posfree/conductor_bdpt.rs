@@ -1,18 +1,17 @@
 //! Bidirectional estimator of the position-free conductor
-//! (`models::posfree_bdpt`, Wang 2022 eqs. 27–29) against the PT estimator
+//! (`models::posfree::conductor::eval_bdpt`, Wang 2022 eqs. 27–29) against the PT estimator
 //! (`models::posfree::conductor::eval_pt`), per scattering order and in total, for both
 //! segment models; white furnace; variance and time per call.
 //!
 //! Statistical checks: |estimate − expected| ≤ z·σ (+ stated allowance), σ the
 //! combined Monte Carlo standard error, z the family-wise 3σ level of
-//! `common::family_sigmas`. Run with `--nocapture` for the measured values.
+//! `crate::common::family_sigmas`. Run with `--nocapture` for the measured values.
 
 // Lints relaxed for this test file: per-channel statistics indexed by channel.
 #![allow(clippy::needless_range_loop)]
 
-mod common;
 
-use common::*;
+use crate::common::*;
 use glam::DVec3;
 use msx::models::posfree::{self, Segments};
 use msx::models::posfree::conductor as posfree_bdpt;

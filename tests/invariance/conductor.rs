@@ -7,14 +7,13 @@
 //!
 //! Statistical checks: |estimate − expected| ≤ z·σ (+ stated allowance), σ the
 //! combined Monte Carlo standard error, z the family-wise 3σ level of
-//! `common::family_sigmas`. Run with `--nocapture` for the measured values.
+//! `crate::common::family_sigmas`. Run with `--nocapture` for the measured values.
 
 // Lints relaxed for this test file: test helpers take every configuration axis.
 #![allow(clippy::too_many_arguments, clippy::type_complexity)]
 
-mod common;
 
-use common::*;
+use crate::common::*;
 use glam::DVec3;
 use msx::models::posfree::{self, Segments};
 use msx::models::{heitz, invariance, ConductorFresnel, Microsurface, WalkOptions};

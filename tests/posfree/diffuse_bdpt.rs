@@ -1,18 +1,17 @@
 //! Bidirectional estimator of the position-free rough diffuse microsurface
-//! (`models::posfree_bdpt_diffuse`) against the PT estimator
-//! (`models::posfree_diffuse::eval_pt`), per scattering order and in total, both
+//! (`models::posfree::diffuse::eval_bdpt`) against the PT estimator
+//! (`models::posfree::diffuse::eval_pt`), per scattering order and in total, both
 //! segment models; white furnace; variance and time per call.
 //!
 //! Statistical checks: |estimate − expected| ≤ z·σ (+ stated allowance), σ the
 //! combined Monte Carlo standard error, z the family-wise 3σ level of
-//! `common::family_sigmas`. Run with `--nocapture` for the measured values.
+//! `crate::common::family_sigmas`. Run with `--nocapture` for the measured values.
 
 // Lints relaxed for this test file: per-channel statistics indexed by channel.
 #![allow(clippy::needless_range_loop)]
 
-mod common;
 
-use common::*;
+use crate::common::*;
 use glam::DVec3;
 use msx::models::posfree::Segments;
 use msx::models::posfree::diffuse as bd;

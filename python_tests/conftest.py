@@ -33,6 +33,38 @@ def spectral():
     return set_variant("scalar_spectral")
 
 
+# What msx_posfree's traverse lists per configuration, in order: the roughness, then the spectral textures
+# the surface uses (README.md's parameter table). The test modules of each route check it.
+TRAVERSE_CASES = [
+    (dict(alpha=0.3), ("alpha", "eta", "k", "specular_reflectance")),
+    (dict(alpha_u=0.2, alpha_v=0.4, material="Cu"), ("alpha_u", "alpha_v", "eta", "k", "specular_reflectance")),
+    (dict(surface="dielectric", alpha=0.3), ("alpha", "specular_reflectance", "specular_transmittance")),
+    (dict(surface="dielectric", alpha_u=0.2, alpha_v=0.4),
+     ("alpha_u", "alpha_v", "specular_reflectance", "specular_transmittance")),
+    (dict(surface="diffuse", alpha=0.3), ("alpha", "specular_reflectance", "reflectance")),
+]
+# Roughness and a conductor's IOR are differentiable and discontinuous, as in Mitsuba's roughconductor.
+_DISCONTINUOUS = ("alpha", "alpha_u", "alpha_v", "eta", "k")
+
+
+def traverse_items(mi, bsdf):
+    """(name, flags) of each parameter bsdf.traverse puts, in order; every value must be a texture."""
+    items = []
+
+    class Collect(mi.TraversalCallback):
+        def put(self, name, value, flags):
+            assert isinstance(value, mi.Texture), (name, value)
+            items.append((name, int(flags)))
+
+    bsdf.traverse(Collect())
+    return items
+
+
+def expected_traverse(mi, names):
+    diff, disc = mi.ParamFlags.Differentiable, mi.ParamFlags.Discontinuous
+    return [(n, int(diff | disc) if n in _DISCONTINUOUS else int(diff)) for n in names]
+
+
 def hemisphere_dir(rng, cos_lo=0.0, cos_hi=1.0):
     """A unit vector with z = cos θ uniform in [cos_lo, cos_hi] and uniform φ."""
     z = rng.uniform(cos_lo, cos_hi)

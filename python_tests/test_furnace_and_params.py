@@ -6,7 +6,7 @@ import random
 
 import pytest
 
-from conftest import set_variant
+from conftest import TRAVERSE_CASES, expected_traverse, set_variant, traverse_items
 
 FURNACE_N = 20000
 
@@ -122,6 +122,21 @@ def test_traverse_anisotropic(rgb):
     params["alpha_v.value"] = 0.1
     params.update()
     assert b.flags() & int(mi.BSDFFlags.Anisotropic)
+
+
+@pytest.mark.parametrize("backend", ["native", "python"])
+def test_traverse_lists_the_surfaces_textures(backend):
+    """traverse lists exactly the textures the configured surface uses (never another surface's)."""
+    import msx
+
+    mi = set_variant("scalar_rgb")
+    msx.register(backend=backend)
+    try:
+        for params, names in TRAVERSE_CASES:
+            b = mi.load_dict(dict(type="msx_posfree", **params))
+            assert traverse_items(mi, b) == expected_traverse(mi, names), params
+    finally:
+        msx.register()
 
 
 @pytest.mark.parametrize("backend", ["native", "python"])

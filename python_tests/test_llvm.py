@@ -19,7 +19,7 @@ np = pytest.importorskip("numpy")
 mi = pytest.importorskip("mitsuba")
 import drjit as dr  # noqa: E402
 
-from conftest import close, direction_pairs  # noqa: E402
+from conftest import TRAVERSE_CASES, close, direction_pairs, expected_traverse, traverse_items  # noqa: E402
 
 _REASON = llvm_unusable_reason()
 if _REASON:
@@ -236,6 +236,14 @@ def test_masking_and_errors():
         mi.load_dict(dict(type="msx_posfree", model="nope"))
     with pytest.raises(Exception, match="alpha"):
         mi.load_dict(dict(type="msx_posfree", alpha=-1.0))
+
+
+def test_traverse_lists_the_surfaces_textures():
+    """traverse lists exactly the textures the configured surface uses, as in the scalar variants."""
+    mi = llvm()
+    for params, names in TRAVERSE_CASES:
+        b = mi.load_dict(dict(type="msx_posfree", **params))
+        assert traverse_items(mi, b) == expected_traverse(mi, names), params
 
 
 def test_dielectric_sample_record():

@@ -5,13 +5,13 @@ API-mode extension ``msx._native`` (small C helpers there take the
 directions as plain floats and return the ABI's result structs by value).
 Per-hit material values are packed into an ``MsxMaterial``; when no texture
 varies (over the surface, or with wavelength in spectral variants) that
-struct is computed once and reused.
+struct is computed once and reused. Parameters, flags, ``traverse`` and the
+factory are shared with the LLVM route (``_plugin_base.py``).
 """
 
 from ._native import ffi, lib
-from ._params import PLUGIN, Config, MsxParameterError, channels_of
-
-_ERR_LEN = 512
+from ._params import PLUGIN
+from ._plugin_base import ALL_COMPONENTS, make_base_class, make_factory, native_channels, surface_lobes
 
 
 def _channels(mi, variant):
@@ -20,20 +20,17 @@ def _channels(mi, variant):
             "%s: variant '%s' is not supported yet; use a scalar variant (scalar_rgb, scalar_spectral, "
             "scalar_mono) or an LLVM variant (llvm_ad_rgb, llvm_ad_spectral)" % (PLUGIN, variant)
         )
-    return channels_of(mi, variant)
+    return native_channels(mi, variant)
 
 
 def make_bsdf_class(mi, variant):
     """Defines the BSDF class for the current variant (``variant``)."""
     nch = _channels(mi, variant)
-    if nch > lib.MSX_MAX_CHANNELS:
-        raise NotImplementedError("%s: %d channels exceed the core's limit" % (PLUGIN, nch))
 
     BSDFFlags = mi.BSDFFlags
     GLOSSY_REFLECTION = BSDFFlags.GlossyReflection
-    GLOSSY_BIT = int(GLOSSY_REFLECTION)
     # BSDFContext.component: -1 (all components, as uint32) or our only one, 0.
-    COMPONENTS = frozenset((0, 0xFFFFFFFF))
+    COMPONENTS = frozenset((0, ALL_COMPONENTS))
     Spectrum = mi.Spectrum
     Vector3f = mi.Vector3f
     BSDFSample3f = mi.BSDFSample3f
@@ -46,9 +43,10 @@ def make_bsdf_class(mi, variant):
     SAMPLE_TEMPLATE.eta = 1.0
     SAMPLE_TEMPLATE.sampled_type = int(GLOSSY_REFLECTION)
     SAMPLE_TEMPLATE.sampled_component = 0
-    DIFF = mi.ParamFlags.Differentiable
-    DISC = mi.ParamFlags.Discontinuous
     spectral = bool(mi.is_spectral)
+    IMPORTANCE = mi.TransportMode.Importance
+    T_TYPE = int(BSDFFlags.GlossyTransmission)
+    D_TYPE = int(BSDFFlags.DiffuseReflection)
 
     # The C helpers take the material evaluated at the hit, or NULL for the cached one.
     c_eval, c_eval_pdf, c_pdf, c_sample = lib.msxpy_eval, lib.msxpy_eval_pdf, lib.msxpy_pdf, lib.msxpy_sample
@@ -89,40 +87,13 @@ def make_bsdf_class(mi, variant):
 
     def build(kind):
         """The class for one surface kind, with its flags as closure constants."""
-        if kind == "dielectric":
-            LOBES = BSDFFlags.GlossyReflection | BSDFFlags.GlossyTransmission
-            SIDES = BSDFFlags.FrontSide | BSDFFlags.BackSide | BSDFFlags.NonSymmetric
-        elif kind == "diffuse":
-            LOBES = BSDFFlags.DiffuseReflection
-            SIDES = BSDFFlags.FrontSide
-        else:
-            LOBES = GLOSSY_REFLECTION
-            SIDES = BSDFFlags.FrontSide
-        LOBE_BITS = int(LOBES)
+        LOBE_BITS = int(surface_lobes(BSDFFlags, kind)[0])
 
-        class MsxPosfree(mi.BSDF):
+        class MsxPosfree(make_base_class(mi, kind, nch)):
             """Multiple-scattering microfacet conductor (README.md's parameter table)."""
 
             def __init__(self, props):
-                mi.BSDF.__init__(self, props)
-                cfg = Config(mi, props)
-                self._cfg = cfg
-                self._alpha_u = cfg.alpha_u
-                self._alpha_v = cfg.alpha_v
-                self._eta = cfg.eta
-                self._k = cfg.k
-                self._specular_reflectance = cfg.specular_reflectance
-                self._specular_transmittance = cfg.specular_transmittance
-                self._reflectance = cfg.reflectance
-                self._dielectric = cfg.surface == "dielectric"
-
-                params = new("MsxParams *", cfg.native_params(nch))
-                out = new("MsxBsdf **")
-                err = new("char[]", _ERR_LEN)
-                rc = lib.msx_bsdf_new(params, out, err, _ERR_LEN)
-                if rc != lib.MSX_OK:
-                    raise MsxParameterError("%s: %s" % (PLUGIN, ffi.string(err).decode(errors="replace")))
-                self._h = ffi.gc(out[0], lib.msx_bsdf_free)
+                super().__init__(props)
                 # Handle + cached material. The key of msx_eval* comes from the hit (p, uv).
                 self._inst = new("MsxpyInst *")
                 self._inst.bsdf = self._h
@@ -132,10 +103,7 @@ def make_bsdf_class(mi, variant):
 
             def _refresh(self):
                 """(Re)computes cached constants from the current textures."""
-                isotropic = self._cfg.isotropic
-                if isotropic:
-                    self._alpha_v = self._alpha_u
-                texs = [self._alpha_u, self._alpha_v] + self._spectra()
+                texs = self._textures
                 self._const = all(is_constant(t) for t in texs)
                 self._alpha_const = all(not t.is_spatially_varying() for t in texs[:2])
 
@@ -149,36 +117,11 @@ def make_bsdf_class(mi, variant):
                 self._mat = mat
                 # Textures that vary in RGB are spatially varying: evaluated per call.
                 self._inst.mat = mat[0]
-
-                flags = LOBES | SIDES
-                anisotropic = not isotropic and (
-                    not self._alpha_const or mat.alpha_u != mat.alpha_v
-                )
-                if anisotropic:
-                    flags = flags | BSDFFlags.Anisotropic
-                if not self._const and any(t.is_spatially_varying() for t in texs):
-                    flags = flags | BSDFFlags.SpatiallyVarying
-                self.m_flags = flags
-                if kind == "dielectric":
-                    extra = flags & ~LOBES
-                    self.m_components = [BSDFFlags.GlossyReflection | extra, BSDFFlags.GlossyTransmission | extra]
-                else:
-                    self.m_components = [flags]
-
-            def _spectra(self):
-                """The spectral textures this surface uses."""
-                t = [self._specular_reflectance]
-                for x in (self._eta, self._k, self._specular_transmittance, self._reflectance):
-                    if x is not None:
-                        t.append(x)
-                return t
+                self._set_flags()
 
             def _fill_spectra(self, mat, si):
                 mat.ior = self._cfg.ior
-                for field, tex in (("eta", self._eta), ("k", self._k), ("specular_reflectance", self._specular_reflectance),
-                                   ("specular_transmittance", self._specular_transmittance), ("reflectance", self._reflectance)):
-                    if tex is None:
-                        continue
+                for field, tex in self._spectra:
                     vals = channel_values(tex.eval(si))
                     arr = getattr(mat, field)
                     for c in range(nch):
@@ -252,24 +195,6 @@ def make_bsdf_class(mi, variant):
 
             # ------------------------------------------------------ parameters
 
-            def traverse(self, cb):
-                if self._cfg.isotropic:
-                    cb.put("alpha", self._alpha_u, DIFF | DISC)
-                else:
-                    cb.put("alpha_u", self._alpha_u, DIFF | DISC)
-                    cb.put("alpha_v", self._alpha_v, DIFF | DISC)
-                if self._eta is not None:
-                    cb.put("eta", self._eta, DIFF | DISC)
-                    cb.put("k", self._k, DIFF | DISC)
-                cb.put("specular_reflectance", self._specular_reflectance, DIFF)
-                if self._specular_transmittance is not None:
-                    cb.put("specular_transmittance", self._specular_transmittance, DIFF)
-                if self._reflectance is not None:
-                    cb.put("reflectance", self._reflectance, DIFF)
-
-            def parameters_changed(self, keys=[]):
-                self._refresh()
-
             def to_string(self):
                 cfg = self._cfg
                 if cfg.isotropic:
@@ -292,15 +217,9 @@ def make_bsdf_class(mi, variant):
                 )
 
         MsxPosfree.__name__ = MsxPosfree.__qualname__ = "MsxPosfree"
-        return MsxPosfree
+        return MsxPosfree if kind == "conductor" else _with_surface_calls(MsxPosfree, kind)
 
-    IMPORTANCE = mi.TransportMode.Importance
-    R_BIT = int(BSDFFlags.GlossyReflection)
-    T_BIT = int(BSDFFlags.GlossyTransmission)
-    T_TYPE = int(BSDFFlags.GlossyTransmission)
-    D_TYPE = int(BSDFFlags.DiffuseReflection)
-
-    def _with_surface_calls(mi_, base, kind, nch_):
+    def _with_surface_calls(base, kind):
         """Adds what differs for dielectric and diffuse surfaces: transport
         mode, per-side lobes and components, and the sample record's type/eta."""
         if kind == "diffuse":
@@ -323,14 +242,6 @@ def make_bsdf_class(mi, variant):
                 mat[0] = self._material(si)[0]
                 mat.mode = lib.MSX_MODE_IMPORTANCE if imp else lib.MSX_MODE_RADIANCE
                 return mat
-
-            @staticmethod
-            def _lobes(ctx):
-                """(reflection enabled, transmission enabled)."""
-                m, c = ctx.type_mask, ctx.component
-                r = bool(m & R_BIT) and c in (0, 0xFFFFFFFF)
-                t = bool(m & T_BIT) and c in (1, 0xFFFFFFFF)
-                return r, t
 
             def eval(self, ctx, si, wo, active=True):
                 return self.eval_pdf(ctx, si, wo, active)[0]
@@ -372,20 +283,7 @@ def make_bsdf_class(mi, variant):
         Dielectric.__name__ = Dielectric.__qualname__ = "MsxPosfree"
         return Dielectric
 
-    classes = {kind: build(kind) for kind in ("conductor", "dielectric", "diffuse")}
-    for kind in ("dielectric", "diffuse"):
-        classes[kind] = _with_surface_calls(mi, classes[kind], kind, nch)
-
-    class MsxPosfreeFactory:
-        """Creates the msx_posfree instance of the surface named in the properties."""
-
-        classes_by_surface = classes
-
-        def __call__(self, props):
-            surface = props.get("surface", "conductor") if "surface" in props else "conductor"
-            return classes.get(surface, classes["conductor"])(props)
-
-    return MsxPosfreeFactory()
+    return make_factory(build)
 
 
 def _indent(obj):

@@ -4,6 +4,8 @@
 Each BSDF method invocation makes exactly one batched C call
 (``msx_eval_batch`` / ``msx_pdf_batch`` / ``msx_eval_pdf_batch`` /
 ``msx_sample_batch``, see ``include/msx.h``) over all the lanes it receives.
+Parameters, flags, ``traverse`` and the factory are shared with the scalar
+route (``_plugin_base.py``).
 
 Native code cannot run inside drjit's symbolic (traced) kernels, so
 
@@ -31,9 +33,8 @@ import weakref
 import numpy as np
 
 from ._native import ffi, lib
-from ._params import PLUGIN, Config, MsxParameterError, channels_of
-
-_ERR_LEN = 512
+from ._params import PLUGIN, Config
+from ._plugin_base import ERR_LEN, SPECTRAL_TEXTURES, make_base_class, make_factory, native_channels
 
 # Live instances (for check_fallback).
 _INSTANCES = weakref.WeakSet()
@@ -188,7 +189,7 @@ class _Mi:
 
 
 def _unwrap(cfg):
-    for name in ("alpha_u", "alpha_v", "eta", "k", "specular_reflectance", "specular_transmittance", "reflectance"):
+    for name in ("alpha_u", "alpha_v") + SPECTRAL_TEXTURES:
         v = getattr(cfg, name, None)
         if isinstance(v, _ScalarTex):
             setattr(cfg, name, v.tex)
@@ -199,26 +200,19 @@ def make_bsdf_class(mi, variant):
     """Defines the BSDF classes for the current LLVM variant; returns the factory."""
     import drjit as dr
 
-    nch = channels_of(mi, variant)
-    if nch > lib.MSX_MAX_CHANNELS:
-        raise NotImplementedError("%s: %d channels exceed the core's limit" % (PLUGIN, nch))
+    nch = native_channels(mi, variant)
 
     BSDFFlags = mi.BSDFFlags
     Float, UInt32, Bool = mi.Float, mi.UInt32, mi.Bool
     Spectrum, Vector3f = mi.Spectrum, mi.Vector3f
     BSDFSample3f = mi.BSDFSample3f
     IMPORTANCE = mi.TransportMode.Importance
-    DIFF = mi.ParamFlags.Differentiable
-    DISC = mi.ParamFlags.Discontinuous
-    spectral = bool(mi.is_spectral)
-    ALL = 0xFFFFFFFF
     R_BIT = int(BSDFFlags.GlossyReflection)
     T_BIT = int(BSDFFlags.GlossyTransmission)
     D_BIT = int(BSDFFlags.DiffuseReflection)
     SYMBOLIC = dr.VarState.Symbolic
     new = ffi.new
     cast = ffi.cast
-    NULL = ffi.NULL
 
     def spectrum_of(chs):
         return Spectrum(*chs) if nch > 1 else Spectrum(chs[0])
@@ -253,86 +247,28 @@ def make_bsdf_class(mi, variant):
 
     def build(kind):
         if kind == "dielectric":
-            LOBES = BSDFFlags.GlossyReflection | BSDFFlags.GlossyTransmission
-            SIDES = BSDFFlags.FrontSide | BSDFFlags.BackSide | BSDFFlags.NonSymmetric
             R_TYPE, T_TYPE = R_BIT, T_BIT
         elif kind == "diffuse":
-            LOBES = BSDFFlags.DiffuseReflection
-            SIDES = BSDFFlags.FrontSide
             R_TYPE, T_TYPE = D_BIT, D_BIT
         else:
-            LOBES = BSDFFlags.GlossyReflection
-            SIDES = BSDFFlags.FrontSide
             R_TYPE, T_TYPE = R_BIT, R_BIT
-        LOBE_BITS = int(LOBES)
         dielectric = kind == "dielectric"
 
-        def lobes(ctx):
-            """(reflection enabled, transmission enabled) for this context."""
-            m, c = int(ctx.type_mask), int(ctx.component)
-            if dielectric:
-                return bool(m & R_BIT) and c in (0, ALL), bool(m & T_BIT) and c in (1, ALL)
-            on = bool(m & LOBE_BITS) and c in (0, ALL)
-            return on, False
-
-        class MsxPosfree(mi.BSDF):
+        class MsxPosfree(make_base_class(mi, kind, nch)):
             """Multiple-scattering microfacet BSDF (LLVM variants, batched native calls)."""
 
             def __init__(self, props):
-                mi.BSDF.__init__(self, props)
-                cfg = _unwrap(Config(_Mi(mi), _Props(props)))
-                self._cfg = cfg
-                self._alpha_u = cfg.alpha_u
-                self._alpha_v = cfg.alpha_u if cfg.isotropic else cfg.alpha_v
-                self._eta = cfg.eta
-                self._k = cfg.k
-                self._specular_reflectance = cfg.specular_reflectance
-                self._specular_transmittance = cfg.specular_transmittance
-                self._reflectance = cfg.reflectance
-                params = new("MsxParams *", cfg.native_params(nch))
-                out = new("MsxBsdf **")
-                err = new("char[]", _ERR_LEN)
-                rc = lib.msx_bsdf_new(params, out, err, _ERR_LEN)
-                if rc != lib.MSX_OK:
-                    raise MsxParameterError("%s: %s" % (PLUGIN, ffi.string(err).decode(errors="replace")))
-                self._h = ffi.gc(out[0], lib.msx_bsdf_free)
-                self._err = new("char[]", _ERR_LEN)
+                super().__init__(props)
+                self._err = new("char[]", ERR_LEN)
                 self._fallback = dr.zeros(UInt32, 1)
                 self._fallback_warned = False
                 self._fallback_seen = False
                 _INSTANCES.add(self)
                 self._refresh()
 
-            # ------------------------------------------------------------ state
-
-            def _refresh(self):
-                texs = [self._alpha_u, self._alpha_v]
-                varying = any(t.is_spatially_varying() for t in texs + self._spectra())
-                flags = LOBES | SIDES
-                if not self._cfg.isotropic:
-                    aniso = any(t.is_spatially_varying() for t in texs)
-                    if not aniso:
-                        si = mi.SurfaceInteraction3f()
-                        a = self._alpha_u.eval_1(si)
-                        b = self._alpha_v.eval_1(si)
-                        aniso = bool(dr.any(a != b))
-                    if aniso:
-                        flags = flags | BSDFFlags.Anisotropic
-                if varying:
-                    flags = flags | BSDFFlags.SpatiallyVarying
-                self.m_flags = flags
-                if dielectric:
-                    extra = flags & ~LOBES
-                    self.m_components = [BSDFFlags.GlossyReflection | extra, BSDFFlags.GlossyTransmission | extra]
-                else:
-                    self.m_components = [flags]
-
-            def _spectra(self):
-                t = [self._specular_reflectance]
-                for x in (self._eta, self._k, self._specular_transmittance, self._reflectance):
-                    if x is not None:
-                        t.append(x)
-                return t
+            def _config(self, props):
+                # _params.Config reads constant textures as Python floats: parse through the wrappers.
+                return _unwrap(Config(_Mi(mi), _Props(props)))
 
             # ------------------------------------------------- symbolic fallback
 
@@ -382,14 +318,8 @@ def make_bsdf_class(mi, variant):
                 if sample1 is not None:
                     inputs["sample1"] = [Float(sample1)]
                     inputs["sample2"] = [Float(sample2[0]), Float(sample2[1])]
-                inputs["specular_reflectance"] = channels(self._specular_reflectance.eval(si, si_a))
-                if self._eta is not None:
-                    inputs["eta"] = channels(self._eta.eval(si, si_a))
-                    inputs["k"] = channels(self._k.eval(si, si_a))
-                if self._specular_transmittance is not None:
-                    inputs["specular_transmittance"] = channels(self._specular_transmittance.eval(si, si_a))
-                if self._reflectance is not None:
-                    inputs["reflectance"] = channels(self._reflectance.eval(si, si_a))
+                for name, tex in self._spectra:
+                    inputs[name] = channels(tex.eval(si, si_a))
                 flat = [Float(x) if not isinstance(x, Float) else x for v in inputs.values() for x in v]
                 n = max(width_of(*flat), dr.width(active) if not isinstance(active, bool) else 1)
                 dr.eval(*flat)
@@ -436,7 +366,7 @@ def make_bsdf_class(mi, variant):
                     wo_out = np.empty((3, n), dtype=np.float32)
                     for c in range(3):
                         out.wo[c] = cast("float *", wo_out[c].ctypes.data)
-                rc = fn(self._h, inp, out, self._err, _ERR_LEN)
+                rc = fn(self._h, inp, out, self._err, ERR_LEN)
                 if rc != lib.MSX_OK:
                     raise RuntimeError("%s: native batch call failed (%d): %s"
                                        % (PLUGIN, rc, ffi.string(self._err).decode(errors="replace")))
@@ -454,7 +384,7 @@ def make_bsdf_class(mi, variant):
             # ------------------------------------------------------------ calls
 
             def _lane_mask(self, ctx, si, wo, active):
-                r_on, t_on = lobes(ctx)
+                r_on, t_on = self._lobes(ctx)
                 if not dielectric:
                     return active if r_on else None
                 if not (r_on or t_on):
@@ -495,7 +425,7 @@ def make_bsdf_class(mi, variant):
                 return dr.select(mask, pdf, 0.0)
 
             def sample(self, ctx, si, sample1, sample2, active=True):
-                r_on, t_on = lobes(ctx)
+                r_on, t_on = self._lobes(ctx)
                 if not (r_on or t_on):
                     return dr.zeros(BSDFSample3f), dr.zeros(Spectrum)
                 if is_symbolic(si.wi, sample1, sample2, active):
@@ -526,24 +456,6 @@ def make_bsdf_class(mi, variant):
 
             # ------------------------------------------------------ parameters
 
-            def traverse(self, cb):
-                if self._cfg.isotropic:
-                    cb.put("alpha", self._alpha_u, DIFF | DISC)
-                else:
-                    cb.put("alpha_u", self._alpha_u, DIFF | DISC)
-                    cb.put("alpha_v", self._alpha_v, DIFF | DISC)
-                if self._eta is not None:
-                    cb.put("eta", self._eta, DIFF | DISC)
-                    cb.put("k", self._k, DIFF | DISC)
-                cb.put("specular_reflectance", self._specular_reflectance, DIFF)
-                if self._specular_transmittance is not None:
-                    cb.put("specular_transmittance", self._specular_transmittance, DIFF)
-                if self._reflectance is not None:
-                    cb.put("reflectance", self._reflectance, DIFF)
-
-            def parameters_changed(self, keys=[]):
-                self._refresh()
-
             def to_string(self):
                 cfg = self._cfg
                 return ("MsxPosfree[surface=\"%s\", distribution=\"%s\", model=\"%s\", estimator=\"%s\", "
@@ -554,15 +466,4 @@ def make_bsdf_class(mi, variant):
         MsxPosfree.__name__ = MsxPosfree.__qualname__ = "MsxPosfree"
         return MsxPosfree
 
-    classes = {kind: build(kind) for kind in ("conductor", "dielectric", "diffuse")}
-
-    class MsxPosfreeFactory:
-        """Creates the msx_posfree instance of the surface named in the properties."""
-
-        classes_by_surface = classes
-
-        def __call__(self, props):
-            surface = props.get("surface", "conductor") if "surface" in props else "conductor"
-            return classes.get(surface, classes["conductor"])(props)
-
-    return MsxPosfreeFactory()
+    return make_factory(build)

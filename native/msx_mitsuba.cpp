@@ -10,9 +10,9 @@
 //   int      max_bounces (0 = library default)
 //   float    auto_tolerance (0 = library default), ior (dielectric)
 //   bool     isotropic
-//   textures alpha_u, alpha_v, specular_reflectance and, per surface,
-//            eta and k (conductor), specular_transmittance (dielectric),
-//            reflectance (diffuse)
+//   textures alpha_u, alpha_v and, per surface, specular_reflectance
+//            (conductor, dielectric), eta and k (conductor),
+//            specular_transmittance (dielectric), reflectance (diffuse)
 // It is compiled against the installed Mitsuba's own headers on first use
 // (see _native_backend.py), because the struct layouts must match the wheel.
 
@@ -78,7 +78,8 @@ public:
         m_isotropic = props.get<bool>("isotropic");
         m_alpha_u = props.get_texture<Texture>("alpha_u");
         m_alpha_v = m_isotropic ? m_alpha_u : props.get_texture<Texture>("alpha_v");
-        m_specular_reflectance = props.get_texture<Texture>("specular_reflectance");
+        if (props.has_property("specular_reflectance")) // conductors and dielectrics only
+            m_specular_reflectance = props.get_texture<Texture>("specular_reflectance");
         if (m_surface == "conductor") {
             m_eta = props.get_unbounded_texture<Texture>("eta");
             m_k = props.get_unbounded_texture<Texture>("k");
@@ -108,7 +109,8 @@ public:
             cb->put("eta", m_eta, flags);
             cb->put("k", m_k, flags);
         }
-        cb->put("specular_reflectance", m_specular_reflectance, +ParamFlags::Differentiable);
+        if (m_specular_reflectance)
+            cb->put("specular_reflectance", m_specular_reflectance, +ParamFlags::Differentiable);
         if (m_specular_transmittance)
             cb->put("specular_transmittance", m_specular_transmittance, +ParamFlags::Differentiable);
         if (m_reflectance)
@@ -224,8 +226,8 @@ public:
 
 private:
     std::vector<const Texture *> textures() const {
-        std::vector<const Texture *> out{ m_alpha_u.get(), m_alpha_v.get(), m_specular_reflectance.get() };
-        for (const ref<Texture> *t : { &m_eta, &m_k, &m_specular_transmittance, &m_reflectance })
+        std::vector<const Texture *> out{ m_alpha_u.get(), m_alpha_v.get() };
+        for (const ref<Texture> *t : { &m_specular_reflectance, &m_eta, &m_k, &m_specular_transmittance, &m_reflectance })
             if (*t)
                 out.push_back(t->get());
         return out;
@@ -276,7 +278,8 @@ private:
             m.k[c] = 1.f; // a perfect mirror in the fields this surface does not use
             m.specular_transmittance[c] = m.specular_reflectance[c] = m.reflectance[c] = 1.f;
         }
-        put(m.specular_reflectance, m_specular_reflectance->eval(si, true));
+        if (m_specular_reflectance)
+            put(m.specular_reflectance, m_specular_reflectance->eval(si, true));
         if (m_eta) {
             put(m.eta, m_eta->eval(si, true));
             put(m.k, m_k->eval(si, true));

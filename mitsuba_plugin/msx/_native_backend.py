@@ -162,9 +162,11 @@ def _native_props(cfg) -> dict:
     d = dict(surface=cfg.surface, distribution=cfg.distribution, model=cfg.model, estimator=cfg.estimator,
              max_bounces=int(cfg.max_bounces), seed=str(cfg.seed),
              auto_tolerance=float(cfg.auto_tolerance if cfg.model == "auto" else 0.0), isotropic=bool(cfg.isotropic),
-             alpha_u=cfg.alpha_u, specular_reflectance=cfg.specular_reflectance)
+             alpha_u=cfg.alpha_u)
     if not cfg.isotropic:
         d["alpha_v"] = cfg.alpha_v
+    if cfg.specular_reflectance is not None:
+        d["specular_reflectance"] = cfg.specular_reflectance
     if cfg.surface == "conductor":
         d["eta"], d["k"] = cfg.eta, cfg.k
     elif cfg.surface == "dielectric":

@@ -15,7 +15,6 @@ SURFACES = {
     "dielectric": lib.MSX_SURFACE_DIELECTRIC,
     "diffuse": lib.MSX_SURFACE_DIFFUSE,
 }
-SURFACES_PLANNED = ()
 
 DISTRIBUTIONS = {"beckmann": lib.MSX_DISTRIBUTION_BECKMANN, "ggx": lib.MSX_DISTRIBUTION_GGX}
 
@@ -29,10 +28,8 @@ MODELS = {
     "compensated": lib.MSX_MODEL_COMPENSATED,
     "auto": lib.MSX_MODEL_AUTO,
 }
-MODELS_PLANNED = ()
 
 ESTIMATORS = {"pt": lib.MSX_ESTIMATOR_PT, "bdpt": lib.MSX_ESTIMATOR_BDPT}
-ESTIMATORS_PLANNED = ()
 
 # The surface-specific parameters each surface accepts (the others are errors).
 SURFACE_PARAMS = {
@@ -65,7 +62,7 @@ def _fmt(values):
     return ", ".join("'%s'" % v for v in values)
 
 
-def _choice(props, name, default, allowed, planned=()):
+def _choice(props, name, default, allowed):
     """A string parameter restricted to ``allowed`` (dict or sequence)."""
     if not (name in props):
         return default
@@ -76,15 +73,8 @@ def _choice(props, name, default, allowed, planned=()):
         )
     if value in allowed:
         return value
-    if value in planned:
-        raise MsxParameterError(
-            "%s: parameter '%s' = '%s' is not implemented yet; allowed values: %s"
-            % (PLUGIN, name, value, _fmt(allowed))
-        )
-    known = list(allowed) + [p + " (not implemented yet)" for p in planned]
     raise MsxParameterError(
-        "%s: unknown value '%s' for parameter '%s'; allowed values: %s"
-        % (PLUGIN, value, name, ", ".join(known))
+        "%s: unknown value '%s' for parameter '%s'; allowed values: %s" % (PLUGIN, value, name, ", ".join(allowed))
     )
 
 
@@ -218,7 +208,7 @@ class Config:
     """Parsed parameters of one msx_posfree instance."""
 
     def __init__(self, mi, props):
-        self.surface = _choice(props, "surface", "conductor", SURFACES, SURFACES_PLANNED)
+        self.surface = _choice(props, "surface", "conductor", SURFACES)
         own = SURFACE_PARAMS[self.surface]
         for other, names in SURFACE_PARAMS.items():
             for name in names:
@@ -261,10 +251,12 @@ class Config:
             self.specular_transmittance = props.get_texture("specular_transmittance", 1.0)
         else:
             self.reflectance = props.get_texture("reflectance", 0.5)
-        self.specular_reflectance = props.get_texture("specular_reflectance", 1.0)
+        # A tint of the specular facets: the diffuse microsurface has none (its albedo is `reflectance`).
+        self.specular_reflectance = (props.get_texture("specular_reflectance", 1.0) if self.surface != "diffuse"
+                                     else None)
 
-        self.model = _choice(props, "model", "correlated", MODELS, MODELS_PLANNED)
-        self.estimator = _choice(props, "estimator", "pt", ESTIMATORS, ESTIMATORS_PLANNED)
+        self.model = _choice(props, "model", "correlated", MODELS)
+        self.estimator = _choice(props, "estimator", "pt", ESTIMATORS)
         self.max_bounces = _int(props, "max_bounces", 0, 1, MAX_BOUNCES_LIMIT)
         self.seed = _int(props, "seed", 0, 0, SEED_LIMIT - 1)
         if ("auto_tolerance" in props) and self.model != "auto":

@@ -394,34 +394,37 @@ def make_bsdf_class(mi, variant):
                 reflect = si.wi[2] * wo[2] > 0
                 return active & (reflect if r_on else ~reflect)
 
-            def eval_pdf(self, ctx, si, wo, active=True):
+            def _evaluate(self, batch, ctx, si, wo, active, **kw):
+                """One batched call of eval / pdf / eval_pdf on the lanes whose lobe the context enables:
+                (mask, (value, pdf, _)), or None when no lane is enabled or the call is traced
+                symbolically (counted: those lanes get zero)."""
                 mask = self._lane_mask(ctx, si, wo, active)
                 if mask is None:
-                    return dr.zeros(Spectrum), dr.zeros(Float)
+                    return None
                 if is_symbolic(si.wi, wo, active):
                     self._fallback_count(mask)
+                    return None
+                return mask, self._call(batch, ctx, si, active, wo=wo, **kw)
+
+            def eval_pdf(self, ctx, si, wo, active=True):
+                r = self._evaluate(lib.msx_eval_pdf_batch, ctx, si, wo, active)
+                if r is None:
                     return dr.zeros(Spectrum), dr.zeros(Float)
-                val, pdf, _ = self._call(lib.msx_eval_pdf_batch, ctx, si, active, wo=wo)
+                mask, (val, pdf, _) = r
                 return (dr.select(mask, spectrum_of(val), 0.0), dr.select(mask, pdf, 0.0))
 
             def eval(self, ctx, si, wo, active=True):
-                mask = self._lane_mask(ctx, si, wo, active)
-                if mask is None:
+                r = self._evaluate(lib.msx_eval_batch, ctx, si, wo, active, want_pdf=False)
+                if r is None:
                     return dr.zeros(Spectrum)
-                if is_symbolic(si.wi, wo, active):
-                    self._fallback_count(mask)
-                    return dr.zeros(Spectrum)
-                val, _, _ = self._call(lib.msx_eval_batch, ctx, si, active, wo=wo, want_pdf=False)
+                mask, (val, _, _) = r
                 return dr.select(mask, spectrum_of(val), 0.0)
 
             def pdf(self, ctx, si, wo, active=True):
-                mask = self._lane_mask(ctx, si, wo, active)
-                if mask is None:
+                r = self._evaluate(lib.msx_pdf_batch, ctx, si, wo, active, want_value=False)
+                if r is None:
                     return dr.zeros(Float)
-                if is_symbolic(si.wi, wo, active):
-                    self._fallback_count(mask)
-                    return dr.zeros(Float)
-                _, pdf, _ = self._call(lib.msx_pdf_batch, ctx, si, active, wo=wo, want_value=False)
+                mask, (_, pdf, _) = r
                 return dr.select(mask, pdf, 0.0)
 
             def sample(self, ctx, si, sample1, sample2, active=True):

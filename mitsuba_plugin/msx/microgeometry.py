@@ -688,12 +688,8 @@ def _lobe_chart(out, res, model_data, surface, alpha, theta):
         ax.tick_params(labelsize=7)
     axes[0].set_ylabel("dE/dω = f·|cos θ_o| (1/sr)")
     axes[4].legend(fontsize=6)
-    fig.suptitle(f"{surface}, Beckmann α = {_alpha_label(alpha)}, θ_i = {theta:g} rad", fontsize=9)
-    fig.tight_layout()
-    name = f"lobes_{surface}_a{alpha[0]:g}-{alpha[1]:g}_t{theta:g}.png"
-    fig.savefig(out / name, dpi=90)
-    plt.close(fig)
-    return str(out / name)
+    return _save(plt, fig, out / f"lobes_{surface}_a{alpha[0]:g}-{alpha[1]:g}_t{theta:g}.png",
+                 f"{surface}, Beckmann α = {_alpha_label(alpha)}, θ_i = {theta:g} rad")
 
 
 def _energy_chart(out, rows, surface, alphas, thetas):
@@ -723,12 +719,17 @@ def _energy_chart(out, rows, surface, alphas, thetas):
             if ia == len(alphas) - 1:
                 ax.set_xlabel("θ_i (rad)", fontsize=7)
     axes[0][4].legend(fontsize=6)
-    fig.suptitle(f"{surface}: energy per scattering order (fraction of the incident flux)", fontsize=9)
+    return _save(plt, fig, out / f"energy_{surface}.png",
+                 f"{surface}: energy per scattering order (fraction of the incident flux)")
+
+
+def _save(plt, fig, path, title):
+    """Titles, lays out and writes a chart; returns its path."""
+    fig.suptitle(title, fontsize=9)
     fig.tight_layout()
-    name = f"energy_{surface}.png"
-    fig.savefig(out / name, dpi=90)
+    fig.savefig(path, dpi=90)
     plt.close(fig)
-    return str(out / name)
+    return str(path)
 
 
 # ----------------------------------------------------------------------- CLI

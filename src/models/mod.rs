@@ -131,6 +131,22 @@ pub struct WalkOptions {
     pub orders: (u32, u32),
 }
 
+impl WalkOptions {
+    /// The order of the last vertex a walk may reach, min(orders.1,
+    /// max_bounces); None when that leaves no order to count.
+    #[inline]
+    pub fn last_order(&self) -> Option<u32> {
+        let last = self.orders.1.min(self.max_bounces);
+        (last > 0 && self.orders.0 <= last).then_some(last)
+    }
+
+    /// The orders counted, from 1 and within the bounce cap (may be empty).
+    #[inline]
+    pub fn clamped_orders(&self) -> (u32, u32) {
+        (self.orders.0.max(1), self.orders.1.min(self.max_bounces))
+    }
+}
+
 /// What a microfacet does to light (Heitz 2016 §3.2–3.4): the microsurface's
 /// material, shared by every multiple-scattering model.
 #[derive(Clone, Copy, Debug)]

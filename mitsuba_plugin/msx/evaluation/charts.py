@@ -16,20 +16,21 @@ from matplotlib.colors import LogNorm, TwoSlopeNorm  # noqa: E402
 
 from .common import row_label  # noqa: E402
 
-STYLE = {
-    "built-in": dict(color="black", ls="--", marker="x"),
-    "single": dict(color="0.45", ls="-", marker="x"),
-    "uncorrelated": dict(color="tab:orange", ls="-", marker="o"),
-    "uncorrelated bdpt": dict(color="tab:orange", ls=":", marker="s"),
-    "correlated": dict(color="tab:blue", ls="-", marker="o"),
-    "correlated bdpt": dict(color="tab:blue", ls=":", marker="s"),
-    "heitz": dict(color="tab:red", ls="-", marker="^"),
-    "invariance": dict(color="tab:green", ls="-", marker="v"),
-    "invariance bdpt": dict(color="tab:green", ls=":", marker="s"),
-    "auto": dict(color="tab:purple", ls="-", marker="d"),
-    "compensated": dict(color="tab:brown", ls="-", marker="P"),
-    "fastmsx": dict(color="tab:pink", ls="-", marker="*"),
-}
+# Line style per row label: colour by model, dotted for BDPT.
+STYLE = {label: dict(color=c, ls=ls, marker=m) for label, c, ls, m in [
+    ("built-in", "black", "--", "x"),
+    ("single", "0.45", "-", "x"),
+    ("uncorrelated", "tab:orange", "-", "o"),
+    ("uncorrelated bdpt", "tab:orange", ":", "s"),
+    ("correlated", "tab:blue", "-", "o"),
+    ("correlated bdpt", "tab:blue", ":", "s"),
+    ("heitz", "tab:red", "-", "^"),
+    ("invariance", "tab:green", "-", "v"),
+    ("invariance bdpt", "tab:green", ":", "s"),
+    ("auto", "tab:purple", "-", "d"),
+    ("compensated", "tab:brown", "-", "P"),
+    ("fastmsx", "tab:pink", "-", "*"),
+]}
 
 
 def tonemap(img, exposure=1.0):

@@ -358,10 +358,7 @@ pub fn eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, opts: &W
 /// exactly can hand the rest of a path to this walk.
 pub fn eval_from(mf: &Microfacet, surf: &Microsurface, wo: DVec3, state: WalkState, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
     let mat = Mat::of(surf);
-    let last = opts.orders.1.min(opts.max_bounces);
-    if last == 0 || opts.orders.0 > last || state.next_order > last {
-        return Spectrum::ZERO;
-    }
+    let Some(last) = opts.last_order().filter(|&last| state.next_order <= last) else { return Spectrum::ZERO };
     let wo_outside = wo.z > 0.0;
     let WalkState { mut outside, dir: mut wr, mut t, mut throughput, next_order } = state;
     let mut sum = Spectrum::ZERO;
@@ -492,10 +489,7 @@ pub fn sample_from(
     rng: &mut Sampler,
 ) -> Option<(DVec3, Spectrum, u32)> {
     let mat = Mat::of(surf);
-    let last = opts.orders.1.min(opts.max_bounces);
-    if last == 0 || opts.orders.0 > last {
-        return None;
-    }
+    let last = opts.last_order()?;
     let is_dielectric = matches!(mat, Mat::Dielectric { .. });
     let WalkState { mut outside, dir: mut wr, mut t, mut throughput, next_order } = state;
     let mut order = next_order.max(1) - 1; // vertices so far

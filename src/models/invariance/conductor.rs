@@ -77,10 +77,7 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, o
     if !(wi.z > 0.0) || !(wo.z > 0.0) || !wi.is_finite() || !wo.is_finite() {
         return Spectrum::ZERO;
     }
-    let last = opts.orders.1.min(opts.max_bounces);
-    if last == 0 || opts.orders.0 > last {
-        return Spectrum::ZERO;
-    }
+    let Some(last) = opts.last_order() else { return Spectrum::ZERO };
     let lambda_o = mf.lambda(wo);
     if !lambda_o.is_finite() {
         return Spectrum::ZERO;
@@ -317,10 +314,7 @@ pub fn sample(
     if !(wi.z > 0.0) || !wi.is_finite() {
         return None;
     }
-    let last = opts.orders.1.min(opts.max_bounces);
-    if last == 0 || opts.orders.0 > last {
-        return None;
-    }
+    let last = opts.last_order()?;
     let mut w = wi;
     let mut dp = MonotoneExit::new(mf.abs_lambda(-wi));
     let mut weight = Spectrum::ONE;
@@ -419,29 +413,12 @@ impl ConductorSegments for WholePath {
     }
 }
 
-/// BDPT estimate of f(ω_i, ω_o)·cos θ_o of the invariance model with the
-/// default number of bidirectional orders ([`bdpt::DEFAULT_BDPT_ORDERS`]).
+/// BDPT estimate of f(ω_i, ω_o)·cos θ_o of the invariance model: orders up
+/// to [`bdpt::DEFAULT_BDPT_ORDERS`] bidirectionally, higher ones by the walk
+/// of `eval` (without its connection strategy).
 pub fn eval_bdpt(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
-    eval_bdpt_with(mf, fresnel, wi, wo, opts, bdpt::DEFAULT_BDPT_ORDERS, rng)
-}
-
-/// BDPT estimate with orders 1..=`bdpt_orders` bidirectional (clamped to
-/// 1..=[`bdpt::MAX_BDPT_ORDERS`]) and higher orders by the walk of `eval`
-/// (without its connection strategy).
-pub fn eval_bdpt_with(
-    mf: &Microfacet,
-    fresnel: &ConductorFresnel,
-    wi: DVec3,
-    wo: DVec3,
-    opts: &WalkOptions,
-    bdpt_orders: u32,
-    rng: &mut Sampler,
-) -> Spectrum {
-    if !(wi.z > 0.0) || !(wo.z > 0.0) || !wi.is_finite() || !wo.is_finite() {
+    if !(wi.z > 0.0) || !(wo.z > 0.0) || !wi.is_finite() || !wo.is_finite() || !mf.lambda(wo).is_finite() {
         return Spectrum::ZERO;
     }
-    if !mf.lambda(wo).is_finite() {
-        return Spectrum::ZERO;
-    }
-    posfree_conductor::estimate_bdpt(mf, fresnel, &WholePath, wi, wo, opts, bdpt_orders, rng)
+    posfree_conductor::estimate_bdpt(mf, fresnel, &WholePath, wi, wo, opts, bdpt::DEFAULT_BDPT_ORDERS, rng)
 }

@@ -251,10 +251,7 @@ pub fn eval(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opt
     if !wi.is_finite() || !wo.is_finite() || wi.z == 0.0 || wo.z == 0.0 || !valid_ior(eta) {
         return 0.0;
     }
-    let last = opts.orders.1.min(opts.max_bounces);
-    if last == 0 || opts.orders.0 > last {
-        return 0.0;
-    }
+    let Some(last) = opts.last_order() else { return 0.0 };
     let surf = Microsurface::Dielectric { eta, radiance };
     let outside = wi.z > 0.0;
     let same_side = (wo.z > 0.0) == outside;
@@ -356,10 +353,7 @@ pub fn sample(
     if !wi.is_finite() || wi.z == 0.0 || !valid_ior(eta) {
         return None;
     }
-    let last = opts.orders.1.min(opts.max_bounces);
-    if last == 0 || opts.orders.0 > last {
-        return None;
-    }
+    let last = opts.last_order()?;
     let surf = Microsurface::Dielectric { eta, radiance };
     let outside = wi.z > 0.0;
     let e = eta_seen(eta, outside);

@@ -192,10 +192,7 @@ pub fn eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, opts: &W
     if !(wi.z > 0.0) || !(wo.z > 0.0) || !wi.is_finite() || !wo.is_finite() {
         return Spectrum::ZERO;
     }
-    let last = opts.orders.1.min(opts.max_bounces);
-    if last == 0 || opts.orders.0 > last {
-        return Spectrum::ZERO;
-    }
+    let Some(last) = opts.last_order() else { return Spectrum::ZERO };
     let lambda_o = mf.lambda(wo);
     let l0 = mf.abs_lambda(-wi);
     if !lambda_o.is_finite() || !l0.is_finite() {
@@ -251,10 +248,7 @@ pub fn sample(mf: &Microfacet, surf: &Microsurface, wi: DVec3, first: (f64, f64,
     if !(wi.z > 0.0) || !wi.is_finite() {
         return None;
     }
-    let last = opts.orders.1.min(opts.max_bounces);
-    if last == 0 || opts.orders.0 > last {
-        return None;
-    }
+    let last = opts.last_order()?;
     let l0 = mf.abs_lambda(-wi);
     if !l0.is_finite() {
         return None;

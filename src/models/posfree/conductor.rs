@@ -37,7 +37,7 @@ pub fn eval_pt(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3
     }
     // Vertex 0: light arrives from ω_i, L_0 = |Λ(d_0)| = |Λ(−ω_i)| (1 + Λ(ω_i) for ω_i above).
     let start = PtState { w: wi, l: mf.abs_lambda(-wi), throughput: Spectrum::ONE };
-    let orders = (opts.orders.0, opts.orders.1.min(opts.max_bounces));
+    let orders = opts.clamped_orders();
     pt_walk(mf, fresnel, wo, mf.lambda(wo), opts.segments, start, 0, orders, RR_START, rng)
 }
 
@@ -457,5 +457,5 @@ pub(crate) fn estimate_bdpt<S: ConductorSegments>(
     rng: &mut Sampler,
 ) -> Spectrum {
     let surface = Bidirectional { mf, fresnel, seg, wi, wo, lambda_o: mf.lambda(wo) };
-    bdpt::estimate(&surface, (opts.orders.0.max(1), opts.orders.1.min(opts.max_bounces)), bdpt_orders, rng)
+    bdpt::estimate(&surface, opts.clamped_orders(), bdpt_orders, rng)
 }

@@ -249,7 +249,7 @@ pub fn eval_pt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, 
     if !valid_inputs(eta, wi) || wo.z == 0.0 || !wo.is_finite() {
         return (0.0, is_reflection);
     }
-    let orders = (opts.orders.0, opts.orders.1.min(opts.max_bounces));
+    let orders = opts.clamped_orders();
     let result = pt_walk(mf, opts.segments, wo, State::new(mf, eta, wi), 1.0, 0, orders, RR_START, rng);
     (result * radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0), is_reflection)
 }
@@ -631,7 +631,7 @@ pub fn eval_bdpt_with(
     let side_o = if wo.z > 0.0 { 1.0 } else { -1.0 };
     let surface =
         Bidirectional { mf, eta, seg: opts.segments, d0: Dir::new(mf, -wi, side_i), dk: Dir::new(mf, wo, side_o), wo };
-    let result = bdpt::estimate(&surface, (opts.orders.0.max(1), opts.orders.1.min(opts.max_bounces)), bdpt_orders, rng);
+    let result = bdpt::estimate(&surface, opts.clamped_orders(), bdpt_orders, rng);
     let value = result * radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0);
     if value.is_finite() && value > 0.0 {
         value

@@ -70,7 +70,7 @@ pub fn eval_pt(mf: &Microfacet, albedo: Spectrum, wi: DVec3, wo: DVec3, opts: &W
         return Spectrum::ZERO;
     }
     let walk = Walk { mf, albedo, wo, lambda_o: mf.lambda(wo), seg: opts.segments };
-    walk.from(wi, 1.0 + mf.lambda(wi), Spectrum::ONE, 0, (opts.orders.0, opts.orders.1.min(opts.max_bounces)), rng)
+    walk.from(wi, 1.0 + mf.lambda(wi), Spectrum::ONE, 0, opts.clamped_orders(), rng)
 }
 
 /// What the PT walk of a diffuse microsurface needs besides its state.
@@ -358,5 +358,5 @@ pub fn eval_bdpt_with(
         return Spectrum::ZERO;
     }
     let surface = Bidirectional { walk: Walk { mf, albedo, wo, lambda_o: mf.lambda(wo), seg: opts.segments }, wi };
-    bdpt::estimate(&surface, (opts.orders.0.max(1), opts.orders.1.min(opts.max_bounces)), bdpt_orders, rng)
+    bdpt::estimate(&surface, opts.clamped_orders(), bdpt_orders, rng)
 }

@@ -27,8 +27,8 @@ impl ScatteringModel for FastMsx {
     }
 
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
-        match call.surf {
-            Microsurface::Conductor(fresnel) if call.includes_order_one() => fastmsx::eval(&call.mf, &fresnel, wi, wo),
+        match &call.surf {
+            Microsurface::Conductor(fresnel) if call.includes_order_one() => fastmsx::eval(&call.mf, fresnel, wi, wo),
             _ => Spectrum::ZERO,
         }
     }
@@ -57,29 +57,29 @@ impl ScatteringModel for Compensated {
         if !call.includes_order_one() {
             return Spectrum::ZERO;
         }
-        match call.surf {
-            Microsurface::Conductor(fresnel) => compensated::eval(&call.mf, &fresnel, wi, wo),
-            Microsurface::Dielectric { eta, radiance } => Spectrum::splat(compensated_dielectric::eval(&call.mf, eta, wi, wo, radiance)),
-            Microsurface::Diffuse { .. } => Spectrum::ZERO,
+        match &call.surf {
+            Microsurface::Conductor(fresnel) => compensated::eval(&call.mf, fresnel, wi, wo),
+            &Microsurface::Dielectric { eta, radiance } => Spectrum::splat(compensated_dielectric::eval(&call.mf, eta, wi, wo, radiance)),
+            &Microsurface::Diffuse { .. } => Spectrum::ZERO,
         }
     }
 
     fn pdf(&self, call: &Call, wi: DVec3, wo: DVec3) -> f64 {
-        match call.surf {
+        match &call.surf {
             Microsurface::Conductor(_) => single::pdf(&call.mf, wi, wo),
-            Microsurface::Dielectric { eta, .. } => single_dielectric::pdf(&call.mf, eta, wi, wo),
-            Microsurface::Diffuse { .. } => 0.0,
+            &Microsurface::Dielectric { eta, .. } => single_dielectric::pdf(&call.mf, eta, wi, wo),
+            &Microsurface::Diffuse { .. } => 0.0,
         }
     }
 
     fn sample(&self, call: &Call, wi: DVec3, (s1, u1, u2): (f64, f64, f64)) -> Option<Sampled> {
-        let (wo, pdf, weight) = match call.surf {
-            Microsurface::Conductor(fresnel) => compensated::sample(&call.mf, &fresnel, wi, u1, u2)?,
-            Microsurface::Dielectric { eta, radiance } => {
+        let (wo, pdf, weight) = match &call.surf {
+            Microsurface::Conductor(fresnel) => compensated::sample(&call.mf, fresnel, wi, u1, u2)?,
+            &Microsurface::Dielectric { eta, radiance } => {
                 let (wo, pdf, w) = compensated_dielectric::sample(&call.mf, eta, wi, s1, u1, u2, radiance)?;
                 (wo, pdf, Spectrum::splat(w))
             }
-            Microsurface::Diffuse { .. } => return None,
+            &Microsurface::Diffuse { .. } => return None,
         };
         Some(Sampled { wo, weight, order: 1, pdf: Some(pdf) })
     }

@@ -47,11 +47,11 @@ impl ScatteringModel for Invariance {
 
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
         let (opts, mf, rng) = (&call.walk(Segments::Correlated), &call.mf, &mut call.rng());
-        match call.surf {
+        match &call.surf {
             Microsurface::Conductor(fresnel) if self.estimator == Estimator::Bdpt => conductor::eval_bdpt(mf, &fresnel, wi, wo, opts, rng),
-            Microsurface::Conductor(fresnel) => conductor::eval(mf, &fresnel, wi, wo, opts, rng),
-            Microsurface::Dielectric { eta, radiance } => Spectrum::splat(dielectric::eval(mf, eta, radiance, wi, wo, opts, rng)),
-            Microsurface::Diffuse { .. } => general::eval(mf, &call.surf, wi, wo, opts, rng),
+            Microsurface::Conductor(fresnel) => conductor::eval(mf, fresnel, wi, wo, opts, rng),
+            &Microsurface::Dielectric { eta, radiance } => Spectrum::splat(dielectric::eval(mf, eta, radiance, wi, wo, opts, rng)),
+            &Microsurface::Diffuse { .. } => general::eval(mf, &call.surf, wi, wo, opts, rng),
         }
     }
 
@@ -61,13 +61,13 @@ impl ScatteringModel for Invariance {
 
     fn sample(&self, call: &Call, wi: DVec3, first: (f64, f64, f64)) -> Option<Sampled> {
         let (opts, mf, rng) = (&call.walk(Segments::Correlated), &call.mf, &mut call.rng());
-        let (wo, weight, order) = match call.surf {
-            Microsurface::Conductor(fresnel) => conductor::sample(mf, &fresnel, wi, first, opts, rng)?,
-            Microsurface::Dielectric { eta, radiance } => {
+        let (wo, weight, order) = match &call.surf {
+            Microsurface::Conductor(fresnel) => conductor::sample(mf, fresnel, wi, first, opts, rng)?,
+            &Microsurface::Dielectric { eta, radiance } => {
                 let (wo, w, order) = dielectric::sample(mf, eta, radiance, wi, first, opts, rng)?;
                 (wo, Spectrum::splat(w), order)
             }
-            Microsurface::Diffuse { .. } => general::sample(mf, &call.surf, wi, first, opts, rng)?,
+            &Microsurface::Diffuse { .. } => general::sample(mf, &call.surf, wi, first, opts, rng)?,
         };
         Some(Sampled { wo, weight, order, pdf: None })
     }

@@ -116,15 +116,15 @@ impl ScatteringModel for PosFree {
 
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
         let (opts, mf, rng) = (&call.walk(self.segments), &call.mf, &mut call.rng());
-        match (call.surf, self.estimator) {
+        match (&call.surf, self.estimator) {
             (Microsurface::Conductor(fresnel), Estimator::Pt) => conductor::eval_pt(mf, &fresnel, wi, wo, opts, rng),
             (Microsurface::Conductor(fresnel), Estimator::Bdpt) => conductor::eval_bdpt(mf, &fresnel, wi, wo, opts, rng),
-            (Microsurface::Dielectric { eta, radiance }, Estimator::Pt) => Spectrum::splat(dielectric::eval_pt(mf, eta, radiance, wi, wo, opts, rng).0),
-            (Microsurface::Dielectric { eta, radiance }, Estimator::Bdpt) => {
+            (&Microsurface::Dielectric { eta, radiance }, Estimator::Pt) => Spectrum::splat(dielectric::eval_pt(mf, eta, radiance, wi, wo, opts, rng).0),
+            (&Microsurface::Dielectric { eta, radiance }, Estimator::Bdpt) => {
                 Spectrum::splat(dielectric::eval_bdpt(mf, eta, radiance, wi, wo, opts, rng))
             }
-            (Microsurface::Diffuse { albedo }, Estimator::Pt) => diffuse::eval_pt(mf, albedo, wi, wo, opts, rng),
-            (Microsurface::Diffuse { albedo }, Estimator::Bdpt) => diffuse::eval_bdpt(mf, albedo, wi, wo, opts, rng),
+            (&Microsurface::Diffuse { albedo }, Estimator::Pt) => diffuse::eval_pt(mf, albedo, wi, wo, opts, rng),
+            (&Microsurface::Diffuse { albedo }, Estimator::Bdpt) => diffuse::eval_bdpt(mf, albedo, wi, wo, opts, rng),
         }
     }
 
@@ -139,13 +139,13 @@ impl ScatteringModel for PosFree {
 
     fn sample(&self, call: &Call, wi: DVec3, first: (f64, f64, f64)) -> Option<Sampled> {
         let (opts, mf, rng) = (&call.walk(self.segments), &call.mf, &mut call.rng());
-        let (wo, weight, order) = match call.surf {
-            Microsurface::Conductor(fresnel) => conductor::sample_walk(mf, &fresnel, wi, first, opts, rng)?,
-            Microsurface::Dielectric { eta, radiance } => {
+        let (wo, weight, order) = match &call.surf {
+            Microsurface::Conductor(fresnel) => conductor::sample_walk(mf, fresnel, wi, first, opts, rng)?,
+            &Microsurface::Dielectric { eta, radiance } => {
                 let (wo, w, order) = dielectric::sample_walk(mf, eta, radiance, wi, first, opts, rng)?;
                 (wo, Spectrum::splat(w), order)
             }
-            Microsurface::Diffuse { albedo } => diffuse::sample_walk(mf, albedo, wi, first, opts, rng)?,
+            &Microsurface::Diffuse { albedo } => diffuse::sample_walk(mf, albedo, wi, first, opts, rng)?,
         };
         Some(Sampled { wo, weight, order, pdf: None })
     }

@@ -48,7 +48,7 @@ impl ScatteringModel for Invariance {
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
         let (opts, mf, rng) = (&call.walk(Segments::Correlated), &call.mf, &mut call.rng());
         match &call.surf {
-            Microsurface::Conductor(fresnel) if self.estimator == Estimator::Bdpt => conductor::eval_bdpt(mf, &fresnel, wi, wo, opts, rng),
+            Microsurface::Conductor(fresnel) if self.estimator == Estimator::Bdpt => conductor::eval_bdpt(mf, fresnel, wi, wo, opts, rng),
             Microsurface::Conductor(fresnel) => conductor::eval(mf, fresnel, wi, wo, opts, rng),
             &Microsurface::Dielectric { eta, radiance } => Spectrum::splat(dielectric::eval(mf, eta, radiance, wi, wo, opts, rng)),
             &Microsurface::Diffuse { .. } => general::eval(mf, &call.surf, wi, wo, opts, rng),

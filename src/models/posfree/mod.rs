@@ -117,8 +117,8 @@ impl ScatteringModel for PosFree {
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
         let (opts, mf, rng) = (&call.walk(self.segments), &call.mf, &mut call.rng());
         match (&call.surf, self.estimator) {
-            (Microsurface::Conductor(fresnel), Estimator::Pt) => conductor::eval_pt(mf, &fresnel, wi, wo, opts, rng),
-            (Microsurface::Conductor(fresnel), Estimator::Bdpt) => conductor::eval_bdpt(mf, &fresnel, wi, wo, opts, rng),
+            (Microsurface::Conductor(fresnel), Estimator::Pt) => conductor::eval_pt(mf, fresnel, wi, wo, opts, rng),
+            (Microsurface::Conductor(fresnel), Estimator::Bdpt) => conductor::eval_bdpt(mf, fresnel, wi, wo, opts, rng),
             (&Microsurface::Dielectric { eta, radiance }, Estimator::Pt) => Spectrum::splat(dielectric::eval_pt(mf, eta, radiance, wi, wo, opts, rng).0),
             (&Microsurface::Dielectric { eta, radiance }, Estimator::Bdpt) => {
                 Spectrum::splat(dielectric::eval_bdpt(mf, eta, radiance, wi, wo, opts, rng))

@@ -76,6 +76,17 @@ def test_missing_scene_and_bad_spp(tmp_path):
     assert r.returncode != 0 and "--spp" in r.stderr and "Traceback" not in r.stderr
 
 
+def test_a_shipped_scene_renders_by_name(tmp_path):
+    """`msx render fig09_copper_sphere.xml` finds the shipped scene from any directory; an unknown bare name
+    lists the shipped ones."""
+    r = msx("render", "fig09_copper_sphere.xml", "--spp", "1", "--workers", "1", "-o", str(tmp_path / "x.exr"),
+            cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "x.exr").exists()
+    r = msx("render", "nope.xml", "--workers", "1", cwd=tmp_path)
+    assert r.returncode == 1 and "shipped scenes: " in r.stderr and "fig09_copper_sphere.xml" in r.stderr
+
+
 def _children(pid):
     """Worker processes of `pid` (multiprocessing spawn children, not its resource tracker)."""
     out = []

@@ -245,8 +245,7 @@ def render_scene(scene: str, *, variant: str = DEFAULT_VARIANT, spp: int | None 
     same call gives the same image whatever `workers` is."""
     import numpy as np
 
-    if not os.path.exists(scene):
-        raise RenderError(f"scene file not found: {scene}")
+    scene = resolve_scene(scene)
     params = with_assets(scene, {k: str(v) for k, v in (params or {}).items()})
     if spp is None:
         spp = int(params.get("spp", 16))
@@ -301,6 +300,24 @@ def write_image(path: Path, image, variant: str = DEFAULT_VARIANT):
         if threads < 2:
             dr.set_thread_count(threads)
     bmp.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True).write(str(path.with_suffix(".png")))
+
+
+def resolve_scene(scene) -> str:
+    """`scene` as given if it exists, else the shipped scene of that name (``msx render fig01_metals.xml``
+    works from any directory); a clear error naming the shipped scenes otherwise."""
+    if os.path.exists(scene):
+        return str(scene)
+    hint = ""
+    if os.path.dirname(str(scene)) == "":  # a bare name: look among the shipped scenes
+        try:
+            shipped = scenes_dir()
+        except RenderError:
+            shipped = None
+        if shipped is not None:
+            if (shipped / str(scene)).exists():
+                return str(shipped / str(scene))
+            hint = "; shipped scenes: " + ", ".join(sorted(p.name for p in shipped.glob("*.xml")))
+    raise RenderError(f"scene file not found: {scene}{hint}")
 
 
 def scenes_dir() -> Path:

@@ -10,6 +10,7 @@
 
 
 use crate::common::*;
+use crate::shared::*;
 use glam::DVec3;
 use msx::microfacet::fresnel::dielectric_full;
 use msx::models::posfree::Segments;
@@ -27,13 +28,6 @@ const ETA: f64 = 1.5;
 
 fn opts(segments: Segments, orders: (u32, u32)) -> WalkOptions {
     WalkOptions { segments, max_bounces: MAX_BOUNCES, orders }
-}
-
-fn seg_name(s: Segments) -> &'static str {
-    match s {
-        Segments::Uncorrelated => "unc",
-        Segments::Correlated => "cor",
-    }
 }
 
 fn flip(d: DVec3) -> DVec3 {

@@ -14,6 +14,7 @@
 
 
 use crate::common::*;
+use crate::shared::*;
 use glam::DVec3;
 use msx::models::posfree::Segments;
 use msx::models::posfree::diffuse::{eval_pt, sample_walk};
@@ -26,20 +27,6 @@ const MAX_BOUNCES: u32 = 1024;
 
 fn opts(segments: Segments, orders: (u32, u32)) -> WalkOptions {
     WalkOptions { segments, max_bounces: MAX_BOUNCES, orders }
-}
-
-fn seg_name(s: Segments) -> &'static str {
-    match s {
-        Segments::Uncorrelated => "unc",
-        Segments::Correlated => "cor",
-    }
-}
-
-fn dist_name(d: Distribution) -> &'static str {
-    match d {
-        Distribution::Ggx => "ggx",
-        Distribution::Beckmann => "beckmann",
-    }
 }
 
 const SEGS: [Segments; 2] = [Segments::Uncorrelated, Segments::Correlated];

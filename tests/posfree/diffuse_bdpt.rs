@@ -12,7 +12,7 @@
 
 
 use crate::common::*;
-use glam::DVec3;
+use crate::shared::*;
 use msx::models::posfree::Segments;
 use msx::models::posfree::diffuse as bd;
 use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
@@ -21,7 +21,6 @@ use msx::models::WalkOptions;
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet, Spectrum};
 use std::f64::consts::PI;
-use std::time::Instant;
 
 const MAX_BOUNCES: u32 = 256;
 
@@ -29,36 +28,8 @@ fn opts(segments: Segments, orders: (u32, u32)) -> WalkOptions {
     WalkOptions { segments, max_bounces: MAX_BOUNCES, orders }
 }
 
-fn seg_name(s: Segments) -> &'static str {
-    match s {
-        Segments::Uncorrelated => "unc",
-        Segments::Correlated => "cor",
-    }
-}
-
 fn albedo() -> Spectrum {
     Spectrum([0.9, 0.5, 0.2, 1.0])
-}
-
-fn pairs() -> [(&'static str, DVec3, DVec3); 3] {
-    [
-        ("mirror", dir(0.6, 0.0), dir(0.6, PI)),
-        ("off-specular", dir(0.3, 0.0), dir(1.1, 2.0)),
-        ("grazing", dir(1.45, 0.0), dir(1.3, PI - 0.4)),
-    ]
-}
-
-fn run(n: usize, mut f: impl FnMut(&mut Sampler) -> Spectrum, seed: u64) -> ([Stat; 3], f64) {
-    let mut rng = Sampler::new(seed);
-    let mut st = [Stat::default(); 3];
-    let t0 = Instant::now();
-    for _ in 0..n {
-        let v = f(&mut rng);
-        for c in 0..3 {
-            st[c].push(v.0[c]);
-        }
-    }
-    (st, t0.elapsed().as_nanos() as f64 / n as f64)
 }
 
 #[test]

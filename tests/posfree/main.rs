@@ -11,3 +11,4 @@ mod diffuse;
 mod diffuse_bdpt;
 mod fireflies;
 mod full_sphere;
+mod shared;

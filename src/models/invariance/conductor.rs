@@ -19,11 +19,8 @@
 //! product of the Fresnel terms (Cui Alg. 2 with the exact exit probability —
 //! the printed 1/|Λ(d_k)|, or G1(d_k) = 1/(1+Λ(d_k)), needs a weight ratio).
 //!
-//! **Efficiency** of `eval` against Heitz's walk (`benches/models.rs`, copper,
-//! GGX; 1/(variance per call × time per call), one run at commit bedc5ec):
-//! off-specular 6.1× at α = 0.5 and 3.5× at α = 1 (variance 5.5× and 3.2×
-//! lower, 0.89× and 0.92× the time per call); grazing 21× / 7.8×; mirror
-//! 3.2× / 1.9×.
+//! **Efficiency** of `eval` against Heitz's walk, and of the BDPT below against
+//! both: measured by `benches/models.rs`, numbers in benches/README.md.
 
 use super::recursion::MonotoneExit;
 use crate::models::{ConductorFresnel, WalkOptions};
@@ -130,6 +127,8 @@ impl Walk<'_> {
 
     /// The estimates of the vertices from `first_vertex` (0-based) on, within
     /// `orders` (the upper one within the bounce cap).
+    /// Kept as one loop over the vertices on purpose: its steps (next event,
+    /// roulette, scattering, exit bookkeeping) share the walk's state.
     pub fn from(&self, state: WalkState, first_vertex: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
         let (mf, fresnel, wo, lambda_o) = (self.mf, self.fresnel, self.wo, self.lambda_o);
         let WalkState { mut w, mut pdf_scale, mut pdf_walk, mut dp, mut throughput } = state;

@@ -10,7 +10,7 @@ use crate::models::invariance::Invariance;
 use crate::models::posfree::{PosFree, Segments};
 use crate::models::single::Single;
 use crate::models::{Call, ConductorFresnel, Microsurface, ScatteringModel, Stream};
-use crate::spectrum::{Spectrum, MAX_CHANNELS};
+use crate::spectrum::{ChannelMask, Spectrum, MAX_CHANNELS};
 use glam::DVec3;
 use std::fmt;
 use std::sync::{Arc, OnceLock};
@@ -215,7 +215,8 @@ impl Material {
         let finite = |s: &Spectrum| s.0[..channels].iter().all(|v| v.is_finite());
         // Channels beyond `channels` are zeroed: what the caller left there must not steer a walk
         // (Russian roulette looks at the largest channel).
-        let clamp = |s: Spectrum, hi: f64| Spectrum(std::array::from_fn(|c| if c < channels { s.0[c].clamp(0.0, hi) } else { 0.0 }));
+        let keep = ChannelMask::first(channels);
+        let clamp = |s: Spectrum, hi: f64| s.map(|v| v.clamp(0.0, hi)).masked(keep);
         if !(self.alpha_u.is_finite() && self.alpha_v.is_finite()) {
             return None;
         }
@@ -423,10 +424,12 @@ impl Bsdf {
         let clamp01 = |u: f64| if u.is_finite() { u.clamp(0.0, 1.0 - f64::EPSILON / 2.0) } else { 0.5 };
         let (s1, u1, u2) = (clamp01(sample1), clamp01(sample2.0), clamp01(sample2.1));
         let words = [s1.to_bits(), u1.to_bits(), u2.to_bits(), wi.x.to_bits(), wi.z.to_bits()];
-        let s = self.model.sample(&self.call(mat, (1, u32::MAX), &words), wi, (s1, u1, u2))?;
+        let call = self.call(mat, (1, u32::MAX), &words);
+        let s = self.model.sample(&call, wi, (s1, u1, u2))?;
         let pdf = match s.pdf {
             Some(p) => p,
-            None => self.pdf(mat, wi, s.wo),
+            // As `pdf` would compute it, without checking the material and ω_i again.
+            None => finite_unit(s.wo).map_or(0.0, |wo| self.model.pdf(&call, wi, wo)),
         };
         // Raw values: the C ABI rejects a sample whose pdf is not > 0 and
         // counts any non-finite or negative value (docs/conventions.md).

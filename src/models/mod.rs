@@ -26,7 +26,7 @@ pub mod single;
 use crate::bsdf::{Estimator, Surface};
 use crate::microfacet::{fresnel, Microfacet};
 use crate::rng::{hash_words, Sampler};
-use crate::spectrum::Spectrum;
+use crate::spectrum::{ChannelMask, Spectrum};
 use glam::DVec3;
 
 /// What one BSDF call gives a model: unit directions and a usable material
@@ -169,13 +169,14 @@ pub struct ConductorFresnel {
     pub k: Spectrum,
     pub channels: usize,
     pub mirror: bool,
+    keep: ChannelMask,
 }
 
 impl ConductorFresnel {
     pub fn new(eta: Spectrum, k: Spectrum, channels: usize) -> Self {
         let channels = channels.clamp(1, crate::spectrum::MAX_CHANNELS);
         let mirror = (0..channels).all(|c| eta.0[c] == 0.0 && k.0[c] == 1.0);
-        ConductorFresnel { eta, k, channels, mirror }
+        ConductorFresnel { eta, k, channels, mirror, keep: ChannelMask::first(channels) }
     }
 
     #[inline]
@@ -183,7 +184,6 @@ impl ConductorFresnel {
         if self.mirror {
             return Spectrum::ONE;
         }
-        let f = fresnel::conductor4(cos_i, &self.eta.0, &self.k.0);
-        Spectrum(std::array::from_fn(|c| if c < self.channels { f[c] } else { 0.0 }))
+        Spectrum(fresnel::conductor4(cos_i, &self.eta.0, &self.k.0)).masked(self.keep)
     }
 }

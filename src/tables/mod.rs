@@ -125,24 +125,35 @@ impl<const D: usize> Grid<D> {
         axes.iter().map(|a| a.n).product()
     }
 
-    /// Multilinear interpolation at `x` (clamped to the grid).
+    /// Multilinear interpolation at `x` (clamped to the grid): nested linear
+    /// interpolations, the last axis innermost. At most [`MAX_AXES`] axes.
+    #[inline]
     pub fn at(&self, x: [f64; D]) -> f64 {
+        const { assert!(D >= 1 && D <= MAX_AXES) };
         let cells: [(usize, f64); D] = std::array::from_fn(|d| self.axes[d].locate(x[d]));
-        self.mix(&cells, 0, 0)
-    }
-
-    /// Interpolates along axes `d..` below the flat index `base` of axes `..d`.
-    fn mix(&self, cells: &[(usize, f64); D], d: usize, base: usize) -> f64 {
-        if d == D {
-            return self.values[base];
+        // The 2^D corner values; bit D−1−d of a corner's index picks node i or i + 1 on axis d.
+        let mut v = [0.0f64; 1 << MAX_AXES];
+        let mut len = 1usize << D;
+        for (corner, slot) in v[..len].iter_mut().enumerate() {
+            let mut flat = 0;
+            for (d, (axis, &(i, _))) in self.axes.iter().zip(&cells).enumerate() {
+                flat = flat * axis.n + i + ((corner >> (D - 1 - d)) & 1);
+            }
+            *slot = self.values[flat];
         }
-        let (i, f) = cells[d];
-        let n = self.axes[d].n;
-        let lower = self.mix(cells, d + 1, base * n + i);
-        let upper = self.mix(cells, d + 1, base * n + i + 1);
-        lower * (1.0 - f) + upper * f
+        // Pairs of neighbours differ on the last remaining axis: interpolate it away.
+        for &(_, f) in cells.iter().rev() {
+            len /= 2;
+            for k in 0..len {
+                v[k] = v[2 * k] * (1.0 - f) + v[2 * k + 1] * f;
+            }
+        }
+        v[0]
     }
 }
+
+/// The most axes a [`Grid`] interpolates over.
+pub const MAX_AXES: usize = 3;
 
 /// Fills `rows` rows of `row_len` values each, row by row over the available
 /// threads (at most 8): `fill(row, out)` computes row `row`.
@@ -161,4 +172,50 @@ pub fn build<T: Copy + Default + Send>(rows: usize, row_len: usize, fill: impl F
         }
     });
     values
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The interpolation written as nested linear interpolations, one axis at a
+    /// time (the definition `Grid::at` must reproduce bit for bit).
+    fn nested<const D: usize>(g: &Grid<D>, cells: &[(usize, f64); D], d: usize, base: usize) -> f64 {
+        if d == D {
+            return g.values[base];
+        }
+        let (i, f) = cells[d];
+        let n = g.axes[d].n;
+        let lower = nested(g, cells, d + 1, base * n + i);
+        let upper = nested(g, cells, d + 1, base * n + i + 1);
+        lower * (1.0 - f) + upper * f
+    }
+
+    fn check<const D: usize>(axes: [Axis; D]) {
+        let values: Vec<f64> = (0..Grid::size(&axes)).map(|i| ((i * 7919) % 1009) as f64 / 1009.0 - 0.3).collect();
+        let g = Grid { axes, values };
+        let mut st = 1u64;
+        let mut rnd = || {
+            st = crate::rng::mix64(st.wrapping_add(1));
+            (st >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for _ in 0..2000 {
+            // Inside the grid, beyond both ends and NaN (clamped, first node).
+            let x: [f64; D] = std::array::from_fn(|d| match (rnd() * 20.0) as u32 {
+                0 => f64::NAN,
+                1 => -1.0,
+                2 => 1e3,
+                _ => g.axes[d].node(0) + rnd() * (g.axes[d].node(g.axes[d].n - 1) - g.axes[d].node(0)),
+            });
+            let cells: [(usize, f64); D] = std::array::from_fn(|d| g.axes[d].locate(x[d]));
+            assert_eq!(g.at(x).to_bits(), nested(&g, &cells, 0, 0).to_bits(), "at {x:?}");
+        }
+    }
+
+    #[test]
+    fn at_is_nested_linear_interpolation() {
+        check([Axis::ends(Warp::Sqrt, 0.1, 2.0, 9)]);
+        check([Axis::ends(Warp::Sqrt, 0.1, 2.0, 9), Axis::centred(Warp::Square, 0.0, 1.0, 7)]);
+        check([Axis::ends(Warp::Ln, -3.0, 1.0, 5), Axis::ends(Warp::CriticalCosine, 0.0, 0.9, 4), Axis::ends(Warp::Identity, 0.0, 1.0, 6)]);
+    }
 }

@@ -211,46 +211,51 @@ impl Material {
     /// into [0, MATERIAL_VALUE_MAX] and the IOR into
     /// [1/MATERIAL_VALUE_MAX, MATERIAL_VALUE_MAX]. α is clamped by
     /// `Microfacet::new`. Only the first `channels` channels are read.
+    #[inline]
     fn usable(&self, surface: Surface, channels: usize) -> Option<Material> {
-        let finite = |s: &Spectrum| s.0[..channels].iter().all(|v| v.is_finite());
         // Channels beyond `channels` are zeroed: what the caller left there must not steer a walk
         // (Russian roulette looks at the largest channel).
         let keep = ChannelMask::first(channels);
+        let finite = |s: Spectrum| s.masked(keep).is_finite();
         let clamp = |s: Spectrum, hi: f64| s.map(|v| v.clamp(0.0, hi)).masked(keep);
         if !(self.alpha_u.is_finite() && self.alpha_v.is_finite()) {
             return None;
         }
-        let mut m = *self;
         match surface {
             Surface::Conductor => {
-                if !(finite(&m.eta) && finite(&m.k) && finite(&m.specular_reflectance)) {
+                if !(finite(self.eta) && finite(self.k) && finite(self.specular_reflectance)) {
                     return None;
                 }
-                m.eta = clamp(m.eta, MATERIAL_VALUE_MAX);
-                m.k = clamp(m.k, MATERIAL_VALUE_MAX);
-                m.specular_reflectance = clamp(m.specular_reflectance, MATERIAL_VALUE_MAX);
+                Some(Material {
+                    eta: clamp(self.eta, MATERIAL_VALUE_MAX),
+                    k: clamp(self.k, MATERIAL_VALUE_MAX),
+                    specular_reflectance: clamp(self.specular_reflectance, MATERIAL_VALUE_MAX),
+                    ..*self
+                })
             }
             Surface::Dielectric => {
-                if !(m.ior.is_finite() && m.ior > 0.0 && finite(&m.specular_reflectance) && finite(&m.specular_transmittance)) {
+                if !(self.ior.is_finite() && self.ior > 0.0 && finite(self.specular_reflectance) && finite(self.specular_transmittance)) {
                     return None;
                 }
                 // An index-matched interface does not scatter: its transmission
                 // is a delta, which a rough BSDF cannot represent.
-                if (m.ior - 1.0).abs() <= INDEX_MATCHED {
+                if (self.ior - 1.0).abs() <= INDEX_MATCHED {
                     return None;
                 }
-                m.ior = m.ior.clamp(1.0 / MATERIAL_VALUE_MAX, MATERIAL_VALUE_MAX);
-                m.specular_reflectance = clamp(m.specular_reflectance, MATERIAL_VALUE_MAX);
-                m.specular_transmittance = clamp(m.specular_transmittance, MATERIAL_VALUE_MAX);
+                Some(Material {
+                    ior: self.ior.clamp(1.0 / MATERIAL_VALUE_MAX, MATERIAL_VALUE_MAX),
+                    specular_reflectance: clamp(self.specular_reflectance, MATERIAL_VALUE_MAX),
+                    specular_transmittance: clamp(self.specular_transmittance, MATERIAL_VALUE_MAX),
+                    ..*self
+                })
             }
             Surface::Diffuse => {
-                if !finite(&m.reflectance) {
+                if !finite(self.reflectance) {
                     return None;
                 }
-                m.reflectance = clamp(m.reflectance, 1.0);
+                Some(Material { reflectance: clamp(self.reflectance, 1.0), ..*self })
             }
         }
-        Some(m)
     }
 }
 

@@ -107,7 +107,8 @@ impl Axis {
     #[inline]
     pub fn locate(&self, x: f64) -> (usize, f64) {
         let t = self.position(x);
-        let i = (t.floor() as usize).min(self.n - 2);
+        // t ≥ 0: truncation is the floor (and needs no libm call on baseline x86-64).
+        let i = (t as usize).min(self.n - 2);
         (i, t - i as f64)
     }
 }
@@ -133,14 +134,14 @@ impl<const D: usize> Grid<D> {
         let cells: [(usize, f64); D] = std::array::from_fn(|d| self.axes[d].locate(x[d]));
         // The 2^D corner values; bit D−1−d of a corner's index picks node i or i + 1 on axis d.
         let mut v = [0.0f64; 1 << MAX_AXES];
-        let mut len = 1usize << D;
-        for (corner, slot) in v[..len].iter_mut().enumerate() {
+        for (corner, slot) in v.iter_mut().enumerate().take(1 << D) {
             let mut flat = 0;
             for (d, (axis, &(i, _))) in self.axes.iter().zip(&cells).enumerate() {
                 flat = flat * axis.n + i + ((corner >> (D - 1 - d)) & 1);
             }
             *slot = self.values[flat];
         }
+        let mut len = 1usize << D;
         // Pairs of neighbours differ on the last remaining axis: interpolate it away.
         for &(_, f) in cells.iter().rev() {
             len /= 2;

@@ -81,24 +81,28 @@ fn eval_integral<S: Fn(&mut Sampler) -> Option<DVec3>, P: Fn(DVec3) -> f64, G: F
     g: G,
     channel: usize,
 ) -> (f64, f64) {
-    let mut rng = Sampler::new(seed);
-    let mut walk = Sampler::new(seed ^ 0xabcd_ef01);
-    let mut st = Stat::default();
-    for _ in 0..n {
-        let x = match sample(&mut rng) {
-            Some(wo) => {
-                let p = pdf(wo);
-                if p > 0.0 {
-                    heitz::eval(mf, surf, wi, wo, o, &mut walk).0[channel] * g(wo) / p
-                } else {
-                    0.0
+    let run = |seed: u64| {
+        let mut rng = Sampler::new(seed);
+        let mut walk = Sampler::new(seed ^ 0xabcd_ef01);
+        let mut st = Stat::default();
+        for _ in 0..n {
+            let x = match sample(&mut rng) {
+                Some(wo) => {
+                    let p = pdf(wo);
+                    if p > 0.0 {
+                        heitz::eval(mf, surf, wi, wo, o, &mut walk).0[channel] * g(wo) / p
+                    } else {
+                        0.0
+                    }
                 }
-            }
-            None => 0.0,
-        };
-        st.push(x);
-    }
-    st.est()
+                None => 0.0,
+            };
+            st.push(x);
+        }
+        st
+    };
+    let seed = seed + seed_offset();
+    replicate_est(&run(seed), &run(seed ^ REPLICATE_SALT))
 }
 
 /// Mean of weight·g(ω_o) over `heitz::sample`, and the fraction of failed samples.
@@ -112,26 +116,31 @@ fn sample_integral<G: Fn(DVec3, u32) -> f64>(
     g: G,
     channel: usize,
 ) -> ((f64, f64), f64) {
-    let mut rng = Sampler::new(seed);
-    let mut walk = Sampler::new(seed ^ 0x1357_9bdf);
-    let mut st = Stat::default();
-    let mut fails = 0usize;
-    for _ in 0..n {
-        let first = (rng.next(), rng.next(), rng.next());
-        let x = match heitz::sample(mf, surf, wi, first, o, &mut walk) {
-            Some((wo, w, k)) => {
-                assert!(wo.is_finite() && (wo.length() - 1.0).abs() < 1e-9, "non-unit ω_o {wo:?}");
-                assert!(w.is_finite() && w.0.iter().all(|&v| v >= 0.0), "bad weight {w:?}");
-                w.0[channel] * g(wo, k)
-            }
-            None => {
-                fails += 1;
-                0.0
-            }
-        };
-        st.push(x);
-    }
-    (st.est(), fails as f64 / n as f64)
+    let run = |seed: u64| {
+        let mut rng = Sampler::new(seed);
+        let mut walk = Sampler::new(seed ^ 0x1357_9bdf);
+        let mut st = Stat::default();
+        let mut fails = 0usize;
+        for _ in 0..n {
+            let first = (rng.next(), rng.next(), rng.next());
+            let x = match heitz::sample(mf, surf, wi, first, o, &mut walk) {
+                Some((wo, w, k)) => {
+                    assert!(wo.is_finite() && (wo.length() - 1.0).abs() < 1e-9, "non-unit ω_o {wo:?}");
+                    assert!(w.is_finite() && w.0.iter().all(|&v| v >= 0.0), "bad weight {w:?}");
+                    w.0[channel] * g(wo, k)
+                }
+                None => {
+                    fails += 1;
+                    0.0
+                }
+            };
+            st.push(x);
+        }
+        (st, fails)
+    };
+    let seed = seed + seed_offset();
+    let ((a, fa), (b, fb)) = (run(seed), run(seed ^ REPLICATE_SALT));
+    (replicate_est(&a, &b), (fa + fb) as f64 / (2 * n) as f64)
 }
 
 // ---------------------------------------------------------------------------
@@ -283,12 +292,16 @@ fn furnace_dielectric() {
 
 
 fn mean_eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, o: &WalkOptions, n: usize, seed: u64, channel: usize) -> (f64, f64) {
-    let mut rng = Sampler::new(seed);
-    let mut st = Stat::default();
-    for _ in 0..n {
-        st.push(heitz::eval(mf, surf, wi, wo, o, &mut rng).0[channel]);
-    }
-    st.est()
+    let run = |seed: u64| {
+        let mut rng = Sampler::new(seed);
+        let mut st = Stat::default();
+        for _ in 0..n {
+            st.push(heitz::eval(mf, surf, wi, wo, o, &mut rng).0[channel]);
+        }
+        st
+    };
+    let seed = seed + seed_offset();
+    replicate_est(&run(seed), &run(seed ^ REPLICATE_SALT))
 }
 
 #[test]
@@ -350,7 +363,7 @@ fn order1_is_single_scattering() {
                 // E_m[a/π ⟨ωo, m⟩] (1 + Λi)/(1 + Λi + Λo), m ~ D_ωi, estimated here
                 // with independent normals.
                 let surf = diffuse(0.8);
-                let mut rng = Sampler::new(seed + 3);
+                let mut rng = Sampler::new(seed + 3 + seed_offset());
                 let mut st = Stat::default();
                 let (li, lo) = (mf.lambda(wi), mf.lambda(wo));
                 for _ in 0..n {

@@ -51,6 +51,33 @@ impl Stat {
     }
 }
 
+/// Shift of the fixed seeds of the Monte Carlo tests that read it, from the
+/// environment variable `MSX_TEST_SEED_OFFSET` (an integer k ≥ 0, default 0):
+/// k·10⁶ is added to every seed, so k = 1, 2, … rerun a test on fresh,
+/// non-overlapping streams without editing it (docs/testing.md). An
+/// unparsable value panics rather than silently running at offset 0.
+pub fn seed_offset() -> u64 {
+    match std::env::var("MSX_TEST_SEED_OFFSET") {
+        Ok(v) => v.trim().parse::<u64>().unwrap_or_else(|_| panic!("MSX_TEST_SEED_OFFSET={v:?}: not a non-negative integer")) * 1_000_000,
+        Err(_) => 0,
+    }
+}
+
+/// Salt of the independent replicate stream of a heavy-tailed estimator: the
+/// replicate of seed s runs at s ^ REPLICATE_SALT (high bits, so it meets no
+/// test's own seed).
+pub const REPLICATE_SALT: u64 = 0x5851_f42d_0000_0000;
+
+/// (mean, standard error) of a heavy-tailed estimator from two independent
+/// streams `a` and `b` of the same length: the mean of `a` with the larger of
+/// the two standard errors. A run that misses the rare large values has both a
+/// low mean and a low sample variance; `b`'s variance is independent of `a`'s
+/// mean, so such a run fails only if `b` misses them too (docs/testing.md,
+/// "Heavy-tailed estimators and fixed seeds").
+pub fn replicate_est(a: &Stat, b: &Stat) -> (f64, f64) {
+    (a.mean(), a.se().max(b.se()))
+}
+
 /// A value with its standard error (0 for an exact value).
 pub fn exact(v: f64) -> (f64, f64) {
     (v, 0.0)

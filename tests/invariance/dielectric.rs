@@ -254,24 +254,28 @@ fn order1_is_walter_with_beta_g2_exactly() {
 #[allow(clippy::too_many_arguments)]
 fn eval_integral(f: &dyn Fn(DVec3, DVec3, &mut Sampler) -> f64, mf: Microfacet, eta: f64, wi: DVec3, n: usize, seed: u64, g: &dyn Fn(DVec3) -> f64) -> (f64, f64) {
     let prop = DielectricProposal::new(mf, wi, eta);
-    let mut rng = Sampler::new(seed);
-    let mut walk = Sampler::new(seed ^ 0x5eed);
-    let mut st = Stat::default();
-    for _ in 0..n {
-        let x = match prop.sample(&mut rng) {
-            Some(wo) => {
-                let p = prop.pdf(wo);
-                if p > 0.0 {
-                    f(wi, wo, &mut walk) * g(wo) / p
-                } else {
-                    0.0
+    let run = |seed: u64| {
+        let mut rng = Sampler::new(seed);
+        let mut walk = Sampler::new(seed ^ 0x5eed);
+        let mut st = Stat::default();
+        for _ in 0..n {
+            let x = match prop.sample(&mut rng) {
+                Some(wo) => {
+                    let p = prop.pdf(wo);
+                    if p > 0.0 {
+                        f(wi, wo, &mut walk) * g(wo) / p
+                    } else {
+                        0.0
+                    }
                 }
-            }
-            None => 0.0,
-        };
-        st.push(x);
-    }
-    st.est()
+                None => 0.0,
+            };
+            st.push(x);
+        }
+        st
+    };
+    let seed = seed + seed_offset();
+    replicate_est(&run(seed), &run(seed ^ REPLICATE_SALT))
 }
 
 fn inv(mf: Microfacet, eta: f64, radiance: bool, o: WalkOptions) -> impl Fn(DVec3, DVec3, &mut Sampler) -> f64 {
@@ -285,28 +289,36 @@ fn heitz_eval(mf: Microfacet, eta: f64, radiance: bool, o: WalkOptions) -> impl 
 
 /// Mean of weight·g(ω_o) over `invariance_dielectric::sample`.
 fn sample_mean(mf: Microfacet, eta: f64, wi: DVec3, o: WalkOptions, n: usize, seed: u64, g: &dyn Fn(DVec3) -> f64) -> (f64, f64) {
-    let mut rng = Sampler::new(seed);
-    let mut st = Stat::default();
-    for _ in 0..n {
-        let first = (rng.next(), rng.next(), rng.next());
-        match idl::sample(&mf, eta, false, wi, first, &o, &mut rng) {
-            Some((wo, w, _)) => {
-                assert!(wo.is_finite() && (wo.length() - 1.0).abs() < 1e-9 && w == 1.0, "sample {wo:?} weight {w}");
-                st.push(w * g(wo));
+    let run = |seed: u64| {
+        let mut rng = Sampler::new(seed);
+        let mut st = Stat::default();
+        for _ in 0..n {
+            let first = (rng.next(), rng.next(), rng.next());
+            match idl::sample(&mf, eta, false, wi, first, &o, &mut rng) {
+                Some((wo, w, _)) => {
+                    assert!(wo.is_finite() && (wo.length() - 1.0).abs() < 1e-9 && w == 1.0, "sample {wo:?} weight {w}");
+                    st.push(w * g(wo));
+                }
+                None => st.push(0.0),
             }
-            None => st.push(0.0),
         }
-    }
-    st.est()
+        st
+    };
+    let seed = seed + seed_offset();
+    replicate_est(&run(seed), &run(seed ^ REPLICATE_SALT))
 }
 
 fn point(f: &dyn Fn(DVec3, DVec3, &mut Sampler) -> f64, wi: DVec3, wo: DVec3, n: usize, seed: u64) -> (f64, f64) {
-    let mut rng = Sampler::new(seed);
-    let mut st = Stat::default();
-    for _ in 0..n {
-        st.push(f(wi, wo, &mut rng));
-    }
-    st.est()
+    let run = |seed: u64| {
+        let mut rng = Sampler::new(seed);
+        let mut st = Stat::default();
+        for _ in 0..n {
+            st.push(f(wi, wo, &mut rng));
+        }
+        st
+    };
+    let seed = seed + seed_offset();
+    replicate_est(&run(seed), &run(seed ^ REPLICATE_SALT))
 }
 
 /// E_r + E_t = 1 (Importance mode: the phase functions conserve energy) by eval

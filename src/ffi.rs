@@ -412,8 +412,9 @@ fn vec3(v: MsxVec3) -> DVec3 {
     DVec3::new(v.x as f64, v.y as f64, v.z as f64)
 }
 
+#[inline]
 fn spectrum4(v: [f32; 4]) -> Spectrum {
-    Spectrum(v.map(|x| x as f64))
+    Spectrum([v[0] as f64, v[1] as f64, v[2] as f64, v[3] as f64])
 }
 
 fn material(m: &MsxMaterial) -> Material {

@@ -20,8 +20,13 @@ impl Spectrum {
         self.0.iter().copied().fold(0.0, f64::max)
     }
 
+    #[inline]
     pub fn map(self, f: impl Fn(f64) -> f64) -> Self {
-        Spectrum(self.0.map(f))
+        let mut out = self.0;
+        for v in &mut out {
+            *v = f(*v);
+        }
+        Spectrum(out)
     }
 
     pub fn is_finite(&self) -> bool {

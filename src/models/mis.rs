@@ -80,9 +80,10 @@ pub fn conductor_walk_pdf(exit: OrderOneExit, mf: &Microfacet, wi: DVec3, wo: DV
 /// (L_0 = 1 + Λ(ω_i), the order-1 albedo E_1(ω_i)) of [`conductor_walk_pdf`],
 /// which depend on ω_i and the microsurface only. A renderer asks for two
 /// densities at the same ω_i in a row (the light sample's, then the BSDF
-/// sample's), so the last result is kept per thread: the table lookup is a
-/// quarter of a `correlated` conductor's eval + pdf + sample otherwise
-/// (benches/README.md). The memo returns exactly what the computation would.
+/// sample's), so the last result is kept per thread: the second table lookup
+/// was ≈ 5 % of the instructions of a `correlated` conductor's eval_pdf +
+/// sample (benches/README.md, "Per-call overhead"). The memo returns exactly
+/// what the computation would.
 fn order_one_of(exit: OrderOneExit, mf: &Microfacet, wi: DVec3) -> (f64, f64) {
     type Key = [u64; 6];
     thread_local! {

@@ -81,28 +81,7 @@ fn eval_integral<S: Fn(&mut Sampler) -> Option<DVec3>, P: Fn(DVec3) -> f64, G: F
     g: G,
     channel: usize,
 ) -> (f64, f64) {
-    let run = |seed: u64| {
-        let mut rng = Sampler::new(seed);
-        let mut walk = Sampler::new(seed ^ 0xabcd_ef01);
-        let mut st = Stat::default();
-        for _ in 0..n {
-            let x = match sample(&mut rng) {
-                Some(wo) => {
-                    let p = pdf(wo);
-                    if p > 0.0 {
-                        heitz::eval(mf, surf, wi, wo, o, &mut walk).0[channel] * g(wo) / p
-                    } else {
-                        0.0
-                    }
-                }
-                None => 0.0,
-            };
-            st.push(x);
-        }
-        st
-    };
-    let seed = seed + seed_offset();
-    replicate_est(&run(seed), &run(seed ^ REPLICATE_SALT))
+    proposal_integral(n, seed, 0xabcd_ef01, sample, pdf, |wo, walk| heitz::eval(mf, surf, wi, wo, o, walk).0[channel] * g(wo))
 }
 
 /// Mean of weight·g(ω_o) over `heitz::sample`, and the fraction of failed samples.

@@ -78,6 +78,43 @@ pub fn replicate_est(a: &Stat, b: &Stat) -> (f64, f64) {
     (a.mean(), a.se().max(b.se()))
 }
 
+/// ∫ h(ω_o) dω by importance sampling a proposal (`sample`, density `pdf`),
+/// on the replicate scheme of [`replicate_est`]: `n` calls on the stream
+/// `seed` + [`seed_offset`] and `n` on its replicate. `h` gets its own walk
+/// stream (the proposal's seed ^ `walk_salt`); a failed or zero-density
+/// proposal counts as 0.
+pub fn proposal_integral(
+    n: usize,
+    seed: u64,
+    walk_salt: u64,
+    sample: impl Fn(&mut Sampler) -> Option<DVec3>,
+    pdf: impl Fn(DVec3) -> f64,
+    h: impl Fn(DVec3, &mut Sampler) -> f64,
+) -> (f64, f64) {
+    let run = |seed: u64| {
+        let mut rng = Sampler::new(seed);
+        let mut walk = Sampler::new(seed ^ walk_salt);
+        let mut st = Stat::default();
+        for _ in 0..n {
+            let x = match sample(&mut rng) {
+                Some(wo) => {
+                    let p = pdf(wo);
+                    if p > 0.0 {
+                        h(wo, &mut walk) / p
+                    } else {
+                        0.0
+                    }
+                }
+                None => 0.0,
+            };
+            st.push(x);
+        }
+        st
+    };
+    let seed = seed + seed_offset();
+    replicate_est(&run(seed), &run(seed ^ REPLICATE_SALT))
+}
+
 /// A value with its standard error (0 for an exact value).
 pub fn exact(v: f64) -> (f64, f64) {
     (v, 0.0)

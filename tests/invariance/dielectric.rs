@@ -254,28 +254,7 @@ fn order1_is_walter_with_beta_g2_exactly() {
 #[allow(clippy::too_many_arguments)]
 fn eval_integral(f: &dyn Fn(DVec3, DVec3, &mut Sampler) -> f64, mf: Microfacet, eta: f64, wi: DVec3, n: usize, seed: u64, g: &dyn Fn(DVec3) -> f64) -> (f64, f64) {
     let prop = DielectricProposal::new(mf, wi, eta);
-    let run = |seed: u64| {
-        let mut rng = Sampler::new(seed);
-        let mut walk = Sampler::new(seed ^ 0x5eed);
-        let mut st = Stat::default();
-        for _ in 0..n {
-            let x = match prop.sample(&mut rng) {
-                Some(wo) => {
-                    let p = prop.pdf(wo);
-                    if p > 0.0 {
-                        f(wi, wo, &mut walk) * g(wo) / p
-                    } else {
-                        0.0
-                    }
-                }
-                None => 0.0,
-            };
-            st.push(x);
-        }
-        st
-    };
-    let seed = seed + seed_offset();
-    replicate_est(&run(seed), &run(seed ^ REPLICATE_SALT))
+    proposal_integral(n, seed, 0x5eed, |r| prop.sample(r), |w| prop.pdf(w), |wo, walk| f(wi, wo, walk) * g(wo))
 }
 
 fn inv(mf: Microfacet, eta: f64, radiance: bool, o: WalkOptions) -> impl Fn(DVec3, DVec3, &mut Sampler) -> f64 {

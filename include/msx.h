@@ -82,6 +82,41 @@
 #define MSX_ALPHA_MAX 1e4
 
 /*
+ `msx_table` kinds: directional albedos with F = 1 over (α, cos θ_i) — of
+ `single` (Mitsuba's G1), and of order 1 of the uncorrelated and the
+ height-correlated models (the walks' MIS density, src/models/mis.rs).
+ */
+#define MSX_TABLE_ALBEDO_SINGLE 0
+
+#define MSX_TABLE_E1_UNCORRELATED 1
+
+#define MSX_TABLE_E1_CORRELATED 2
+
+/*
+ E_avg(α) = 2∫E(μ)μ dμ of `single` (F = 1), over α alone.
+ */
+#define MSX_TABLE_ALBEDO_AVG 3
+
+/*
+ `MsxAxis::warp`: the coordinate u = warp(x) in which an axis's nodes are uniform.
+ */
+#define MSX_WARP_IDENTITY 0
+
+#define MSX_WARP_SQRT 1
+
+/*
+ x clamped into [0, 1], squared.
+ */
+#define MSX_WARP_SQUARE 2
+
+#define MSX_WARP_LN 3
+
+/*
+ √(1 − 1/x²).
+ */
+#define MSX_WARP_CRITICAL_COSINE 4
+
+/*
  Scattering orders a simulation tallies apart: 1, 2, 3 and 4+ (index 3).
  */
 #define MSX_SIM_ORDERS 4
@@ -150,6 +185,30 @@ typedef struct MsxPexitStudy {
    */
   double nonfinite_fraction;
 } MsxPexitStudy;
+
+/*
+ One axis of a table: `n` nodes uniform in u = warp(x) from `lo` to `hi`
+ (u values), at the ends of n − 1 steps (`centred` = 0) or at the centres
+ of n cells (`centred` = 1). A lookup clamps x's node position to [0, n − 1]
+ and interpolates linearly between nodes, axis by axis.
+ */
+typedef struct MsxAxis {
+  uint32_t warp;
+  double lo;
+  double hi;
+  uint32_t n;
+  uint32_t centred;
+} MsxAxis;
+
+/*
+ The shape of a table: `naxes` axes (the last varies fastest in the values)
+ and `len` values.
+ */
+typedef struct MsxTableShape {
+  uint32_t naxes;
+  struct MsxAxis axes[3];
+  size_t len;
+} MsxTableShape;
 
 /*
  Process-wide counts of what the C ABI had to clean before returning:
@@ -383,6 +442,19 @@ struct MsxPexitStudy msx_pexit_study(uint32_t distribution,
                                      uint32_t vertices,
                                      uint32_t paths,
                                      uint64_t seed);
+
+/*
+ Writes the shape of table `kind` (MSX_TABLE_*) of `distribution` to
+ `*shape` and, when `out_values` is not null and `len` ≥ the table's length,
+ its values. Computes the table on first use (as the models do).
+ */
+int32_t msx_table(uint32_t kind,
+                  uint32_t distribution,
+                  struct MsxTableShape *shape,
+                  double *out_values,
+                  size_t len,
+                  char *err,
+                  size_t err_len);
 
 /*
  Library version as a static NUL-terminated string.

@@ -119,7 +119,7 @@ def llvm_variant():
     mi.set_variant("llvm_ad_rgb")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # register()'s note that it turned symbolic mode off
-        msx.register()
+        msx.register(backend="batched")
     with msx.evaluated_mode():
         yield
 

@@ -42,7 +42,7 @@ N_PAIRS = 1000
 
 def llvm(variant="llvm_ad_rgb"):
     mi.set_variant(variant)
-    msx.register()
+    msx.register(backend="batched")
     # register() switched drjit to evaluated mode (see test_plain_render_matches_scalar); the tests below
     # choose their mode themselves, starting from drjit's default.
     for f in (dr.JitFlag.SymbolicLoops, dr.JitFlag.SymbolicCalls):
@@ -316,7 +316,7 @@ def test_plain_render_matches_scalar():
     _plugin_llvm._switched = False  # as in a new process: the first switch warns
     msx._REGISTERED.pop("llvm_ad_rgb", None)
     with pytest.warns(RuntimeWarning, match="symbolic loops and calls are now off"):
-        msx.register()
+        msx.register(backend="batched")
     scene = mi.load_dict(scene_dict(MS_BSDF))
     assert not dr.flag(dr.JitFlag.SymbolicLoops) and not dr.flag(dr.JitFlag.SymbolicCalls)
     t0 = time.time()

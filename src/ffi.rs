@@ -402,6 +402,117 @@ pub extern "C" fn msx_pexit_study(distribution: u32, alpha: f64, theta_i: f64, v
     })
 }
 
+// ------------------------------------------------------------ tables
+//
+// The Dr.Jit engine (mitsuba_plugin/msx/jit/) computes nothing it can take
+// from the core: it reads the core's tables once and uploads them as
+// textures, interpolating them as `tables::Grid::at` does.
+
+/// `msx_table` kinds: directional albedos with F = 1 over (α, cos θ_i) — of
+/// `single` (Mitsuba's G1), and of order 1 of the uncorrelated and the
+/// height-correlated models (the walks' MIS density, src/models/mis.rs).
+pub const MSX_TABLE_ALBEDO_SINGLE: u32 = 0;
+pub const MSX_TABLE_E1_UNCORRELATED: u32 = 1;
+pub const MSX_TABLE_E1_CORRELATED: u32 = 2;
+/// E_avg(α) = 2∫E(μ)μ dμ of `single` (F = 1), over α alone.
+pub const MSX_TABLE_ALBEDO_AVG: u32 = 3;
+
+/// `MsxAxis::warp`: the coordinate u = warp(x) in which an axis's nodes are uniform.
+pub const MSX_WARP_IDENTITY: u32 = 0;
+pub const MSX_WARP_SQRT: u32 = 1;
+/// x clamped into [0, 1], squared.
+pub const MSX_WARP_SQUARE: u32 = 2;
+pub const MSX_WARP_LN: u32 = 3;
+/// √(1 − 1/x²).
+pub const MSX_WARP_CRITICAL_COSINE: u32 = 4;
+
+/// One axis of a table: `n` nodes uniform in u = warp(x) from `lo` to `hi`
+/// (u values), at the ends of n − 1 steps (`centred` = 0) or at the centres
+/// of n cells (`centred` = 1). A lookup clamps x's node position to [0, n − 1]
+/// and interpolates linearly between nodes, axis by axis.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default)]
+pub struct MsxAxis {
+    pub warp: u32,
+    pub lo: f64,
+    pub hi: f64,
+    pub n: u32,
+    pub centred: u32,
+}
+
+/// The shape of a table: `naxes` axes (the last varies fastest in the values)
+/// and `len` values.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default)]
+pub struct MsxTableShape {
+    pub naxes: u32,
+    pub axes: [MsxAxis; 3],
+    pub len: usize,
+}
+
+fn axis_out(a: &crate::tables::Axis) -> MsxAxis {
+    use crate::tables::Warp;
+    let warp = match a.warp {
+        Warp::Identity => MSX_WARP_IDENTITY,
+        Warp::Sqrt => MSX_WARP_SQRT,
+        Warp::Square => MSX_WARP_SQUARE,
+        Warp::Ln => MSX_WARP_LN,
+        Warp::CriticalCosine => MSX_WARP_CRITICAL_COSINE,
+    };
+    MsxAxis { warp, lo: a.lo, hi: a.hi, n: a.n as u32, centred: a.centred as u32 }
+}
+
+/// Writes the shape of table `kind` (MSX_TABLE_*) of `distribution` to
+/// `*shape` and, when `out_values` is not null and `len` ≥ the table's length,
+/// its values. Computes the table on first use (as the models do).
+// A C entry point: the pointers are the C caller's (null-checked here).
+#[allow(clippy::not_unsafe_ptr_arg_deref)]
+#[no_mangle]
+pub extern "C" fn msx_table(kind: u32, distribution: u32, shape: *mut MsxTableShape, out_values: *mut f64, len: usize, err: *mut c_char, err_len: usize) -> i32 {
+    let result = catch_unwind(AssertUnwindSafe(|| {
+        if shape.is_null() {
+            write_error(err, err_len, "null pointer passed to msx_table");
+            return MSX_ERR_NULL_POINTER;
+        }
+        let dist = match distribution {
+            MSX_DISTRIBUTION_BECKMANN => Distribution::Beckmann,
+            MSX_DISTRIBUTION_GGX => Distribution::Ggx,
+            _ => {
+                write_error(err, err_len, &format!("invalid parameter 'distribution': unknown value {distribution}"));
+                return MSX_ERR_INVALID_PARAMETER;
+            }
+        };
+        let table = crate::tables::albedo::AlbedoTable::get(dist);
+        let grids = table.grids();
+        let (axes, values): (&[crate::tables::Axis], &[f64]) = match kind {
+            MSX_TABLE_ALBEDO_SINGLE => (&grids[0].axes, &grids[0].values),
+            MSX_TABLE_E1_UNCORRELATED => (&grids[1].axes, &grids[1].values),
+            MSX_TABLE_E1_CORRELATED => (&grids[2].axes, &grids[2].values),
+            MSX_TABLE_ALBEDO_AVG => (&table.e_avg_grid().axes, &table.e_avg_grid().values),
+            _ => {
+                write_error(err, err_len, &format!("invalid parameter 'kind': unknown table {kind}"));
+                return MSX_ERR_INVALID_PARAMETER;
+            }
+        };
+        let mut out = MsxTableShape { naxes: axes.len() as u32, len: values.len(), ..Default::default() };
+        for (o, a) in out.axes.iter_mut().zip(axes) {
+            *o = axis_out(a);
+        }
+        // SAFETY: checked non-null above.
+        unsafe { *shape = out };
+        if !out_values.is_null() && len >= values.len() {
+            // SAFETY: the caller provides `len` writable values.
+            unsafe { std::ptr::copy_nonoverlapping(values.as_ptr(), out_values, values.len()) };
+        }
+        MSX_OK
+    }));
+    result.unwrap_or_else(|_| {
+        caught_panic();
+        write_error(err, err_len, "internal error (panic) in msx_table");
+        MSX_ERR_PANIC
+    })
+}
+
 /// Library version as a static NUL-terminated string.
 #[no_mangle]
 pub extern "C" fn msx_version() -> *const c_char {

@@ -47,15 +47,23 @@ def registered_variants():
     return sorted(_REGISTERED)
 
 
+BACKENDS = ("auto", "native", "python", "jit", "batched")
+
+
 def register(backend=None):
     """Register the ``msx_posfree`` BSDF for the current Mitsuba variant.
 
-    ``backend``: ``"native"`` (scalar variants: a C++ plugin calling the Rust
-    core directly — no Python per call, all render threads; compiled on first
-    use and cached, see ``_native_backend.py``), ``"python"`` (the Python
-    class; scalar variants one call per sample, LLVM variants one batched call
-    per wavefront), or ``None``/``"auto"`` (default; also ``MSX_BACKEND``):
-    native where it builds and passes its check, else Python, saying why once.
+    ``backend``, per variant kind (also ``MSX_BACKEND``; ``None``/``"auto"`` picks the fastest):
+
+    - scalar variants: ``"native"`` (a C++ plugin calling the Rust core directly — no Python per call,
+      all render threads; compiled on first use and cached, see ``_native_backend.py``; the default where
+      it builds and passes its check, else Python, saying why once) or ``"python"`` (the Python class,
+      one call per sample, one render thread);
+    - vectorized variants (``llvm_*``, ``cuda_*``): ``"jit"`` (the default: the Dr.Jit engine, ``msx/jit/``,
+      traced into Mitsuba's kernels; drjit's flags stay as they are) or ``"batched"`` (one batched native
+      call per wavefront for the models the engine does not run yet; it turns drjit's symbolic loops and
+      calls off for the whole process, which slows every other scene down).
+
     Idempotent per (variant, backend). Returns the factory Mitsuba calls.
     """
     import mitsuba as mi
@@ -64,15 +72,18 @@ def register(backend=None):
     if variant is None:
         raise RuntimeError("msx.register(): set a Mitsuba variant first, e.g. mi.set_variant('scalar_rgb')")
     backend = backend or os.environ.get("MSX_BACKEND") or "auto"
-    if backend not in ("auto", "native", "python"):
-        raise ValueError(f"msx.register(): unknown backend '{backend}'; use 'native', 'python' or 'auto'")
+    if backend not in BACKENDS:
+        raise ValueError(f"msx.register(): unknown backend '{backend}'; use one of {', '.join(BACKENDS)}")
     known = _REGISTERED.get(variant)
     if known is not None and backend in ("auto", known[0]):
         return known[1]
     scalar = variant.startswith("scalar_")
-    if backend == "native" and not scalar:
-        raise RuntimeError(f"msx.register(backend='native'): the native back end exists for Mitsuba's scalar "
-                           f"variants only (current: {variant}); LLVM variants use batched native calls already")
+    if scalar and backend in ("jit", "batched"):
+        raise RuntimeError(f"msx.register(backend='{backend}'): the '{backend}' back end serves Mitsuba's "
+                           f"vectorized variants (llvm_*, cuda_*); in {variant} use 'native' or 'python'")
+    if not scalar and backend in ("native", "python"):
+        raise RuntimeError(f"msx.register(backend='{backend}'): the '{backend}' back end serves Mitsuba's scalar "
+                           f"variants; in {variant} use 'jit' (the default) or 'batched'")
     factory, chosen = None, "python"
     if scalar and backend in ("auto", "native") and "polarized" not in variant:
         from ._native_backend import NativeUnavailable, make_factory
@@ -85,17 +96,24 @@ def register(backend=None):
             _warn_once(f"msx: the native back end is unavailable ({e}); using the Python back end "
                        "(one Python call per BSDF call, one render thread)")
     if factory is None:
-        if variant.startswith("llvm_"):
+        if not scalar and backend == "batched":
             from ._plugin_llvm import _switch_to_evaluated_mode, make_bsdf_class
 
             # Native code cannot run in drjit's symbolic kernels: turn them off now (saying so once), so that
             # a plain mi.render() of a scene with msx_posfree gives the right image. (Mitsuba's scene loader
             # restores drjit's flags after loading, so the switch cannot wait for the instance.)
             _switch_to_evaluated_mode()
+            factory, chosen = make_bsdf_class(mi, variant), "batched"
+        elif not scalar:
+            from ._params import channels_of
+            from .jit.bsdf import make_bsdf_factory
+
+            channels_of(mi, variant)  # polarized variants: a clear error now, not at scene load
+            factory, chosen = make_bsdf_factory(variant), "jit"
         else:
             from ._plugin import make_bsdf_class
-        cls = make_bsdf_class(mi, variant)
-        factory = cls
+
+            factory = make_bsdf_class(mi, variant)
     mi.register_bsdf("msx_posfree", lambda props: _create(factory, props))
     _REGISTERED[variant] = (chosen, factory)
     return factory
@@ -113,8 +131,8 @@ def _create(factory, props):
 
 
 def backend():
-    """The back end of ``msx_posfree`` in the current variant (``"native"`` or ``"python"``), or None if
-    :func:`register` has not run for it."""
+    """The back end of ``msx_posfree`` in the current variant (``"native"``, ``"python"``, ``"jit"`` or
+    ``"batched"``), or None if :func:`register` has not run for it."""
     import mitsuba as mi
 
     known = _REGISTERED.get(mi.variant())
@@ -133,9 +151,10 @@ def _warn_once(message):
 
 
 def evaluated_mode():
-    """LLVM variants: context manager turning off dr.JitFlag.SymbolicLoops and
-    SymbolicCalls, required to render scenes that use msx_posfree
-    (``with msx.evaluated_mode(): mi.render(scene)``; ``.enable()`` keeps it on)."""
+    """Vectorized variants, batched route only (``msx.register(backend="batched")``): context manager
+    turning off dr.JitFlag.SymbolicLoops and SymbolicCalls, which that route needs
+    (``with msx.evaluated_mode(): mi.render(scene)``; ``.enable()`` keeps it on). The Dr.Jit engine, the
+    default, needs no such mode."""
     from ._plugin_llvm import evaluated_mode as _f
 
     return _f()

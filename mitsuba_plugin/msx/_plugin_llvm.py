@@ -33,8 +33,9 @@ import weakref
 import numpy as np
 
 from ._native import ffi, lib
-from ._params import PLUGIN, Config
-from ._plugin_base import ERR_LEN, SPECTRAL_TEXTURES, make_base_class, make_factory, native_channels
+from ._params import PLUGIN
+from ._plugin_base import ERR_LEN, make_base_class, make_factory, native_channels
+from ._vectorized_config import vectorized_config
 
 # Live instances (for check_fallback).
 _INSTANCES = weakref.WeakSet()
@@ -131,71 +132,6 @@ def _check_at_exit():
         pass
 
 
-class _ScalarTex:
-    """Wraps a texture so that _params' scalar checks (``float(tex.eval_1(si))``)
-    work with LLVM arrays; unwrapped again right after parsing."""
-
-    def __init__(self, tex):
-        self.tex = tex
-
-    def eval_1(self, si, active=True):
-        return _scalar(self.tex.eval_1(si, active))
-
-    def __getattr__(self, name):
-        return getattr(self.tex, name)
-
-
-class _Props:
-    """mi.Properties seen by _params.Config (textures wrapped by _ScalarTex)."""
-
-    def __init__(self, props):
-        self._p = props
-
-    def __contains__(self, name):
-        return name in self._p
-
-    def get_texture(self, *args, **kw):
-        return _ScalarTex(self._p.get_texture(*args, **kw))
-
-    def get_unbounded_texture(self, *args, **kw):
-        return _ScalarTex(self._p.get_unbounded_texture(*args, **kw))
-
-    def __getattr__(self, name):
-        return getattr(self._p, name)
-
-
-def _scalar(v):
-    return float(v[0]) if hasattr(v, "__len__") and len(v) == 1 else v
-
-
-class _Mi:
-    """The mitsuba module seen by _params.Config: ``traverse(obj)[key]`` gives
-    Python floats for width-1 arrays (as in scalar variants)."""
-
-    def __init__(self, mi):
-        self._mi = mi
-
-    def traverse(self, obj):
-        params = self._mi.traverse(obj)
-
-        class _P:
-            def __getitem__(self, key):
-                return _scalar(params[key])
-
-        return _P()
-
-    def __getattr__(self, name):
-        return getattr(self._mi, name)
-
-
-def _unwrap(cfg):
-    for name in ("alpha_u", "alpha_v") + SPECTRAL_TEXTURES:
-        v = getattr(cfg, name, None)
-        if isinstance(v, _ScalarTex):
-            setattr(cfg, name, v.tex)
-    return cfg
-
-
 def make_bsdf_class(mi, variant):
     """Defines the BSDF classes for the current LLVM variant; returns the factory."""
     import drjit as dr
@@ -268,7 +204,7 @@ def make_bsdf_class(mi, variant):
 
             def _config(self, props):
                 # _params.Config reads constant textures as Python floats: parse through the wrappers.
-                return _unwrap(Config(_Mi(mi), _Props(props)))
+                return vectorized_config(mi, props)
 
             # ------------------------------------------------- symbolic fallback
 

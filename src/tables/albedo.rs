@@ -114,4 +114,15 @@ impl AlbedoTable {
     pub fn e_avg(&self, alpha: f64) -> f64 {
         self.e_avg.at([alpha])
     }
+
+    /// The grids themselves (for the C ABI's `msx_table`, which hands them to
+    /// the Dr.Jit engine): `single`, order 1 uncorrelated, order 1 correlated.
+    pub fn grids(&self) -> [&Grid<2>; 3] {
+        [&self.e, &self.e1_uncorr, &self.e1_corr]
+    }
+
+    /// The grid of E_avg(α) (for `msx_table`).
+    pub fn e_avg_grid(&self) -> &Grid<1> {
+        &self.e_avg
+    }
 }

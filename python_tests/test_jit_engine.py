@@ -1,0 +1,279 @@
+"""The Dr.Jit engine (``msx/jit/``) against the Rust core and Mitsuba's built-ins, in ``llvm_ad_rgb``.
+
+One truth (docs/engines.md): the core is the reference; the engine must equal it in distribution.
+- ``single`` equals Mitsuba's ``roughconductor`` value for value (float32 rounding only).
+- Every stochastic model: the mean of ``eval`` at fixed (ω_i, ω_o) pairs and the directional albedo (mean
+  ``sample`` weight) equal the core's within their noise: z = Δ/√(σ₁² + σ₂²) against a threshold set by a
+  Šidák-corrected family-wise false-alarm rate of 1e-3 over all comparisons of this file. σ is the larger
+  of the plain standard error and the one from four independent replicates (a heavy-tailed estimator that
+  missed its tail gets no small σ).
+- ``sample`` against ``pdf``: the engine's sampled directions follow... no closed form for a walk; the
+  walks' weights are checked through the albedo, the reported density through MIS-unbiased renders
+  (the Fig. 9 image mean against the native scalar route).
+- ``msx.register()`` leaves drjit's flags as they were, before and after a render.
+``MSX_TEST_SEED_OFFSET`` reruns the statistical checks at other seeds (docs/testing.md).
+"""
+
+import math
+import os
+import statistics
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from llvm_support import llvm_unusable_reason  # noqa: E402  (sets DRJIT_LIBLLVM_PATH before drjit starts)
+
+np = pytest.importorskip("numpy")
+mi = pytest.importorskip("mitsuba")
+import drjit as dr  # noqa: E402
+
+_REASON = llvm_unusable_reason()
+if _REASON:
+    pytest.skip(_REASON, allow_module_level=True)
+
+import msx  # noqa: E402
+from msx.core import CoreBsdf  # noqa: E402
+
+SEED_OFFSET = int(os.environ.get("MSX_TEST_SEED_OFFSET", "0"))
+LANES = 1 << 16
+REPLICATES = 4
+
+# Every statistical comparison of this file, for the Šidák correction: (models × α × pairs × channels) for
+# eval, (models × α × incidences × channels) for the albedo.
+WALK_MODELS = ("uncorrelated", "correlated")
+ALPHAS = (0.3, 1.0)
+PAIRS = [((0.3, 0.0, math.sqrt(1 - 0.09)), (-0.5, 0.2, math.sqrt(1 - 0.29))),
+         ((0.8, 0.1, math.sqrt(1 - 0.65)), (0.1, -0.3, math.sqrt(1 - 0.10))),
+         ((0.95, 0.0, math.sqrt(1 - 0.9025)), (-0.9, 0.0, math.sqrt(1 - 0.81)))]
+INCIDENCES = (0.2, 0.6, 0.95)  # cos θ_i
+COMPARISONS = len(WALK_MODELS) * len(ALPHAS) * (len(PAIRS) + len(INCIDENCES)) * 3 + len(ALPHAS) * len(INCIDENCES)
+FAMILY_RATE = 1e-3
+Z_MAX = statistics.NormalDist().inv_cdf(1 - (1 - (1 - FAMILY_RATE) ** (1 / COMPARISONS)) / 2)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def llvm():
+    mi.set_variant("llvm_ad_rgb")
+    msx.register(backend="jit")
+    yield
+
+
+def cu_rgb():
+    """Mitsuba's RGB (η, k) of copper in this variant."""
+    p = mi.traverse(mi.load_dict({"type": "roughconductor", "material": "Cu"}))
+    return [float(x) for x in np.array(p["eta.value"]).ravel()], [float(x) for x in np.array(p["k.value"]).ravel()]
+
+
+def lanes_si(wi, n, seed):
+    """n lanes at incidence ``wi``, each at its own hit position (the lanes' streams differ)."""
+    rng = np.random.default_rng(seed)
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.wi = mi.Vector3f(*[mi.Float(np.full(n, c, np.float32)) for c in wi])
+    si.p = mi.Point3f(*[mi.Float(rng.random(n).astype(np.float32)) for _ in range(3)])
+    si.uv = mi.Point2f(*[mi.Float(rng.random(n).astype(np.float32)) for _ in range(2)])
+    return si
+
+
+def stats(x):
+    """(mean, σ of the mean) of per-lane values (channels, n): σ the larger of the plain standard error and
+    the replicate one."""
+    x = np.asarray(x, np.float64)
+    n = x.shape[-1]
+    plain = x.std(axis=-1, ddof=1) / math.sqrt(n)
+    reps = x[..., : n - n % REPLICATES].reshape(x.shape[:-1] + (REPLICATES, -1)).mean(axis=-1)
+    rep = reps.std(axis=-1, ddof=1) / math.sqrt(REPLICATES)
+    return x.mean(axis=-1), np.maximum(plain, rep)
+
+
+def z_check(label, a, b):
+    (ma, sa), (mb, sb) = a, b
+    z = (ma - mb) / np.sqrt(sa ** 2 + sb ** 2)
+    print("%s: engine %s core %s z %s" % (label, np.round(ma, 5), np.round(mb, 5), np.round(z, 2)))
+    assert np.all(np.isfinite(ma)), label
+    assert np.all(np.abs(z) <= Z_MAX), "%s: |z| %s > %.2f" % (label, np.abs(z).max(), Z_MAX)
+
+
+def engine_bsdf(model, alpha, **extra):
+    return mi.load_dict({"type": "msx_posfree", "material": "Cu", "distribution": "ggx", "alpha": alpha,
+                         "model": model, **extra})
+
+
+def core_bsdf(model, alpha, eta, k, seed):
+    return CoreBsdf(surface="conductor", distribution="ggx", model=model, alpha=alpha, eta=eta, k=k,
+                    channels=3, seed=seed)
+
+
+def engine_eval(b, wi, wo, seed):
+    si = lanes_si(wi, LANES, seed)
+    wo_v = mi.Vector3f(*[mi.Float(np.full(LANES, c, np.float32)) for c in wo])
+    v = b.eval(mi.BSDFContext(), si, wo_v)
+    return np.array(v).reshape(LANES, 3).T if np.array(v).shape == (LANES, 3) else np.array(v)
+
+
+def engine_sample(b, wi, seed):
+    si = lanes_si(wi, LANES, seed)
+    rng = np.random.default_rng(seed + 1)
+    s1 = mi.Float(rng.random(LANES).astype(np.float32))
+    s2 = mi.Point2f(*[mi.Float(rng.random(LANES).astype(np.float32)) for _ in range(2)])
+    bs, w = b.sample(mi.BSDFContext(), si, s1, s2)
+    return np.array(w), np.array(bs.pdf), np.array(bs.wo)
+
+
+def as_channels(a):
+    a = np.asarray(a, np.float64)
+    return a.T if a.shape[-1] == 3 and a.shape[0] != 3 else a
+
+
+@pytest.mark.parametrize("model", WALK_MODELS)
+@pytest.mark.parametrize("alpha", ALPHAS)
+def test_eval_means_equal_the_core(model, alpha):
+    eta, k = cu_rgb()
+    b = engine_bsdf(model, alpha)
+    c = core_bsdf(model, alpha, eta, k, seed=SEED_OFFSET)
+    for i, (wi, wo) in enumerate(PAIRS):
+        seed = 1000 * i + 17 + SEED_OFFSET
+        e = as_channels(engine_eval(b, wi, wo, seed))
+        r = c.eval(np.tile(wi, (LANES, 1)), np.tile(wo, (LANES, 1)))
+        z_check("%s α %.1f pair %d eval" % (model, alpha, i), stats(e), stats(r))
+
+
+@pytest.mark.parametrize("model", WALK_MODELS)
+@pytest.mark.parametrize("alpha", ALPHAS)
+def test_albedo_equals_the_core(model, alpha):
+    """The directional albedo (mean sample weight) of the engine's walk equals the core's."""
+    eta, k = cu_rgb()
+    b = engine_bsdf(model, alpha)
+    c = core_bsdf(model, alpha, eta, k, seed=SEED_OFFSET)
+    for mu in INCIDENCES:
+        wi = (math.sqrt(1 - mu * mu), 0.0, mu)
+        w, pdf, wo = engine_sample(b, wi, 7 + SEED_OFFSET + int(100 * mu))
+        w = as_channels(w)
+        assert np.all(np.isfinite(w)) and np.all(w >= 0) and np.all(np.isfinite(pdf))
+        rng = np.random.default_rng(99 + SEED_OFFSET + int(100 * mu))
+        _, rw, _ = c.sample(np.tile(wi, (LANES, 1)), rng.random((3, LANES)))
+        z_check("%s α %.1f μ %.2f albedo" % (model, alpha, mu), stats(w), stats(rw))
+
+
+@pytest.mark.parametrize("alpha", ALPHAS)
+def test_white_furnace(alpha):
+    """material='none' (F = 1): the correlated walk conserves energy. ∫ eval dω_o over the hemisphere, by
+    uniform directions (2π·mean), is 1 within noise — a check of the engine's eval by physics, independent
+    of the core and of the sampler (whose weights are 1 by construction)."""
+    b = mi.load_dict({"type": "msx_posfree", "distribution": "ggx", "alpha": alpha, "model": "correlated"})
+    for mu in INCIDENCES:
+        wi = (math.sqrt(1 - mu * mu), 0.0, mu)
+        rng = np.random.default_rng(31 + SEED_OFFSET + int(100 * mu))
+        z, phi = rng.random(LANES), rng.uniform(0, 2 * np.pi, LANES)
+        r = np.sqrt(1 - z * z)
+        wo = mi.Vector3f(mi.Float(r * np.cos(phi)), mi.Float(r * np.sin(phi)), mi.Float(z))
+        v = np.array(b.eval(mi.BSDFContext(), lanes_si(wi, LANES, 77 + SEED_OFFSET), wo), np.float64)
+        m, s = stats(2 * np.pi * as_channels(v)[:1])
+        print("furnace α %.1f μ %.2f: albedo %.5f ± %.5f" % (alpha, mu, m[0], s[0]))
+        assert abs(m[0] - 1.0) <= Z_MAX * s[0], (alpha, mu, m[0], s[0])
+
+
+def test_single_equals_roughconductor():
+    """model='single' is Mitsuba's roughconductor: eval, pdf and sample agree to float32 rounding."""
+    rng = np.random.default_rng(5 + SEED_OFFSET)
+    n = 4096
+    for dist, alpha in (("ggx", 0.2), ("ggx", 0.9), ("beckmann", 0.4)):
+        params = {"material": "Au", "distribution": dist, "alpha": alpha}
+        ours = mi.load_dict({"type": "msx_posfree", "model": "single", **params})
+        theirs = mi.load_dict({"type": "roughconductor", **params})
+        z_i, z_o = rng.uniform(0.05, 1, n), rng.uniform(0.05, 1, n)
+        phi_i, phi_o = rng.uniform(0, 2 * np.pi, n), rng.uniform(0, 2 * np.pi, n)
+
+        def vec(z, phi):
+            r = np.sqrt(1 - z * z)
+            return mi.Vector3f(mi.Float(r * np.cos(phi)), mi.Float(r * np.sin(phi)), mi.Float(z))
+
+        si = dr.zeros(mi.SurfaceInteraction3f, n)
+        si.wi = vec(z_i, phi_i)
+        wo = vec(z_o, phi_o)
+        ctx = mi.BSDFContext()
+        for a, b in ((ours.eval(ctx, si, wo), theirs.eval(ctx, si, wo)),
+                     (ours.pdf(ctx, si, wo), theirs.pdf(ctx, si, wo))):
+            a, b = np.array(a, np.float64), np.array(b, np.float64)
+            assert np.allclose(a, b, rtol=2e-4, atol=1e-6), (dist, alpha, np.abs(a - b).max())
+        s1 = mi.Float(rng.random(n).astype(np.float32))
+        s2 = mi.Point2f(mi.Float(rng.random(n).astype(np.float32)), mi.Float(rng.random(n).astype(np.float32)))
+        (bo, wo_), (bt, wt) = ours.sample(ctx, si, s1, s2), theirs.sample(ctx, si, s1, s2)
+        # Mitsuba keeps a density for a direction below the horizon with weight 0; the engine, like the
+        # core, reports such a sample as invalid.
+        ok = (np.array(bt.pdf) > 0) & (np.array(bt.wo)[2] > 0)
+        assert np.array_equal(ok, np.array(bo.pdf) > 0)
+        assert np.allclose(np.array(bo.wo)[:, ok], np.array(bt.wo)[:, ok], atol=1e-5)
+        assert np.allclose(np.array(bo.pdf)[ok], np.array(bt.pdf)[ok], rtol=2e-4, atol=1e-6)
+        assert np.allclose(np.array(wo_)[:, ok], np.array(wt)[:, ok], rtol=2e-4, atol=1e-6)
+
+
+def test_reproducible_streams():
+    """The same inputs give the same estimate whatever the lane order (each lane's stream is hashed from
+    its own inputs and the seed); another seed gives other estimates."""
+    b = engine_bsdf("correlated", 0.6)
+    wi, wo = PAIRS[0]
+    n = 2048
+    si = lanes_si(wi, n, 3)
+    wo_v = mi.Vector3f(*[mi.Float(np.full(n, c, np.float32)) for c in wo])
+    v1 = np.array(b.eval(mi.BSDFContext(), si, wo_v))
+    perm = np.random.default_rng(4).permutation(n)
+    si2 = dr.zeros(mi.SurfaceInteraction3f, n)
+    si2.wi = si.wi
+    si2.p = mi.Point3f(*[mi.Float(np.array(si.p[i])[perm]) for i in range(3)])
+    si2.uv = mi.Point2f(*[mi.Float(np.array(si.uv[i])[perm]) for i in range(2)])
+    v2 = np.array(b.eval(mi.BSDFContext(), si2, wo_v))
+    assert np.array_equal(np.asarray(v1)[:, perm], np.asarray(v2))
+    v3 = np.array(engine_bsdf("correlated", 0.6, seed=7).eval(mi.BSDFContext(), si, wo_v))
+    assert not np.array_equal(v1, v3)
+
+
+def test_bad_parameter_same_message_as_scalar():
+    """A bad parameter gives the same one-line message in llvm_ad_rgb (engine) as in scalar_rgb."""
+    bad = {"type": "msx_posfree", "alpha": 0.3, "model": "corelated"}
+    messages = []
+    for variant in ("llvm_ad_rgb", "scalar_rgb"):
+        mi.set_variant(variant)
+        msx.register()
+        with pytest.raises(Exception) as e:
+            mi.load_dict(bad)
+        messages.append([ln for ln in str(e.value).splitlines() if "msx_posfree:" in ln][-1].strip())
+    mi.set_variant("llvm_ad_rgb")
+    assert messages[0] == messages[1] and "corelated" in messages[0], messages
+
+
+def test_models_outside_the_engine_are_named():
+    """A model the engine does not run yet is refused at load with the parameter, the models it runs and
+    the alternatives."""
+    with pytest.raises(Exception, match="estimator='bdpt'.*backend='batched'"):
+        mi.load_dict({"type": "msx_posfree", "alpha": 0.3, "model": "correlated", "estimator": "bdpt"})
+
+
+# A fresh process: the flags a user had stay untouched; a built-in scene renders in the same mode.
+_FLAGS_SCRIPT = textwrap.dedent("""
+    import drjit as dr, mitsuba as mi
+    mi.set_variant("llvm_ad_rgb")
+    import msx
+    before = (dr.flag(dr.JitFlag.SymbolicLoops), dr.flag(dr.JitFlag.SymbolicCalls))
+    msx.register()
+    scene = mi.load_dict({"type": "scene", "integrator": {"type": "path", "max_depth": 3},
+        "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": 16, "height": 16},
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0])},
+        "s": {"type": "sphere", "bsdf": {"type": "msx_posfree", "material": "Cu", "distribution": "ggx",
+                                         "alpha": 0.5, "model": "correlated"}},
+        "e": {"type": "constant"}})
+    img = mi.render(scene, spp=8)
+    after = (dr.flag(dr.JitFlag.SymbolicLoops), dr.flag(dr.JitFlag.SymbolicCalls))
+    import numpy as np
+    print(before, after, float(np.array(img).mean()), msx.backend())
+""")
+
+
+def test_register_leaves_drjit_flags_alone():
+    r = subprocess.run([sys.executable, "-c", _FLAGS_SCRIPT], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = r.stdout.strip()
+    assert out.startswith("(True, True) (True, True) "), out
+    mean, backend = out.split()[-2:]
+    assert float(mean) > 0 and backend == "jit", out

@@ -4,14 +4,17 @@ built-in roughconductor and by msx_posfree through every route:
 
 - scalar_rgb, native back end (C++ plugin on the Rust core) and Python back
   end, each with 1 render thread and with all threads;
-- llvm_ad_rgb (batched native calls in drjit's evaluated mode), against the
+- llvm_ad_rgb with the Dr.Jit engine (msx/jit/, traced into Mitsuba's kernels; drjit's default symbolic
+  mode), against the built-in in the same process and mode, and against the built-in in a process
+  without msx (what registering msx costs other scenes);
+- llvm_ad_rgb with the batched route (batched native calls in drjit's evaluated mode), against the
   built-in in drjit's default (symbolic) mode and in evaluated mode.
 
 Each route runs in its own process; within a process the configurations are
 interleaved over repeats and the median is kept. Only ratios measured in one
 run are meaningful (machines are shared and noisy).
 
-    python3 benches/render_bench.py [--spp 16] [--res 128] [--repeats 5]
+    python3 benches/render_bench.py [--spp 16] [--res 128] [--repeats 5] [--routes llvm]
 """
 
 import argparse
@@ -47,9 +50,15 @@ def worker(route, res, spp, repeats):
         msx.register(backend=None if backend == "auto" else backend)
         if variant.startswith("scalar"):
             dr.set_thread_count(os.cpu_count() if threads == "all" else 1)
-        label = "roughconductor" + (" (evaluated)" if variant.startswith("llvm") else "")
+        label = "roughconductor" + (" (evaluated)" if backend == "batched" else "")
         configs[label] = mi.load_file(path, bsdf="roughconductor", **size)
-        for m in MODELS if backend != "python" or variant.startswith("llvm") else MODELS[:2]:
+        if backend == "jit":
+            from msx.jit.bsdf import ENGINE_MODELS
+
+            models = ENGINE_MODELS["conductor"]
+        else:
+            models = MODELS if backend != "python" else MODELS[:2]
+        for m in models:
             configs[f"msx {m}"] = mi.load_file(path, bsdf="msx_posfree", model=m, **size)
     for s in configs.values():
         mi.render(s, spp=1)  # warm-up (kernel compilation in LLVM)
@@ -67,13 +76,17 @@ def main():
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--res", type=int, default=128)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--routes", default="all", help="all, llvm (the vectorized routes only) or scalar")
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.worker:
         print(json.dumps(worker(args.worker, args.res, args.spp, args.repeats)))
         return
-    routes = ["scalar_rgb:native:1", "scalar_rgb:native:all", "scalar_rgb:python:1", "scalar_rgb:python:all",
-              "llvm_ad_rgb:builtin-symbolic:all", "llvm_ad_rgb:auto:all"]
+    routes = []
+    if args.routes in ("all", "scalar"):
+        routes += ["scalar_rgb:native:1", "scalar_rgb:native:all", "scalar_rgb:python:1", "scalar_rgb:python:all"]
+    if args.routes in ("all", "llvm"):
+        routes += ["llvm_ad_rgb:builtin-symbolic:all", "llvm_ad_rgb:jit:all", "llvm_ad_rgb:batched:all"]
     results = {}
     for r in routes:
         p = subprocess.run([sys.executable, __file__, "--worker", r, "--res", str(args.res), "--spp", str(args.spp),
@@ -96,10 +109,11 @@ def main():
             print(f"| {variant} {backend} | {threads if variant.startswith('scalar') else 'all'} | {k} | {t:.3f} | "
                   f"{t / base:.2f} |")
     sym = results.get("llvm_ad_rgb:builtin-symbolic:all", {}).get("roughconductor (symbolic)")
-    if sym and "llvm_ad_rgb:auto:all" in results:
-        print("\nLLVM, against the built-in in drjit's default (symbolic) mode:")
-        for k, t in results["llvm_ad_rgb:auto:all"].items():
-            print(f"  {k}: {t / sym:.2f} ×")
+    for route in ("llvm_ad_rgb:jit:all", "llvm_ad_rgb:batched:all"):
+        if sym and route in results:
+            print(f"\n{route}, against the built-in in drjit's default (symbolic) mode in a process without msx:")
+            for k, t in results[route].items():
+                print(f"  {k}: {t / sym:.2f} ×")
     n1, na = results.get("scalar_rgb:native:1"), results.get("scalar_rgb:native:all")
     if n1 and na:
         print("\nThread scaling of the native back end (1 thread / all threads):")

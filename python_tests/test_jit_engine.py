@@ -48,7 +48,8 @@ PAIRS = [((0.3, 0.0, math.sqrt(1 - 0.09)), (-0.5, 0.2, math.sqrt(1 - 0.29))),
          ((0.8, 0.1, math.sqrt(1 - 0.65)), (0.1, -0.3, math.sqrt(1 - 0.10))),
          ((0.95, 0.0, math.sqrt(1 - 0.9025)), (-0.9, 0.0, math.sqrt(1 - 0.81)))]
 INCIDENCES = (0.2, 0.6, 0.95)  # cos θ_i
-COMPARISONS = len(WALK_MODELS) * len(ALPHAS) * (len(PAIRS) + len(INCIDENCES)) * 3 + len(ALPHAS) * len(INCIDENCES)
+COMPARISONS = (len(WALK_MODELS) * len(ALPHAS) * (len(PAIRS) + len(INCIDENCES)) * 3 + len(ALPHAS) * len(INCIDENCES)
+               + len(WALK_MODELS) * (len(PAIRS) + 2) * 3)
 FAMILY_RATE = 1e-3
 Z_MAX = statistics.NormalDist().inv_cdf(1 - (1 - (1 - FAMILY_RATE) ** (1 / COMPARISONS)) / 2)
 
@@ -207,6 +208,61 @@ def test_single_equals_roughconductor():
         assert np.allclose(np.array(bo.wo)[:, ok], np.array(bt.wo)[:, ok], atol=1e-5)
         assert np.allclose(np.array(bo.pdf)[ok], np.array(bt.pdf)[ok], rtol=2e-4, atol=1e-6)
         assert np.allclose(np.array(wo_)[:, ok], np.array(wt)[:, ok], rtol=2e-4, atol=1e-6)
+
+
+@pytest.mark.parametrize("model", ("fastmsx", "compensated"))
+@pytest.mark.parametrize("alpha", (0.1, 0.5, 1.2))
+def test_analytic_models_equal_the_core(model, alpha):
+    """The deterministic conductor models: eval, pdf and the sample weight per lane equal the core's (float32
+    against float64, and the tables interpolated in float32)."""
+    eta, k = cu_rgb()
+    b = engine_bsdf(model, alpha)
+    c = core_bsdf(model, alpha, eta, k, seed=0)
+    rng = np.random.default_rng(11)
+    n = 4096
+    z_i, z_o = rng.uniform(0.05, 1, n), rng.uniform(0.05, 1, n)
+    phi = rng.uniform(0, 2 * np.pi, (2, n))
+    wi = np.stack([np.sqrt(1 - z_i ** 2) * np.cos(phi[0]), np.sqrt(1 - z_i ** 2) * np.sin(phi[0]), z_i], 1)
+    wo = np.stack([np.sqrt(1 - z_o ** 2) * np.cos(phi[1]), np.sqrt(1 - z_o ** 2) * np.sin(phi[1]), z_o], 1)
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.wi = mi.Vector3f(*[mi.Float(wi[:, i].astype(np.float32)) for i in range(3)])
+    wo_v = mi.Vector3f(*[mi.Float(wo[:, i].astype(np.float32)) for i in range(3)])
+    ctx = mi.BSDFContext()
+    v, p = b.eval_pdf(ctx, si, wo_v)
+    v, p = np.array(v, np.float64), np.array(p, np.float64)
+    rv, rp = c.eval(wi.astype(np.float32), wo.astype(np.float32)), c.pdf(wi.astype(np.float32), wo.astype(np.float32))
+    assert np.allclose(v, rv, rtol=2e-3, atol=1e-5), np.abs(v - rv).max()
+    assert np.allclose(p, rp, rtol=2e-3, atol=1e-5), np.abs(p - rp).max()
+    u = rng.random((3, n)).astype(np.float32)
+    bs, w = b.sample(ctx, si, mi.Float(u[0]), mi.Point2f(mi.Float(u[1]), mi.Float(u[2])))
+    rwo, rw, rpdf = c.sample(wi.astype(np.float32), u)
+    e_ok, r_ok = np.array(bs.pdf) > 0, rpdf > 0
+    # The same samples are valid, but for directions within float32 rounding of the horizon.
+    disagree = e_ok != r_ok
+    assert np.all(np.abs(rwo[disagree, 2]) < 1e-4), rwo[disagree][:5]
+    ok = e_ok & r_ok
+    assert np.allclose(np.array(w, np.float64)[:, ok], rw[:, ok], rtol=2e-3, atol=1e-4)
+
+
+@pytest.mark.parametrize("model", WALK_MODELS)
+def test_diffuse_microsurface_equals_the_core(model):
+    """Position-free walks on Lambertian facets: eval means and albedos equal the core's; with albedo 1 the
+    walk conserves energy (sample weights are Π albedo: the albedo is the fraction of valid samples)."""
+    refl = [0.8, 0.5, 0.2]
+    b = mi.load_dict({"type": "msx_posfree", "surface": "diffuse", "distribution": "ggx", "alpha": 0.8,
+                      "model": model, "reflectance": {"type": "rgb", "value": refl}})
+    c = CoreBsdf(surface="diffuse", distribution="ggx", model=model, alpha=0.8, reflectance=refl, channels=3,
+                 seed=SEED_OFFSET)
+    for i, (wi, wo) in enumerate(PAIRS):
+        e = as_channels(engine_eval(b, wi, wo, 300 + i + SEED_OFFSET))
+        r = c.eval(np.tile(wi, (LANES, 1)), np.tile(wo, (LANES, 1)))
+        z_check("diffuse %s pair %d eval" % (model, i), stats(e), stats(r))
+    for mu in INCIDENCES[:2]:
+        wi = (math.sqrt(1 - mu * mu), 0.0, mu)
+        w, _, _ = engine_sample(b, wi, 400 + SEED_OFFSET + int(100 * mu))
+        rng = np.random.default_rng(500 + SEED_OFFSET + int(100 * mu))
+        _, rw, _ = c.sample(np.tile(wi, (LANES, 1)), rng.random((3, LANES)))
+        z_check("diffuse %s μ %.2f albedo" % (model, mu), stats(as_channels(w)), stats(rw))
 
 
 def test_reproducible_streams():

@@ -16,24 +16,29 @@ import mitsuba as mi
 from .._params import PLUGIN, MsxParameterError
 from .._plugin_base import make_base_class, make_factory, native_channels
 from .._vectorized_config import vectorized_config
-from . import heitz, mis, posfree, single
+from . import analytic, heitz, mis, posfree, posfree_dielectric, single
 from .microfacet import ConductorFresnel, Microfacet
 from .rng import hash_words
 
-# The conductor random walks of the engine, by model name: each model module provides its own.
+# The random walks of the engine, by surface and model name: each model module provides its own table.
 CONDUCTOR_WALKS = {**posfree.CONDUCTOR_WALKS, **heitz.CONDUCTOR_WALKS}
+CONDUCTOR_ANALYTIC = {**analytic.CONDUCTOR_ANALYTIC}
+DIELECTRIC_WALKS = {**posfree_dielectric.DIELECTRIC_WALKS}
+DIFFUSE_WALKS = {**posfree.DIFFUSE_WALKS}
 
-# The models the engine runs, per surface (the others are refused with a message naming the batched route).
+# The models the engine runs, per surface (the others are refused with a message naming the alternatives).
 ENGINE_MODELS = {
-    "conductor": ("single",) + tuple(CONDUCTOR_WALKS),
-    "dielectric": (),
-    "diffuse": (),
+    "conductor": tuple(CONDUCTOR_ANALYTIC) + tuple(CONDUCTOR_WALKS),
+    "dielectric": ("single",) + tuple(DIELECTRIC_WALKS),
+    "diffuse": tuple(DIFFUSE_WALKS),
 }
 
 # Largest material value the core accepts (src/bsdf.rs, MATERIAL_VALUE_MAX).
 MATERIAL_VALUE_MAX = 1e4
 # Bounce cap when the scene sets none (the core's MSX_DEFAULT_MAX_BOUNCES).
 DEFAULT_MAX_BOUNCES = 64
+# |η − 1| below which an interface is index-matched and does not scatter (src/bsdf.rs, INDEX_MATCHED).
+INDEX_MATCHED = 1e-6
 
 
 def engine_support(cfg):
@@ -50,39 +55,113 @@ def engine_support(cfg):
             "symbolic loops off for the process" % (PLUGIN, what, cfg.surface, cfg.surface, runs))
 
 
+class Call:
+    """What one BSDF call gives a model (twin of ``Call`` in src/models/mod.rs): the microfacet statistics
+    and the microsurface's material at the hit, Mitsuba's tints, the transport mode and whether the
+    material is usable (``Material::usable``)."""
+
+    def __init__(self, mf, usable, fresnel=None, eta=None, radiance=True, albedo=None, tint_r=None, tint_t=None):
+        self.mf, self.usable, self.fresnel, self.eta, self.radiance = mf, usable, fresnel, eta, radiance
+        self.albedo, self.tint_r, self.tint_t = albedo, tint_r, tint_t
+
+
 class ConductorModel:
-    """The conductor models of the engine: ``single`` (Walter 2007 as Mitsuba) and the position-free PT
-    walks (``uncorrelated``, ``correlated``) with their MIS density."""
+    """An analytic conductor model (``single``, ``fastmsx``, ``compensated``) or a conductor walk with
+    its MIS density."""
 
     def __init__(self, cfg):
-        self.walk = CONDUCTOR_WALKS.get(cfg.model)  # None: single scattering
+        self.walk = CONDUCTOR_WALKS.get(cfg.model)  # None: an analytic model
+        self.analytic = CONDUCTOR_ANALYTIC.get(cfg.model)
         self.max_bounces = cfg.max_bounces or DEFAULT_MAX_BOUNCES
 
-    def eval_pdf(self, mf, fresnel, wi, wo, key, want_value=True, want_pdf=True):
-        walk = self.walk
+    def eval_pdf(self, call, wi, wo, key, want_value=True, want_pdf=True):
+        walk, mf = self.walk, call.mf
         if walk is None:
-            return single.eval_pdf(mf, fresnel, wi, wo)
-        value = walk.eval_pt(mf, fresnel, wi, wo, self.max_bounces, key) if want_value else None
-        pdf = mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo) if want_pdf else None
+            value, pdf = self.analytic.eval_pdf(mf, call.fresnel, wi, wo)
+        else:
+            value = walk.eval_pt(mf, call.fresnel, wi, wo, self.max_bounces, key) if want_value else None
+            pdf = mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo) if want_pdf else None
+        return (value * call.tint_r if want_value else None), pdf
+
+    def sample(self, call, wi, s1, u1, u2, key):
+        """(ω_o, pdf, weight, valid)."""
+        walk, mf = self.walk, call.mf
+        if walk is None:
+            wo, pdf, weight, valid = self.analytic.sample(mf, call.fresnel, wi, u1, u2)
+        else:
+            wo, weight, valid = walk.sample_walk(mf, call.fresnel, wi, s1, u1, u2, self.max_bounces, key)
+            pdf = mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo)
+        return wo, pdf, weight * call.tint_r, valid
+
+
+class DielectricModel:
+    """``single`` (Mitsuba's roughdielectric) or a dielectric walk with its MIS density; values are one
+    channel, tinted by ``specular_reflectance`` or ``specular_transmittance``."""
+
+    def __init__(self, cfg):
+        self.walk = DIELECTRIC_WALKS.get(cfg.model)
+        self.max_bounces = cfg.max_bounces or DEFAULT_MAX_BOUNCES
+
+    @staticmethod
+    def tinted(call, wi, wo, value):
+        return mi.Spectrum(value) * dr.select(wi[2] * wo[2] > 0.0, call.tint_r, call.tint_t)
+
+    def eval_pdf(self, call, wi, wo, key, want_value=True, want_pdf=True):
+        walk, mf, eta = self.walk, call.mf, call.eta
+        value = pdf = None
+        if want_value:
+            if walk is None:
+                value = single.dielectric_eval(mf, eta, wi, wo, call.radiance)
+            else:
+                value = walk.eval_pt(mf, eta, call.radiance, wi, wo, self.max_bounces, key)
+            value = self.tinted(call, wi, wo, value)
+        if want_pdf:
+            pdf = single.dielectric_pdf(mf, eta, wi, wo) if walk is None else mis.dielectric_pdf(mf, eta, wi, wo)
         return value, pdf
 
-    def sample(self, mf, fresnel, wi, s1, u1, u2, key):
-        """(ω_o, pdf, weight, valid)."""
-        walk = self.walk
+    def sample(self, call, wi, s1, u1, u2, key):
+        walk, mf, eta = self.walk, call.mf, call.eta
         if walk is None:
-            return single.sample(mf, fresnel, wi, u1, u2)
-        wo, weight, valid = walk.sample_walk(mf, fresnel, wi, s1, u1, u2, self.max_bounces, key)
-        pdf = mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo)
-        return wo, pdf, weight, valid & (pdf > 0.0)
+            wo, pdf, weight, valid = single.dielectric_sample(mf, eta, wi, s1, u1, u2, call.radiance)
+        else:
+            wo, weight, valid = walk.sample_walk(mf, eta, call.radiance, wi, s1, u1, u2, self.max_bounces, key)
+            pdf = mis.dielectric_pdf(mf, eta, wi, wo)
+        return wo, pdf, self.tinted(call, wi, wo, weight), valid
+
+
+class DiffuseModel:
+    """A walk on Lambertian facets with a cosine-lobe MIS density."""
+
+    def __init__(self, cfg):
+        self.walk = DIFFUSE_WALKS[cfg.model]
+        self.max_bounces = cfg.max_bounces or DEFAULT_MAX_BOUNCES
+
+    def eval_pdf(self, call, wi, wo, key, want_value=True, want_pdf=True):
+        value = self.walk.eval_pt(call.mf, call.albedo, wi, wo, self.max_bounces, key) if want_value else None
+        return value, (mis.diffuse_pdf(wi, wo) if want_pdf else None)
+
+    def sample(self, call, wi, s1, u1, u2, key):
+        wo, weight, valid = self.walk.sample_walk(call.mf, call.albedo, wi, s1, u1, u2, self.max_bounces, key)
+        return wo, mis.diffuse_pdf(wi, wo), weight, valid
+
+
+MODELS_BY_SURFACE = {"conductor": ConductorModel, "dielectric": DielectricModel, "diffuse": DiffuseModel}
 
 
 def make_bsdf_factory(variant):
     """The factory of ``msx_posfree`` instances for the current vectorized variant."""
     nch = native_channels(mi, variant)
     BSDFFlags = mi.BSDFFlags
-    R_TYPE = int(BSDFFlags.GlossyReflection)
 
     def build(kind):
+        dielectric = kind == "dielectric"
+        if dielectric:
+            R_TYPE, T_TYPE = int(BSDFFlags.GlossyReflection), int(BSDFFlags.GlossyTransmission)
+        elif kind == "diffuse":
+            R_TYPE = T_TYPE = int(BSDFFlags.DiffuseReflection)
+        else:
+            R_TYPE = T_TYPE = int(BSDFFlags.GlossyReflection)
+
         class MsxPosfree(make_base_class(mi, kind, nch)):
             """Multiple-scattering microfacet BSDF (the Dr.Jit engine)."""
 
@@ -91,7 +170,7 @@ def make_bsdf_factory(variant):
                 problem = engine_support(self._cfg)
                 if problem is not None:
                     raise MsxParameterError(problem)
-                self._model = ConductorModel(self._cfg)
+                self._model = MODELS_BY_SURFACE[kind](self._cfg)
                 self._refresh()
 
             def _config(self, props):
@@ -101,49 +180,71 @@ def make_bsdf_factory(variant):
                 self._set_flags()
                 # The perfect mirror (Mitsuba's material='none' with its default η = 0, k = 1) has F = 1.
                 self._mirror = False
-                if not (self._eta.is_spatially_varying() or self._k.is_spatially_varying()):
+                if kind == "conductor" and not (self._eta.is_spatially_varying() or self._k.is_spatially_varying()):
                     si = dr.zeros(mi.SurfaceInteraction3f)
                     eta, k = self._eta.eval(si), self._k.eval(si)
                     self._mirror = bool(dr.all(dr.ravel(eta) == 0.0)) and bool(dr.all(dr.ravel(k) == 1.0))
 
             # ----------------------------------------------------- the call
 
-            def _material(self, si, active):
-                """(microfacet, Fresnel, tint, usable) at the hit, cleaned as ``Material::usable``."""
+            def _spectrum(self, tex, si, active):
+                """A spectral texture at the hit, clamped into [0, MATERIAL_VALUE_MAX], and whether it is finite."""
+                v = tex.eval(si, active)
+                return dr.clip(v, 0.0, MATERIAL_VALUE_MAX), dr.all(dr.isfinite(v))
+
+            def _call(self, ctx, si, active):
+                """The call at the hit, its values cleaned as ``Material::usable`` does."""
                 au = self._alpha_u.eval_1(si, active)
                 av = au if self._cfg.isotropic else self._alpha_v.eval_1(si, active)
                 usable = dr.isfinite(au) & dr.isfinite(av)
-                tint = self._specular_reflectance.eval(si, active)
-                usable &= dr.all(dr.isfinite(tint))
-                tint = dr.clip(tint, 0.0, MATERIAL_VALUE_MAX)
-                if self._mirror:
-                    fresnel = ConductorFresnel(None, None, mirror=True)
+                call = Call(Microfacet(self._cfg.distribution, au, av), usable)
+                if kind == "conductor":
+                    call.tint_r, ok = self._spectrum(self._specular_reflectance, si, active)
+                    usable &= ok
+                    if self._mirror:
+                        call.fresnel = ConductorFresnel(None, None, mirror=True)
+                    else:
+                        (eta, ok_e), (k, ok_k) = self._spectrum(self._eta, si, active), self._spectrum(self._k, si, active)
+                        usable &= ok_e & ok_k
+                        call.fresnel = ConductorFresnel(eta, k)
+                elif dielectric:
+                    call.tint_r, ok_r = self._spectrum(self._specular_reflectance, si, active)
+                    call.tint_t, ok_t = self._spectrum(self._specular_transmittance, si, active)
+                    usable &= ok_r & ok_t & (abs(self._cfg.ior - 1.0) > INDEX_MATCHED)
+                    call.eta = mi.Float(min(max(self._cfg.ior, 1.0 / MATERIAL_VALUE_MAX), MATERIAL_VALUE_MAX))
+                    call.radiance = ctx.mode == mi.TransportMode.Radiance
                 else:
-                    eta, k = self._eta.eval(si, active), self._k.eval(si, active)
-                    usable &= dr.all(dr.isfinite(eta)) & dr.all(dr.isfinite(k))
-                    fresnel = ConductorFresnel(dr.clip(eta, 0.0, MATERIAL_VALUE_MAX),
-                                               dr.clip(k, 0.0, MATERIAL_VALUE_MAX))
-                mf = Microfacet(self._cfg.distribution, au, av)
-                return mf, fresnel, tint, usable
+                    call.albedo, ok = self._spectrum(self._reflectance, si, active)
+                    usable &= ok
+                call.usable = usable
+                return call
 
             def _eval_key(self, si, wo):
                 p, uv, wi = si.p, si.uv, si.wi
                 return hash_words(self._cfg.seed, (p[0], p[1], p[2], uv[0], uv[1],
                                                    wi[0], wi[1], wi[2], wo[0], wo[1], wo[2]))
 
+            def _lane_mask(self, ctx, si, wo, active):
+                """The lanes whose lobe the context enables, or None when it enables none."""
+                r_on, t_on = self._lobes(ctx)
+                if not (r_on or t_on):
+                    return None
+                if not dielectric or (r_on and t_on):
+                    return mi.Bool(active)
+                reflect = si.wi[2] * wo[2] > 0.0
+                return active & (reflect if r_on else ~reflect)
+
             def _evaluate(self, ctx, si, wo, active, want_value, want_pdf):
-                on, _ = self._lobes(ctx)
-                if not on:
+                mask = self._lane_mask(ctx, si, wo, active)
+                if mask is None:
                     return dr.zeros(mi.Spectrum), dr.zeros(mi.Float)
-                mf, fresnel, tint, usable = self._material(si, active)
-                active = active & usable & dr.all(dr.isfinite(si.wi)) & dr.all(dr.isfinite(wo))
-                value, pdf = self._model.eval_pdf(mf, fresnel, si.wi, wo, self._eval_key(si, wo),
-                                                  want_value, want_pdf)
+                call = self._call(ctx, si, mask)
+                mask &= call.usable & dr.all(dr.isfinite(si.wi)) & dr.all(dr.isfinite(wo))
+                value, pdf = self._model.eval_pdf(call, si.wi, wo, self._eval_key(si, wo), want_value, want_pdf)
                 if want_value:
-                    value = value * tint
-                    value = dr.select(active & dr.all(dr.isfinite(value)), value, 0.0)
+                    value = dr.select(mask & dr.all(dr.isfinite(value)), value, 0.0)
                 if want_pdf:
-                    pdf = dr.select(active & dr.isfinite(pdf), pdf, 0.0)
+                    pdf = dr.select(mask & dr.isfinite(pdf), pdf, 0.0)
                 return value, pdf
 
             def eval(self, ctx, si, wo, active=True):
@@ -156,22 +257,29 @@ def make_bsdf_factory(variant):
                 return self._evaluate(ctx, si, wo, active, True, True)
 
             def sample(self, ctx, si, sample1, sample2, active=True):
-                on, _ = self._lobes(ctx)
-                if not on:
+                r_on, t_on = self._lobes(ctx)
+                if not (r_on or t_on):
                     return dr.zeros(mi.BSDFSample3f), dr.zeros(mi.Spectrum)
-                mf, fresnel, tint, usable = self._material(si, active)
+                call = self._call(ctx, si, active)
                 wi = si.wi
                 key = hash_words(self._cfg.seed, (sample1, sample2[0], sample2[1], wi[0], wi[2]))
-                wo, pdf, weight, valid = self._model.sample(mf, fresnel, wi, sample1, sample2[0], sample2[1], key)
-                weight = weight * tint
-                ok = active & usable & valid & dr.all(dr.isfinite(wi)) & dr.isfinite(pdf) & (pdf > 0.0)
+                wo, pdf, weight, valid = self._model.sample(call, wi, sample1, sample2[0], sample2[1], key)
+                ok = active & call.usable & valid & dr.all(dr.isfinite(wi)) & dr.isfinite(pdf) & (pdf > 0.0)
                 ok &= dr.all(dr.isfinite(weight))
                 bs = dr.zeros(mi.BSDFSample3f)
+                transmit = wo[2] * wi[2] < 0.0
+                if dielectric:
+                    ok &= dr.select(transmit, t_on, r_on)
+                    eta_t = dr.select(wi[2] > 0.0, call.eta, 1.0 / call.eta)
+                    bs.eta = dr.select(ok & transmit, eta_t, 1.0)
+                    bs.sampled_type = dr.select(ok & transmit, mi.UInt32(T_TYPE), mi.UInt32(R_TYPE))
+                    bs.sampled_component = dr.select(ok & transmit, mi.UInt32(1), mi.UInt32(0))
+                else:
+                    bs.eta = mi.Float(1.0)
+                    bs.sampled_type = mi.UInt32(R_TYPE)
+                    bs.sampled_component = mi.UInt32(0)
                 bs.wo = dr.select(ok, wo, mi.Vector3f(0.0))
                 bs.pdf = dr.select(ok, pdf, 0.0)
-                bs.eta = mi.Float(1.0)
-                bs.sampled_type = mi.UInt32(R_TYPE)
-                bs.sampled_component = mi.UInt32(0)
                 return bs, dr.select(ok, weight, 0.0)
 
             def to_string(self):

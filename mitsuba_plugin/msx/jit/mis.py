@@ -42,3 +42,22 @@ def conductor_pdf(exit, below, mf, wi, wo):
     else:
         pdf = dr.select(wi[2] < 0.0, 0.0, pdf)
     return dr.select((wo[2] <= 0.0) | (wi[2] == 0.0), 0.0, pdf)
+
+
+def diffuse_fraction(mf):
+    """Weight of the cosine lobe in the dielectric walks' density: min(α/(α + 2), 0.75), α = √(α_u α_v)."""
+    a = dr.sqrt(mf.alpha_u * mf.alpha_v)
+    return dr.minimum(a / (a + 2.0), 0.75)
+
+
+def dielectric_pdf(mf, eta, wi, wo):
+    """``walk_pdf`` of a dielectric: the single-scattering density mixed with a cosine lobe on both sides."""
+    from .single import dielectric_pdf as single_pdf
+
+    k = diffuse_fraction(mf)
+    return (1.0 - k) * single_pdf(mf, eta, wi, wo) + k * dr.abs(wo[2]) * (0.5 * INV_PI)
+
+
+def diffuse_pdf(wi, wo):
+    """``walk_pdf`` of the diffuse microsurface: a cosine lobe."""
+    return dr.select((wi[2] > 0.0) & (wo[2] > 0.0), wo[2] * INV_PI, 0.0)

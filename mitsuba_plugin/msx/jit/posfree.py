@@ -20,7 +20,8 @@ import drjit as dr
 import mitsuba as mi
 
 from . import mis, walk
-from .microfacet import dot, max_channel, reflect
+from .model import ConductorWalk, DiffuseWalk
+from .microfacet import INV_PI, dot, max_channel, reflect
 from .rng import Stream
 
 UNCORRELATED = "uncorrelated"
@@ -94,8 +95,9 @@ def eval_pt(segments, mf, fresnel, wi, wo, max_bounces, key):
         active &= valid & (cos_wm > 0.0)
         return j + 1, -d_next, lam, thr, result, active, rng.counter
 
-    state = (mi.UInt32(0), mi.Vector3f(wi), mf.abs_lambda(-wi), mi.Spectrum(1.0), dr.zeros(mi.Spectrum),
-             mi.Bool(start), mi.UInt32(0))
+    width = dr.width(wi)
+    state = (mi.UInt32(0), mi.Vector3f(wi), mf.abs_lambda(-wi), dr.full(mi.Spectrum, 1.0, width),
+             dr.zeros(mi.Spectrum, width), mi.Bool(start), mi.UInt32(0))
     state = dr.while_loop(state, lambda *s: s[5], body, label="msx_posfree_conductor_pt")
     return state[4]
 
@@ -121,21 +123,78 @@ def sample_walk(segments, mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
         c, _ = rng.next2()
         return j + 1, -d_next, lam, weight, done, active, rng.counter, c, a, b
 
-    state = (mi.UInt32(0), mi.Vector3f(wi), mf.abs_lambda(-wi), mi.Spectrum(1.0), mi.Bool(False),
-             mi.Bool(wi[2] != 0.0), mi.UInt32(0), mi.Float(sample1), mi.Float(u1), mi.Float(u2))
+    width = dr.width(wi)
+    state = (mi.UInt32(0), mi.Vector3f(wi), mf.abs_lambda(-wi), dr.full(mi.Spectrum, 1.0, width),
+             dr.full(mi.Bool, False, width), mi.Bool(wi[2] != 0.0), mi.UInt32(0), mi.Float(sample1),
+             mi.Float(u1), mi.Float(u2))
     state = dr.while_loop(state, lambda *s: s[5], body, label="msx_posfree_conductor_sample")
     wo = -state[1]
     return wo, state[3], state[4]
 
 
-class ConductorWalk:
-    """A conductor random-walk model as the engine's BSDF class uses it: ``eval_pt(mf, fresnel, wi, wo,
-    max_bounces, key)`` → one estimate of f·cos θ_o; ``sample_walk(mf, fresnel, wi, sample1, u1, u2,
-    max_bounces, key)`` → (ω_o, weight, valid); the MIS density's order-1 exit (``mis.SEPARABLE`` or
-    ``mis.HEIGHT_CORRELATED``) and whether the walk also starts below the macro surface (``below``)."""
+# ------------------------------------------------------------------ diffuse facets (diffuse.rs)
 
-    def __init__(self, eval_pt, sample_walk, exit, below):
-        self.eval_pt, self.sample_walk, self.exit, self.below = eval_pt, sample_walk, exit, below
+
+def diffuse_eval_pt(segments, mf, albedo, wi, wo, max_bounces, key):
+    """PT estimate of f(ω_i, ω_o)·cos θ_o on Lambertian facets of albedo ``albedo`` (diffuse.rs
+    ``eval_pt``): per vertex a visible normal m serves the next event, L_j·(a/π)⟨ω_o, m⟩⁺·last, and the
+    Lambertian continuation about m; roulette after every vertex."""
+    lambda_o = mf.lambda_(wo)
+    start = (wi[2] > 0.0) & (wo[2] > 0.0)
+    width = dr.width(wi)
+
+    def body(j, w, l, thr, result, active, counter):
+        rng = Stream(key, counter)
+        active &= (l > 0.0) & dr.isfinite(l) & (max_channel(thr) > 0.0)
+        u1, u2 = rng.next2()
+        m, valid = mf.sample_visible(w, u1, u2)
+        active &= valid
+        c = dot(wo, m)
+        nee = albedo * (c * INV_PI * l * last(segments, l, lambda_o))
+        result = dr.select(active & (c > 0.0), result + thr * nee, result)
+        active &= j + 1 < max_bounces
+        u3, u4 = rng.next2()
+        d_next = walk.cosine_about(m, u3, u4)
+        thr = thr * albedo
+        up = d_next[2] > 0.0
+        lam = mf.abs_lambda(d_next)
+        thr = dr.select(up, thr * continue_up(segments, l, lam), thr)
+        play = j + 1 >= RR_START
+        kept, survived = walk.russian_roulette(thr, rng.next())
+        thr = dr.select(play, kept, thr)
+        active &= ~play | survived
+        return j + 1, -d_next, lam, thr, result, active, rng.counter
+
+    state = (mi.UInt32(0), mi.Vector3f(wi), 1.0 + mf.lambda_(wi), dr.full(mi.Spectrum, 1.0, width),
+             dr.zeros(mi.Spectrum, width), mi.Bool(start), mi.UInt32(0))
+    return dr.while_loop(state, lambda *s: s[5], body, label="msx_posfree_diffuse_pt")[4]
+
+
+def diffuse_sample_walk(segments, mf, albedo, wi, sample1, u1, u2, max_bounces, key):
+    """Random-walk sampler on Lambertian facets (diffuse.rs ``sample_walk``): (ω_o, weight = Π albedo,
+    valid)."""
+    width = dr.width(wi)
+
+    def body(j, w, l, weight, done, active, counter, u_exit, u1, u2):
+        rng = Stream(key, counter)
+        m, valid = mf.sample_visible(w, u1, u2)
+        u3, u4 = rng.next2()
+        d_next = walk.cosine_about(m, u3, u4)
+        weight = weight * albedo
+        up = d_next[2] > 0.0
+        lam = mf.abs_lambda(d_next)
+        leaves = up & (u_exit >= continue_up(segments, l, lam))
+        done = valid & leaves
+        active = valid & ~leaves & (j + 1 < max_bounces) & (lam > 0.0) & dr.isfinite(lam)
+        a, b = rng.next2()
+        c, _ = rng.next2()
+        return j + 1, -d_next, lam, weight, done, active, rng.counter, c, a, b
+
+    state = (mi.UInt32(0), mi.Vector3f(wi), 1.0 + mf.lambda_(wi), dr.full(mi.Spectrum, 1.0, width),
+             dr.full(mi.Bool, False, width), mi.Bool(wi[2] > 0.0), mi.UInt32(0), mi.Float(sample1),
+             mi.Float(u1), mi.Float(u2))
+    state = dr.while_loop(state, lambda *s: s[5], body, label="msx_posfree_diffuse_sample")
+    return -state[1], state[3], state[4]
 
 
 # The conductor walks this module provides, by model name (jit/bsdf.py collects them).
@@ -143,3 +202,5 @@ CONDUCTOR_WALKS = {
     name: ConductorWalk(partial(eval_pt, name), partial(sample_walk, name), exit, below=True)
     for name, exit in ((UNCORRELATED, mis.SEPARABLE), (CORRELATED, mis.HEIGHT_CORRELATED))
 }
+DIFFUSE_WALKS = {name: DiffuseWalk(partial(diffuse_eval_pt, name), partial(diffuse_sample_walk, name))
+                 for name in (UNCORRELATED, CORRELATED)}

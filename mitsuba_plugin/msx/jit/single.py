@@ -36,3 +36,72 @@ def sample(mf, fresnel, wi, u1, u2):
     valid = (wi[2] > 0.0) & (pdf > 0.0) & dr.isfinite(pdf) & (wo[2] > 0.0)
     weight = fresnel.eval(dot(wi, m)) * distr.smith_g1(wo, m)
     return wo, pdf, weight, valid
+
+
+# ------------------------------------------------------------------ dielectric (single/dielectric.rs)
+
+
+def _half_vector(eta, wi, wo):
+    """(m flipped into the upper hemisphere, η_r, reflection?, valid) of a dielectric pair."""
+    reflect_pair = wi[2] * wo[2] > 0.0
+    eta_r = dr.select(wi[2] > 0.0, eta, 1.0 / eta)
+    m = wi + wo * dr.select(reflect_pair, 1.0, eta_r)
+    length = dr.norm(m)
+    valid = (length > 0.0) & dr.isfinite(length)
+    m = m / length
+    return dr.mulsign(m, m[2]), eta_r, reflect_pair, valid
+
+
+def dielectric_eval(mf, eta, wi, wo, radiance):
+    """f(ω_i, ω_o)·|cos θ_o| of Mitsuba's roughdielectric (single/dielectric.rs ``eval``)."""
+    distr = distribution(mf)
+    m, eta_r, reflect_pair, valid = _half_vector(eta, wi, wo)
+    d = distr.eval(m)
+    wim, wom = dot(wi, m), dot(wo, m)
+    f = mi.fresnel(wim, eta)[0]
+    g = distr.smith_g1(wi, m) * distr.smith_g1(wo, m)
+    scale = 1.0 / (eta_r * eta_r) if radiance else 1.0
+    denom = wim + eta_r * wom
+    value = dr.select(reflect_pair, f * d * g / (4.0 * dr.abs(wi[2])),
+                      dr.abs(scale * (1.0 - f) * d * g * eta_r * eta_r * wim * wom / (wi[2] * denom * denom)))
+    ok = valid & (wi[2] != 0.0) & dr.isfinite(value)
+    return dr.select(ok, value, 0.0)
+
+
+def dielectric_pdf(mf, eta, wi, wo):
+    """Density of ``dielectric_sample`` (single/dielectric.rs ``pdf``)."""
+    distr = distribution(mf)
+    m, eta_r, reflect_pair, valid = _half_vector(eta, wi, wo)
+    wim, wom = dot(wi, m), dot(wo, m)
+    denom = wim + eta_r * wom
+    dwh_dwo = dr.select(reflect_pair, 1.0 / (4.0 * wom), eta_r * eta_r * wom / (denom * denom))
+    wi_up = dr.mulsign(wi, wi[2])
+    prob = distr.eval(m) * distr.smith_g1(wi_up, m) * dr.abs(dot(wi_up, m)) / dr.abs(wi[2])
+    f = mi.fresnel(wim, eta)[0]
+    p = prob * dr.select(reflect_pair, f, 1.0 - f) * dr.abs(dwh_dwo)
+    ok = valid & (wi[2] != 0.0) & (wim * wi[2] > 0.0) & (wom * wo[2] > 0.0) & dr.isfinite(p)
+    return dr.select(ok, p, 0.0)
+
+
+def dielectric_sample(mf, eta, wi, sample1, u1, u2, radiance):
+    """Mitsuba's roughdielectric sampler (single/dielectric.rs ``sample``): (ω_o, pdf, weight, valid)."""
+    distr = distribution(mf)
+    cos_i = wi[2]
+    wi_up = dr.mulsign(wi, cos_i)
+    m, _ = distr.sample(wi_up, mi.Point2f(u1, u2))
+    pdf = distr.eval(m) * distr.smith_g1(wi_up, m) * dr.abs(dot(wi_up, m)) / dr.abs(cos_i)
+    valid = (cos_i != 0.0) & dr.isfinite(cos_i) & (pdf != 0.0) & dr.isfinite(pdf)
+    wim = dot(wi, m)
+    f, cos_t, eta_it, eta_ti = mi.fresnel(wim, eta)
+    selected_r = sample1 <= f
+    pdf = pdf * dr.select(selected_r, f, 1.0 - f)
+    wo_r = reflect(wi, m)
+    wo_t = mi.refract(wi, m, cos_t, eta_ti)
+    wo = dr.select(selected_r, wo_r, wo_t)
+    wom = dot(wo, m)
+    denom = wim + eta_it * wom
+    dwh_dwo = dr.select(selected_r, 1.0 / (4.0 * wom), eta_it * eta_it * wom / (denom * denom))
+    weight = dr.select(selected_r | (not radiance), 1.0, eta_ti * eta_ti) * distr.smith_g1(wo, m)
+    pdf = pdf * dr.abs(dwh_dwo)
+    valid &= (pdf > 0.0) & dr.isfinite(pdf) & dr.isfinite(weight)
+    return wo, pdf, weight, valid

@@ -1,6 +1,9 @@
 """What every random walk of the Dr.Jit engine shares: twin of ``src/walk/mod.rs``."""
 
+import math
+
 import drjit as dr
+import mitsuba as mi
 
 from .microfacet import max_channel
 
@@ -12,3 +15,22 @@ def russian_roulette_keep(throughput, u, keep):
     q = dr.minimum(max_channel(throughput) / keep, 1.0)
     survived = (q > 0.0) & ((q >= 1.0) | (u < q))
     return dr.select(survived, throughput / q, 0.0), survived
+
+
+def russian_roulette(throughput, u):
+    """Russian roulette on the largest channel of a throughput ≤ 1 per channel (``russian_roulette``)."""
+    return russian_roulette_keep(throughput, u, 1.0)
+
+
+def cosine_about(n, u1, u2):
+    """Cosine-distributed direction about the unit vector n (density ⟨ω, n⟩⁺/π), in the orthonormal basis
+    of Duff et al. 2017 as ``cosine_about`` builds it."""
+    sign = dr.select(n[2] >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    t = mi.Vector3f(1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0])
+    bt = mi.Vector3f(b, sign + n[1] * n[1] * a, -n[1])
+    r = dr.sqrt(u1)
+    sp, cp = dr.sincos(2.0 * math.pi * u2)
+    z = dr.sqrt(dr.maximum(1.0 - u1, 0.0))
+    return dr.normalize(t * (r * cp) + bt * (r * sp) + n * z)

@@ -1,0 +1,58 @@
+"""The one model interface of the Dr.Jit engine: twin of ``ScatteringModel`` in ``src/models/mod.rs``.
+
+Each model module ends with a table of what it provides, by model name (``CONDUCTOR_WALKS``,
+``DIELECTRIC_WALKS``, ``DIFFUSE_WALKS``); ``bsdf.py`` collects the tables, so adding a model to the engine
+is its module plus one line there. Values exclude Mitsuba's tints (``bsdf.py`` applies them); every
+function takes and returns arrays of lanes and is traced.
+"""
+
+
+class ConductorWalk:
+    """A conductor random-walk model:
+
+    - ``eval_pt(mf, fresnel, wi, wo, max_bounces, key)`` → one estimate of f·cos θ_o (mi.Spectrum);
+    - ``sample_walk(mf, fresnel, wi, sample1, u1, u2, max_bounces, key)`` → (ω_o, weight, valid);
+    - ``exit``: the order-1 exit of its MIS density (``mis.SEPARABLE`` or ``mis.HEIGHT_CORRELATED``);
+    - ``below``: whether the walk also starts below the macro surface (normal mapping).
+    """
+
+    def __init__(self, eval_pt, sample_walk, exit, below):
+        self.eval_pt, self.sample_walk, self.exit, self.below = eval_pt, sample_walk, exit, below
+
+
+class ConductorAnalytic:
+    """An analytic conductor model (deterministic; ``single``'s sampler and density):
+
+    - ``eval_pdf(mf, fresnel, wi, wo)`` → (f·cos θ_o, pdf);
+    - ``sample(mf, fresnel, wi, u1, u2)`` → (ω_o, pdf, weight, valid).
+    """
+
+    def __init__(self, eval_pdf, sample):
+        self.eval_pdf, self.sample = eval_pdf, sample
+
+
+class DielectricWalk:
+    """A dielectric random-walk model (``eta`` the relative IOR η_int/η_ext, a Python float or mi.Float;
+    ``radiance`` a Python bool, Mitsuba's transport mode; values are one channel, mi.Float):
+
+    - ``eval_pt(mf, eta, radiance, wi, wo, max_bounces, key)`` → one estimate of f·|cos θ_o|;
+    - ``sample_walk(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key)`` → (ω_o, weight, valid).
+
+    Its MIS density is ``mis.dielectric_pdf`` (the single-scattering density mixed with a cosine lobe).
+    """
+
+    def __init__(self, eval_pt, sample_walk):
+        self.eval_pt, self.sample_walk = eval_pt, sample_walk
+
+
+class DiffuseWalk:
+    """A walk on a microsurface of Lambertian facets (``albedo`` mi.Spectrum):
+
+    - ``eval_pt(mf, albedo, wi, wo, max_bounces, key)`` → one estimate of f·cos θ_o (mi.Spectrum);
+    - ``sample_walk(mf, albedo, wi, sample1, u1, u2, max_bounces, key)`` → (ω_o, weight, valid).
+
+    Its MIS density is a cosine lobe.
+    """
+
+    def __init__(self, eval_pt, sample_walk):
+        self.eval_pt, self.sample_walk = eval_pt, sample_walk

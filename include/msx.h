@@ -457,6 +457,26 @@ int32_t msx_table(uint32_t kind,
                   size_t err_len);
 
 /*
+ The rule of `model="auto"` (src/models/auto.rs) for a surface (MSX_SURFACE_*),
+ distribution, tolerance (0 = MSX_DEFAULT_AUTO_TOLERANCE) and the relative
+ IOR seen from ω_i (1 for conductors and diffuse surfaces): writes the μ axis
+ of its cells to `*mu_axis` (nodes at the cells' ends; μ below √lo runs the
+ full model) and, when `len` ≥ n − 1, each cell's α threshold to
+ `thresholds`: order 1 alone suffices where max(α_u, α_v) ≤ the threshold of
+ the cell of |cos θ_i|, the cell i = ⌊(μ² − lo)(n − 1)/(hi − lo)⌋ clamped to
+ [0, n − 2]. Computes the table on first use.
+ */
+int32_t msx_auto_rule(uint32_t surface,
+                      uint32_t distribution,
+                      double tolerance,
+                      double eta,
+                      struct MsxAxis *mu_axis,
+                      double *thresholds,
+                      size_t len,
+                      char *err,
+                      size_t err_len);
+
+/*
  Library version as a static NUL-terminated string.
  */
 const char *msx_version(void);

@@ -513,6 +513,73 @@ pub extern "C" fn msx_table(kind: u32, distribution: u32, shape: *mut MsxTableSh
     })
 }
 
+/// The rule of `model="auto"` (src/models/auto.rs) for a surface (MSX_SURFACE_*),
+/// distribution, tolerance (0 = MSX_DEFAULT_AUTO_TOLERANCE) and the relative
+/// IOR seen from ω_i (1 for conductors and diffuse surfaces): writes the μ axis
+/// of its cells to `*mu_axis` (nodes at the cells' ends; μ below √lo runs the
+/// full model) and, when `len` ≥ n − 1, each cell's α threshold to
+/// `thresholds`: order 1 alone suffices where max(α_u, α_v) ≤ the threshold of
+/// the cell of |cos θ_i|, the cell i = ⌊(μ² − lo)(n − 1)/(hi − lo)⌋ clamped to
+/// [0, n − 2]. Computes the table on first use.
+// A C entry point: the pointers are the C caller's (null-checked here).
+#[allow(clippy::not_unsafe_ptr_arg_deref)]
+#[no_mangle]
+pub extern "C" fn msx_auto_rule(
+    surface: u32,
+    distribution: u32,
+    tolerance: f64,
+    eta: f64,
+    mu_axis: *mut MsxAxis,
+    thresholds: *mut f64,
+    len: usize,
+    err: *mut c_char,
+    err_len: usize,
+) -> i32 {
+    let result = catch_unwind(AssertUnwindSafe(|| {
+        if mu_axis.is_null() {
+            write_error(err, err_len, "null pointer passed to msx_auto_rule");
+            return MSX_ERR_NULL_POINTER;
+        }
+        let surface = match surface {
+            MSX_SURFACE_CONDUCTOR => Surface::Conductor,
+            MSX_SURFACE_DIELECTRIC => Surface::Dielectric,
+            MSX_SURFACE_DIFFUSE => Surface::Diffuse,
+            _ => {
+                write_error(err, err_len, &format!("invalid parameter 'surface': unknown value {surface}"));
+                return MSX_ERR_INVALID_PARAMETER;
+            }
+        };
+        let dist = match distribution {
+            MSX_DISTRIBUTION_BECKMANN => Distribution::Beckmann,
+            MSX_DISTRIBUTION_GGX => Distribution::Ggx,
+            _ => {
+                write_error(err, err_len, &format!("invalid parameter 'distribution': unknown value {distribution}"));
+                return MSX_ERR_INVALID_PARAMETER;
+            }
+        };
+        let tolerance = if tolerance == 0.0 { MSX_DEFAULT_AUTO_TOLERANCE } else { tolerance };
+        if !(tolerance > 0.0 && tolerance < 1.0 && eta.is_finite()) {
+            write_error(err, err_len, "invalid parameter 'auto_tolerance' or 'eta' passed to msx_auto_rule");
+            return MSX_ERR_INVALID_PARAMETER;
+        }
+        let rule = crate::models::auto::OrderOneRule::new(surface, dist, tolerance);
+        let axis = crate::tables::multiple_scattering::MU;
+        // SAFETY: checked non-null above.
+        unsafe { *mu_axis = axis_out(&axis) };
+        let values = rule.thresholds(eta);
+        if !thresholds.is_null() && len >= values.len() {
+            // SAFETY: the caller provides `len` writable values.
+            unsafe { std::ptr::copy_nonoverlapping(values.as_ptr(), thresholds, values.len()) };
+        }
+        MSX_OK
+    }));
+    result.unwrap_or_else(|_| {
+        caught_panic();
+        write_error(err, err_len, "internal error (panic) in msx_auto_rule");
+        MSX_ERR_PANIC
+    })
+}
+
 /// Library version as a static NUL-terminated string.
 #[no_mangle]
 pub extern "C" fn msx_version() -> *const c_char {

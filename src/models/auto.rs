@@ -90,6 +90,17 @@ impl OrderOneRule {
         alpha <= self.row(e0)[i] && alpha <= self.row(e1)[i]
     }
 
+    /// The α thresholds of every μ cell at a relative IOR (the smaller of the
+    /// two bracketing IOR rows), 0 where order 1 never suffices (IOR off the
+    /// grid): what [`Self::order_one_suffices`] compares α with, for the C ABI
+    /// (`msx_auto_rule`, read by the Dr.Jit engine).
+    pub fn thresholds(&self, eta: f64) -> [f64; MU.n - 1] {
+        match self.table.eta_bracket(eta) {
+            Some((e0, e1)) => std::array::from_fn(|i| self.row(e0)[i].min(self.row(e1)[i])),
+            None => [0.0; MU.n - 1],
+        }
+    }
+
     /// The bounce cap `auto` runs `correlated` with: 1 or `max_bounces`.
     #[inline]
     pub fn cap(&self, alpha: f64, mu: f64, eta: f64, max_bounces: u32) -> u32 {

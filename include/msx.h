@@ -98,6 +98,14 @@
 #define MSX_TABLE_ALBEDO_AVG 3
 
 /*
+ E_r + E_t of `single` on a dielectric (Importance mode) over (α, n, μ),
+ entering a denser medium (η_r = n ≥ 1) and leaving it (η_r = 1/n).
+ */
+#define MSX_TABLE_DIELECTRIC_ENTER 4
+
+#define MSX_TABLE_DIELECTRIC_LEAVE 5
+
+/*
  `MsxAxis::warp`: the coordinate u = warp(x) in which an axis's nodes are uniform.
  */
 #define MSX_WARP_IDENTITY 0

@@ -416,6 +416,10 @@ pub const MSX_TABLE_E1_UNCORRELATED: u32 = 1;
 pub const MSX_TABLE_E1_CORRELATED: u32 = 2;
 /// E_avg(α) = 2∫E(μ)μ dμ of `single` (F = 1), over α alone.
 pub const MSX_TABLE_ALBEDO_AVG: u32 = 3;
+/// E_r + E_t of `single` on a dielectric (Importance mode) over (α, n, μ),
+/// entering a denser medium (η_r = n ≥ 1) and leaving it (η_r = 1/n).
+pub const MSX_TABLE_DIELECTRIC_ENTER: u32 = 4;
+pub const MSX_TABLE_DIELECTRIC_LEAVE: u32 = 5;
 
 /// `MsxAxis::warp`: the coordinate u = warp(x) in which an axis's nodes are uniform.
 pub const MSX_WARP_IDENTITY: u32 = 0;
@@ -482,13 +486,15 @@ pub extern "C" fn msx_table(kind: u32, distribution: u32, shape: *mut MsxTableSh
                 return MSX_ERR_INVALID_PARAMETER;
             }
         };
-        let table = crate::tables::albedo::AlbedoTable::get(dist);
-        let grids = table.grids();
+        let albedo = || crate::tables::albedo::AlbedoTable::get(dist);
+        let dielectric = || crate::tables::dielectric_albedo::DielectricAlbedoTable::get(dist).grids();
         let (axes, values): (&[crate::tables::Axis], &[f64]) = match kind {
-            MSX_TABLE_ALBEDO_SINGLE => (&grids[0].axes, &grids[0].values),
-            MSX_TABLE_E1_UNCORRELATED => (&grids[1].axes, &grids[1].values),
-            MSX_TABLE_E1_CORRELATED => (&grids[2].axes, &grids[2].values),
-            MSX_TABLE_ALBEDO_AVG => (&table.e_avg_grid().axes, &table.e_avg_grid().values),
+            MSX_TABLE_ALBEDO_SINGLE => (&albedo().grids()[0].axes, &albedo().grids()[0].values),
+            MSX_TABLE_E1_UNCORRELATED => (&albedo().grids()[1].axes, &albedo().grids()[1].values),
+            MSX_TABLE_E1_CORRELATED => (&albedo().grids()[2].axes, &albedo().grids()[2].values),
+            MSX_TABLE_ALBEDO_AVG => (&albedo().e_avg_grid().axes, &albedo().e_avg_grid().values),
+            MSX_TABLE_DIELECTRIC_ENTER => (&dielectric()[0].axes, &dielectric()[0].values),
+            MSX_TABLE_DIELECTRIC_LEAVE => (&dielectric()[1].axes, &dielectric()[1].values),
             _ => {
                 write_error(err, err_len, &format!("invalid parameter 'kind': unknown table {kind}"));
                 return MSX_ERR_INVALID_PARAMETER;

@@ -137,6 +137,11 @@ impl DielectricAlbedoTable {
         }
     }
 
+    /// The grids (entering, leaving) over (α, n, μ), for the C ABI's `msx_table`.
+    pub fn grids(&self) -> [&Grid<3>; 2] {
+        [&self.enter, &self.leave]
+    }
+
     /// E(μ, α, η_r), trilinear in (√α, √(1 − 1/n²), μ); η_r < 1 reads the leaving table at 1/η_r.
     pub fn e(&self, alpha: f64, mu: f64, eta_r: f64) -> f64 {
         let (n, table) = if eta_r >= 1.0 { (eta_r, &self.enter) } else { (1.0 / eta_r, &self.leave) };

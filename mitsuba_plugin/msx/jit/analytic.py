@@ -9,7 +9,7 @@ import mitsuba as mi
 
 from . import single, tables
 from .microfacet import dot
-from .model import ConductorAnalytic
+from .model import ConductorAnalytic, DielectricAnalytic
 
 # ------------------------------------------------------------------ Fast-MSX (fastmsx.rs)
 
@@ -94,4 +94,55 @@ CONDUCTOR_ANALYTIC = {
     "single": ConductorAnalytic(single.eval_pdf, single.sample),
     "fastmsx": ConductorAnalytic(fastmsx_eval_pdf, fastmsx_sample),
     "compensated": ConductorAnalytic(compensated_eval_pdf, compensated_sample),
+}
+
+
+# ------------------------------------------------------------------ compensated dielectric (compensated_dielectric.rs)
+
+# Lower clamp of the tabulated albedo (src/tables/dielectric_albedo.rs, E_MIN).
+E_MIN = 1e-3
+
+
+def compensated_dielectric_scale(mf, eta, wi):
+    """1/E(μ_i, α, η_r) of ``single`` on the dielectric (Importance mode), η_r = η outside, 1/η inside."""
+    from .._native import lib
+
+    alpha = dr.sqrt(mf.alpha_u * mf.alpha_v)
+    mu = dr.minimum(dr.abs(wi[2]), 1.0)
+    outside = wi[2] > 0.0
+    # η_r = η outside, 1/η inside; η_r ≥ 1 reads the entering table at η_r, η_r < 1 the leaving one at
+    # 1/η_r. Both read n = max(η, 1/η).
+    n = dr.select(eta >= 1.0, eta, 1.0 / eta)
+    enter = tables.get(lib.MSX_TABLE_DIELECTRIC_ENTER, mf.dist).at(alpha, n, mu)
+    leave = tables.get(lib.MSX_TABLE_DIELECTRIC_LEAVE, mf.dist).at(alpha, n, mu)
+    eta_r_at_least_one = outside == (eta >= 1.0)
+    e = dr.select(eta_r_at_least_one, enter, leave)
+    s = 1.0 / dr.clip(e, E_MIN, 1.0)
+    ok = (wi[2] != 0.0) & dr.isfinite(wi[2]) & dr.isfinite(s)
+    return dr.select(ok, s, 1.0)
+
+
+def compensated_dielectric_eval(mf, eta, radiance, wi, wo):
+    v = single.dielectric_eval(mf, eta, wi, wo, radiance)
+    return dr.select(v > 0.0, v * compensated_dielectric_scale(mf, eta, wi), 0.0)
+
+
+def compensated_dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2):
+    wo, pdf, weight, valid = single.dielectric_sample(mf, eta, wi, sample1, u1, u2, radiance)
+    return wo, pdf, weight * compensated_dielectric_scale(mf, eta, wi), valid
+
+
+def _single_dielectric_eval(mf, eta, radiance, wi, wo):
+    return single.dielectric_eval(mf, eta, wi, wo, radiance)
+
+
+def _single_dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2):
+    return single.dielectric_sample(mf, eta, wi, sample1, u1, u2, radiance)
+
+
+# The analytic dielectric models, by model name (jit/bsdf.py collects them).
+DIELECTRIC_ANALYTIC = {
+    "single": DielectricAnalytic(_single_dielectric_eval, single.dielectric_pdf, _single_dielectric_sample),
+    "compensated": DielectricAnalytic(compensated_dielectric_eval, single.dielectric_pdf,
+                                      compensated_dielectric_sample),
 }

@@ -31,6 +31,17 @@ class ConductorAnalytic:
         self.eval_pdf, self.sample = eval_pdf, sample
 
 
+class DielectricAnalytic:
+    """An analytic dielectric model (deterministic, one channel; ``single``'s sampler and density):
+
+    - ``eval(mf, eta, radiance, wi, wo)`` → f·|cos θ_o|; ``pdf(mf, eta, wi, wo)``;
+    - ``sample(mf, eta, radiance, wi, sample1, u1, u2)`` → (ω_o, pdf, weight, valid).
+    """
+
+    def __init__(self, eval, pdf, sample):
+        self.eval, self.pdf, self.sample = eval, pdf, sample
+
+
 class DielectricWalk:
     """A dielectric random-walk model (``eta`` the relative IOR η_int/η_ext, a Python float or mi.Float;
     ``radiance`` a Python bool, Mitsuba's transport mode; values are one channel, mi.Float):

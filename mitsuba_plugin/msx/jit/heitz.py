@@ -25,8 +25,9 @@ Kahan's correction so that the hit probability of a near-vertical ray keeps its 
 import drjit as dr
 import mitsuba as mi
 
-from . import mis, posfree, walk
+from . import mis, walk
 from .microfacet import dot, reflect
+from .model import ConductorWalk
 from .rng import Stream
 
 # The largest float32 below 1: uniform numbers are clamped to [0, ONE_MINUS] (the core clamps to 1 − ε).
@@ -134,7 +135,7 @@ def eval(mf, fresnel, wi, wo, max_bounces, key):
     ``eval_from``): the walk enters from ω_i at t = 0; at each vertex the height step is conditioned on
     hitting (the throughput carries P_hit), the path is closed towards ω_o (F · phase · G1(ω_o, h)), then
     the walk reflects about a visible normal and plays Russian roulette."""
-    last = int(max_bounces)
+    last = max_bounces  # a Python int, or a UInt32 per lane (model 'auto' style caps)
     lambda_o = mf.lambda_(wo)
     start = valid_incidence(wi) & valid_incidence(wo) & (last > 0)
 
@@ -172,7 +173,7 @@ def sample(mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
     when a height step leaves the microsurface; more than ``max_bounces`` vertices is invalid (the same
     truncation as ``eval``). Returns (ω_o, weight, valid), weight = the product of the Fresnel terms
     divided by the roulette's survival probabilities."""
-    last = int(max_bounces)
+    last = max_bounces  # a Python int, or a UInt32 per lane (model 'auto' style caps)
     start = valid_incidence(wi) & (last > 0)
     # The first height: the entering ray −ω_i points down and always hits.
     w0 = -mi.Vector3f(wi)
@@ -207,4 +208,4 @@ def sample(mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
 
 # The conductor walk this module provides (jit/bsdf.py collects it): height-correlated order-1 exit in
 # the MIS density, and no walk from below the macro surface.
-CONDUCTOR_WALKS = {"heitz": posfree.ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, below=False)}
+CONDUCTOR_WALKS = {"heitz": ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, below=False)}

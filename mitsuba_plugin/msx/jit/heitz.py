@@ -1,6 +1,6 @@
 """Heitz et al. 2016, the stochastic random walk on the Smith microsurface with explicit heights, in the
-Dr.Jit engine: twin of the conductor part of ``src/models/heitz/mod.rs`` (dielectric and diffuse
-microsurfaces are not ported yet).
+Dr.Jit engine: twin of ``src/models/heitz/mod.rs`` on the three microsurfaces (conductor, Lambertian
+facets, dielectric).
 
 Heights as in the core: Heitz's uniform height distribution, carried as t = ln C¹(h) ≤ 0 (t = 0 at the
 top of the microsurface). In that variable a ray's free flight is an exponential optical depth
@@ -13,10 +13,20 @@ estimation towards ω_o at every vertex, with the core's one change: every heigh
 hitting and the throughput carries the hit probability 1 − G1(ω, h) (``sample_height_hit``); Russian
 roulette (``walk::russian_roulette``, keep = 1) ends the walk. ``sample`` (twin of ``sample`` /
 ``sample_from``) is Algorithm 3: the walk without NEE, returning the exit direction with the product of
-the Fresnel terms divided by the roulette's survival probabilities.
+the per-vertex weights (Fresnel for conductors, albedo for Lambertian facets, 1 for dielectrics) divided by
+the roulette's survival probabilities.
 
-As in the core (``valid_incidence``), a conductor needs ω_i (and, for eval, ω_o) strictly above the macro
-surface: the walk does not start below (``below=False``; the MIS density is 0 there).
+Dielectric sides (as the core): the walk works in the frame of the medium the ray travels in, the identity
+outside and the point reflection v ↦ −v inside, where it sees the standard microsurface from above with
+relative IOR η (outside) or 1/η (inside); a refraction switches the frame and maps the height to the
+flipped microsurface's, t ↦ ln(1 − e^t) (``flip_height``). The walk yields the Importance-mode BSDF;
+Radiance mode multiplies a result whose ω_o lies on the other side than ω_i by 1/η_r² once at the end
+(``dielectric.radiance_scale``: the refractions' factors telescope). Fresnel and refraction are the
+unit-vector forms the core's height-based walks use (``fresnel::dielectric``, ``refract_unit``).
+
+As in the core (``valid_incidence``), conductor and Lambertian facets need ω_i (and, for eval, ω_o)
+strictly above the macro surface (``below=False``; the MIS density is 0 there); a dielectric takes both
+sides (z ≠ 0) and a finite η > 0.
 
 Everything is float32 on arrays of lanes; ``expm1``/``log1p`` (not in drjit) are written below with
 Kahan's correction so that the hit probability of a near-vertical ray keeps its relative precision.
@@ -26,12 +36,14 @@ import drjit as dr
 import mitsuba as mi
 
 from . import mis, walk
-from .microfacet import dot, reflect
-from .model import ConductorWalk
+from .dielectric import eta_seen, radiance_scale
+from .microfacet import INV_PI, dot, reflect
+from .model import ConductorWalk, DielectricWalk, DiffuseWalk
 from .rng import Stream
 
 # The largest float32 below 1: uniform numbers are clamped to [0, ONE_MINUS] (the core clamps to 1 − ε).
 ONE_MINUS = 0.99999994
+LN_2 = 0.6931471805599453
 
 
 def expm1(x):
@@ -100,6 +112,14 @@ def masking_at(lambda_w, t):
     return dr.select(~(lambda_w > 0.0) | (t >= 0.0), 1.0, g)
 
 
+def flip_height(t):
+    """The height seen from the other side of the interface, ln(1 − e^t), without cancellation (Rust
+    ``flip_height``): log1p(−e^t) below −ln 2, ln(−expm1(t)) above."""
+    low = log1p(-dr.exp(t))
+    high = dr.log(-expm1(dr.minimum(t, 0.0)))
+    return dr.select(t < -LN_2, low, high)
+
+
 # ------------------------------------------------------------------ phase function
 
 
@@ -115,6 +135,64 @@ def conductor_phase(mf, wi, wo):
     return dr.select(valid, p, 0.0), c, valid
 
 
+def fresnel_dielectric(cos_i, eta):
+    """Unpolarised dielectric reflectance at |cos θ_i| = ``cos_i`` with relative IOR ``eta`` = η_t/η_i,
+    1 under total internal reflection (the unit-vector form ``fresnel::dielectric``)."""
+    ci = dr.minimum(dr.abs(cos_i), 1.0)
+    s2t = (1.0 - ci * ci) / (eta * eta)
+    ct = dr.sqrt(dr.maximum(1.0 - s2t, 0.0))
+    rs = (ci - eta * ct) / (ci + eta * ct)
+    rp = (eta * ci - ct) / (eta * ci + ct)
+    return dr.select(s2t >= 1.0, 1.0, 0.5 * (rs * rs + rp * rp))
+
+
+def refract_unit(w, m, cos_i, eta):
+    """Refraction of ``w`` (w·m = ``cos_i`` > 0) through the facet m, relative IOR ``eta``: (the unit
+    direction on the far side in the same frame, valid); invalid under total internal reflection (Rust
+    ``refract_unit``)."""
+    sin2_t = dr.maximum(1.0 - cos_i * cos_i, 0.0) / (eta * eta)
+    cos_t = dr.sqrt(dr.maximum(1.0 - sin2_t, 0.0))
+    o = m * (cos_i / eta - cos_t) - w / eta
+    length = dr.norm(o)
+    valid = (sin2_t < 1.0) & (length > 0.0) & dr.isfinite(length)
+    return o / length, valid
+
+
+def dielectric_phase_transmit(mf, wi, wo, eta):
+    """The dielectric phase function towards ω_o on the other side (supplement §3.4; Rust
+    ``dielectric_phase`` with ``same = false``): ``wo`` in the current side's frame points down, ``eta``
+    the relative IOR of the far side. η²(1 − F) D_ωi(h) |ωo·h| / (ωi·h + η ωo·h)², h ∝ −(ωi + η ωo)
+    oriented upward."""
+    h = -(wi + wo * eta)
+    length = dr.norm(h)
+    h = h / length
+    h = dr.select(h[2] < 0.0, -h, h)
+    ci = dot(wi, h)
+    co = dot(wo, h)
+    f = fresnel_dielectric(ci, eta)
+    denom = ci + eta * co
+    v = eta * eta * (1.0 - f) * mf.d_visible(wi, h) * (-co) / (denom * denom)
+    ok = (length > 1e-12) & (ci > 0.0) & (co < 0.0) & (f < 1.0) & dr.isfinite(v) & (v > 0.0)
+    return dr.select(ok, v, 0.0)
+
+
+def dielectric_phase_reflect(mf, wi, wo, eta):
+    """The dielectric phase function towards ω_o on the same side: F(ωi·h)·D_ωi(h)/(4 ωi·h) (Rust
+    ``dielectric_phase`` with ``same = true``)."""
+    p, c, ok = conductor_phase(mf, wi, wo)
+    return dr.select(ok, p * fresnel_dielectric(dr.select(ok, c, 1.0), eta), 0.0)
+
+
+def dielectric_scatter(wi, m, cos_wm, eta, u):
+    """Reflect or refract at the facet m (Rust ``scatter`` of a dielectric): reflected when u < F or
+    under total internal reflection, refracted otherwise; a refracted ray is returned in the new side's
+    frame (the point reflection), where it travels upward. Returns (direction, crossed)."""
+    f = fresnel_dielectric(cos_wm, eta)
+    o, ok_t = refract_unit(wi, m, cos_wm, eta)
+    crossed = (u >= f) & ok_t
+    return dr.select(crossed, -o, dr.normalize(reflect(wi, m))), crossed
+
+
 def visible_normal(mf, wi, u1, u2):
     """A visible normal of ``wi`` (Rust ``visible_normal``): (m, ωi·m, valid)."""
     m, valid = mf.sample_visible(wi, u1, u2)
@@ -123,8 +201,19 @@ def visible_normal(mf, wi, u1, u2):
 
 
 def valid_incidence(w):
-    """A conductor's direction must be finite and strictly above the macro surface."""
+    """A conductor's (or Lambertian facets') direction must be finite and strictly above the macro
+    surface."""
     return dr.all(dr.isfinite(w)) & (w[2] > 0.0)
+
+
+def valid_incidence_dielectric(w, eta):
+    """A dielectric's direction must be finite and off the macro surface, its IOR finite and > 0."""
+    return dr.all(dr.isfinite(w)) & (w[2] != 0.0) & dr.isfinite(eta) & (eta > 0.0)
+
+
+def clean_uniform(u):
+    """A caller's uniform number, NaN/Inf → 0.5, clamped to [0, 1) (the core's ``clamp_u``)."""
+    return dr.clip(dr.select(dr.isfinite(u), u, 0.5), 0.0, ONE_MINUS)
 
 
 # ------------------------------------------------------------------ the walks
@@ -206,6 +295,206 @@ def sample(mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
     return state[1], state[3], state[4]
 
 
+# ------------------------------------------------------------------ Lambertian facets (diffuse)
+
+
+def diffuse_eval(mf, albedo, wi, wo, max_bounces, key):
+    """One unbiased estimate of f(ω_i, ω_o)·cos θ_o on Lambertian facets of albedo ``albedo``, orders
+    1..max_bounces (Rust ``eval_from`` with ``Mat::Diffuse``): per vertex the height step conditioned on
+    hitting, a visible normal m of the incoming ray shared by the next event, (a/π)⟨ω_o, m⟩⁺·G1(ω_o, h),
+    and the continuation, a cosine lobe about m with weight a; roulette after every vertex."""
+    last = max_bounces
+    lambda_o = mf.lambda_(wo)
+    start = valid_incidence(wi) & valid_incidence(wo) & (last > 0)
+
+    def body(order, wr, t, thr, result, active, counter):
+        rng = Stream(key, counter)
+        u_h, u_rr = rng.next2()
+        tn, p_hit = sample_height_hit(mf, wr, t, u_h)
+        active &= p_hit > 0.0
+        t = tn
+        thr = thr * p_hit
+        wi_l = -wr
+        u1, u2 = rng.next2()
+        m, _, valid = visible_normal(mf, wi_l, u1, u2)
+        contrib = albedo * (dr.maximum(dot(m, wo), 0.0) * INV_PI * masking_at(lambda_o, t))
+        result = dr.select(active & valid, result + thr * contrib, result)
+        active &= order < last
+        ua, ub = rng.next2()
+        wr = walk.cosine_about(m, ua, ub)
+        thr, survived = walk.russian_roulette_keep(thr * albedo, u_rr, 1.0)
+        active &= valid & survived & dr.all(dr.isfinite(wr))
+        return order + 1, wr, t, thr, result, active, rng.counter
+
+    state = (mi.UInt32(1), -mi.Vector3f(wi), mi.Float(0.0), mi.Spectrum(1.0), dr.zeros(mi.Spectrum),
+             mi.Bool(start), mi.UInt32(0))
+    state = dr.while_loop(state, lambda *s: s[5], body, label="msx_heitz_diffuse_eval")
+    return state[4]
+
+
+def diffuse_sample(mf, albedo, wi, sample1, u1, u2, max_bounces, key):
+    """Random-walk sampling on Lambertian facets (Rust ``sample_from`` with ``Mat::Diffuse``):
+    ``sample1`` drives the first height, (u1, u2) the first visible normal, the lane's stream the cosine
+    lobes and the rest. Returns (ω_o, weight = Π a / Π q, valid); more than ``max_bounces`` vertices is
+    invalid."""
+    last = max_bounces
+    start = valid_incidence(wi) & (last > 0)
+    w0 = -mi.Vector3f(wi)
+    t0, hit0 = sample_height(mf, w0, mi.Float(0.0), clean_uniform(sample1))
+
+    def body(order, wr, t, thr, done, active, counter, u1, u2):
+        rng = Stream(key, counter)
+        order = order + 1
+        wi_l = -wr
+        m, _, valid = visible_normal(mf, wi_l, u1, u2)
+        ua, ub = rng.next2()
+        wr = walk.cosine_about(m, ua, ub)
+        u_rr, u_h = rng.next2()
+        thr, survived = walk.russian_roulette_keep(thr * albedo, u_rr, 1.0)
+        active &= valid & survived & dr.all(dr.isfinite(wr))
+        tn, hit = sample_height(mf, wr, t, u_h)
+        leaves = active & ~hit
+        done = leaves & (wr[2] > 0.0) & dr.all(dr.isfinite(thr))
+        active &= hit & (order < last)
+        t = tn
+        a, b = rng.next2()
+        return order, wr, t, thr, done, active, rng.counter, a, b
+
+    state = (mi.UInt32(0), w0, t0, mi.Spectrum(1.0), mi.Bool(False), mi.Bool(start & hit0), mi.UInt32(0),
+             clean_uniform(mi.Float(u1)), clean_uniform(mi.Float(u2)))
+    state = dr.while_loop(state, lambda *s: s[5], body, label="msx_heitz_diffuse_sample")
+    return state[1], state[3], state[4]
+
+
+# ------------------------------------------------------------------ dielectric
+
+
+def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bounces, key, counter):
+    """Heitz's dielectric eval walk from a state on (Rust ``eval_from`` with ``Mat::Dielectric``): the ray
+    travels along ``wr`` (frame of its side, ``outside``) from height ``t`` towards the vertex of order
+    ``order``, carrying ``thr``; the lane's stream goes on at ``counter``. Returns the contributions of
+    the vertices of order ``order``..max_bounces (no Radiance-mode factor). Public for the invariance
+    model, which hands the rest of a path to this walk after the first refraction.
+
+    At each vertex the height step is conditioned on hitting, the next event goes to ω_o with the
+    reflection phase function × G1(ω_o, h) on ω_o's side, or the transmission phase function × G1(ω_o,
+    flipped h) across, then the walk reflects or refracts about a visible normal (u < F) and plays
+    Russian roulette."""
+    last = max_bounces
+    eta = mi.Float(eta)
+    wo = mi.Vector3f(wo)
+    wo_out = wo[2] > 0.0
+    # Λ(ω_o) in the frame of ω_o's side (D and Λ are even under v ↦ −v).
+    lambda_o = mf.lambda_(dr.select(wo_out, wo, -wo))
+
+    def body(order, wr, t, outside, thr, result, active, counter):
+        rng = Stream(key, counter)
+        u_h, u_rr = rng.next2()
+        tn, p_hit = sample_height_hit(mf, wr, t, u_h)
+        active &= p_hit > 0.0
+        t = tn
+        thr = thr * p_hit
+        wi_l = -wr
+        wo_l = dr.select(outside, wo, -wo)
+        e = eta_seen(eta, outside)
+        same = wo_out == outside
+        # Next-event estimation towards ω_o.
+        p = dr.select(same, dielectric_phase_reflect(mf, wi_l, wo_l, e),
+                      dielectric_phase_transmit(mf, wi_l, wo_l, e))
+        t_o = dr.select(same, t, flip_height(t))
+        contrib = p * masking_at(lambda_o, t_o)
+        result = dr.select(active & (contrib > 0.0), result + thr * contrib, result)
+        active &= order < last
+        # Continue: reflect or refract about a visible normal, then the roulette.
+        u1, u2 = rng.next2()
+        m, cos_wm, valid = visible_normal(mf, wi_l, u1, u2)
+        ua, _ = rng.next2()
+        wr, crossed = dielectric_scatter(wi_l, m, cos_wm, e, ua)
+        outside = outside ^ crossed
+        t = dr.select(crossed, flip_height(t), t)
+        thr, survived = walk.russian_roulette_keep(thr, u_rr, 1.0)
+        active &= valid & survived & dr.all(dr.isfinite(wr))
+        return order + 1, wr, t, outside, thr, result, active, rng.counter
+
+    state = (mi.UInt32(order), mi.Vector3f(wr), mi.Float(t), mi.Bool(outside), mi.Float(thr), mi.Float(0.0),
+             mi.Bool(active & (order <= last)), mi.UInt32(counter))
+    state = dr.while_loop(state, lambda *s: s[6], body, label="msx_heitz_dielectric_eval")
+    return state[5]
+
+
+def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key):
+    """One unbiased estimate of f(ω_i, ω_o)·|cos θ_o| through a rough dielectric, orders
+    1..max_bounces (Rust ``eval``), one channel: the walk of ``dielectric_eval_from`` entering from ω_i's
+    side at the top of the microsurface; Radiance mode: × 1/η_r² when ω_o is across."""
+    eta = mi.Float(eta)
+    wi, wo = mi.Vector3f(wi), mi.Vector3f(wo)
+    wi_out = wi[2] > 0.0
+    start = valid_incidence_dielectric(wi, eta) & valid_incidence_dielectric(wo, eta) & (max_bounces > 0)
+    w0 = -dr.select(wi_out, wi, -wi)
+    v = dielectric_eval_from(mf, eta, wo, w0, mi.Float(0.0), wi_out, mi.UInt32(1), mi.Float(1.0), start,
+                             max_bounces, key, mi.UInt32(0))
+    return v * radiance_scale(eta, radiance, wi_out, wo[2] > 0.0)
+
+
+def dielectric_sample_from(mf, eta, wr, t, outside, order, thr, active, max_bounces, key, counter, ua, u1, u2):
+    """Heitz's dielectric sampling walk from a hit (Rust ``sample_from``): the ray along ``wr`` (frame of
+    its side) has hit at height ``t`` the vertex of order ``order`` + 1, which scatters with the numbers
+    (ua: reflect/refract choice, u1, u2: visible normal); the lane's stream from ``counter`` drives the
+    rest. Returns (ω_o in the macro frame, weight without the Radiance-mode factor, valid); more than
+    ``max_bounces`` vertices is invalid. Public for the invariance model (after the first refraction)."""
+    last = max_bounces
+    eta = mi.Float(eta)
+
+    def body(order, wr, t, outside, thr, done, active, counter, ua, u1, u2):
+        rng = Stream(key, counter)
+        order = order + 1
+        wi_l = -wr
+        m, cos_wm, valid = visible_normal(mf, wi_l, u1, u2)
+        wr, crossed = dielectric_scatter(wi_l, m, cos_wm, eta_seen(eta, outside), ua)
+        outside = outside ^ crossed
+        t = dr.select(crossed, flip_height(t), t)
+        u_rr, u_h = rng.next2()
+        thr, survived = walk.russian_roulette_keep(thr, u_rr, 1.0)
+        active &= valid & survived & dr.all(dr.isfinite(wr))
+        tn, hit = sample_height(mf, wr, t, u_h)
+        leaves = active & ~hit
+        done = leaves & (wr[2] != 0.0) & dr.isfinite(thr)
+        active &= hit & (order < last)
+        t = tn
+        a, b = rng.next2()
+        c, _ = rng.next2()
+        return order, wr, t, outside, thr, done, active, rng.counter, c, a, b
+
+    state = (mi.UInt32(order), mi.Vector3f(wr), mi.Float(t), mi.Bool(outside), mi.Float(thr), mi.Bool(False),
+             mi.Bool(active & (order < last)), mi.UInt32(counter), clean_uniform(mi.Float(ua)),
+             clean_uniform(mi.Float(u1)), clean_uniform(mi.Float(u2)))
+    state = dr.while_loop(state, lambda *s: s[6], body, label="msx_heitz_dielectric_sample")
+    wr, outside, thr, done = state[1], state[3], state[4], state[5]
+    return dr.select(outside, wr, -wr), thr, done
+
+
+def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
+    """Random-walk sampling through a rough dielectric (Rust ``sample`` with ``sample_from``): (u1, u2)
+    drive the first visible normal and ``sample1`` the first reflect/refract choice; the heights and later
+    vertices come from the lane's stream. Returns (ω_o, weight, valid): weight 1 (the walk's vertex
+    weights are 1), × 1/η_r² in Radiance mode when ω_o is across."""
+    eta = mi.Float(eta)
+    wi = mi.Vector3f(wi)
+    wi_out = wi[2] > 0.0
+    start = valid_incidence_dielectric(wi, eta) & (max_bounces > 0)
+    rng0 = Stream(key)
+    u_h0, _ = rng0.next2()
+    w0 = -dr.select(wi_out, wi, -wi)
+    t0, hit0 = sample_height(mf, w0, mi.Float(0.0), u_h0)
+    wo, thr, done = dielectric_sample_from(mf, eta, w0, t0, wi_out, mi.UInt32(0), mi.Float(1.0), start & hit0,
+                                           max_bounces, key, rng0.counter, sample1, u1, u2)
+    return wo, thr * radiance_scale(eta, radiance, wi_out, wo[2] > 0.0), done
+
 # The conductor walk this module provides (jit/bsdf.py collects it): height-correlated order-1 exit in
 # the MIS density, and no walk from below the macro surface.
 CONDUCTOR_WALKS = {"heitz": ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, below=False)}
+
+# The walks on the other microsurfaces (jit/bsdf.py collects them; their MIS densities are
+# ``mis.dielectric_pdf`` and ``mis.diffuse_pdf``).
+DIELECTRIC_WALKS = {"heitz": DielectricWalk(dielectric_eval, dielectric_sample)}
+DIFFUSE_WALKS = {"heitz": DiffuseWalk(diffuse_eval, diffuse_sample)}

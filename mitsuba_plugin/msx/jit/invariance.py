@@ -1,7 +1,22 @@
-"""The invariance principle (Cui et al. 2023, with Bitterli & d'Eon 2022's exit probability) on conductor
-facets in the Dr.Jit engine: twin of ``src/models/invariance/conductor.rs`` (``eval``, ``sample``) with the
-incremental exit table ``MonotoneExit`` of ``recursion.rs``. The BDPT estimator and the dielectric and
-diffuse microsurfaces are not ported.
+"""The invariance principle (Cui et al. 2023, with Bitterli & d'Eon 2022's exit probability) in the Dr.Jit
+engine, PT estimators on the three microsurfaces: conductor facets (twin of
+``src/models/invariance/conductor.rs``, ``eval``/``sample``, with the incremental exit table
+``MonotoneExit`` of ``recursion.rs``), Lambertian facets (``general.rs``: the complete recursion
+``ExitTable``) and the rough dielectric (``dielectric.rs``: the exact depth law ``PieceChain`` of the first
+run, Heitz's walk of jit/heitz.py after the first refraction). The BDPT estimator is not ported.
+
+Lambertian facets: their paths are not monotone in z, so the exit probabilities need the whole triangle
+p(i, j) of ``ExitTable`` (O(m²) per lane): it lives in a ``dr.alloc_local`` buffer of (m+1)(m+2)/2 entries
+for m = the bounce cap (at most ``LOCAL_CAPACITY``; a walk whose table is full ends there, only with a
+larger cap), and a new column is two nested ``dr.while_loop``s.
+
+Dielectric: until the first refraction the path reflects in ω_i's medium, a monotone run whose vertex
+depth has the exact law of ``PieceChain`` (pieces of rates L_i, π over the piece index); the next events
+use its exact exit probability (reflection) or the top piece's Beta term plus one sampled depth
+(transmission); at the first refraction the depth is drawn from that law, flipped, and
+``heitz.dielectric_eval_from`` / ``dielectric_sample_from`` continue the path.
+
+The conductor walk:
 
 Heitz's walk with the heights integrated out: a conductor path is a run of a ≥ 1 downward directions
 d_0..d_{a−1} followed by upward ones, and the probability that it hits at every vertex and leaves along an
@@ -27,8 +42,11 @@ import drjit as dr
 import mitsuba as mi
 
 from . import mis, walk
-from .microfacet import dot, max_channel, reflect
-from .model import ConductorWalk
+from .microfacet import INV_PI, dot, max_channel, reflect
+from . import heitz
+from .dielectric import eta_seen, radiance_scale
+from .model import ConductorWalk, DielectricWalk, DiffuseWalk
+from .posfree_dielectric import l_beta
 from .rng import Stream
 
 # src/models/invariance/conductor.rs: where roulette starts, its sure-survival level, and the highest
@@ -298,6 +316,502 @@ def sample(mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
     return -state[1], state[2], state[3]
 
 
+# ------------------------------------------------------------------ Lambertian facets (general.rs)
+
+
+class ExitTable:
+    """Incremental exit probabilities of an arbitrary direction sequence d_0..d_m (twin of ``ExitTable``
+    in ``general.rs``): the complete invariance recursion in scaled form,
+    p(i,j) = S_1(d_i,d_j)·Σ_{l=i}^{j−1} L_l·p(i,l)·p(l+1,j), p(i,i) = 1, S_1(a,b) = 1/(|Λ(a)| + Λ(b)) for a
+    down and b up, 0 otherwise. Per lane: ``l`` (Local, L_i), ``down`` (Local, 1 for a downward d_i),
+    ``p`` (Local, the triangle: column j, p(0,j)..p(j,j), starts at j(j+1)/2), ``scratch`` (Local, the
+    column of a virtual direction), ``n`` (directions pushed) and ``hit`` (H_m). Pass :meth:`state`
+    through the walk's loop and rebuild with :meth:`from_state`. Every buffer access names its lanes (see
+    ``MonotoneExit.columns``)."""
+
+    def __init__(self, l, down, p, scratch, n, hit, capacity):
+        self.l, self.down, self.p, self.scratch, self.n, self.hit = l, down, p, scratch, n, hit
+        self.capacity = capacity
+
+    @staticmethod
+    def new(l0, capacity):
+        """A path starting with the downward d_0 of |Λ(d_0)| = ``l0``; room for ``capacity`` directions."""
+        l = dr.alloc_local(mi.Float, capacity, mi.Float(0.0))
+        down = dr.alloc_local(mi.Float, capacity, mi.Float(0.0))
+        p = dr.alloc_local(mi.Float, capacity * (capacity + 1) // 2, mi.Float(0.0))
+        scratch = dr.alloc_local(mi.Float, capacity + 1, mi.Float(0.0))
+        zero = mi.UInt32(0)
+        l.write(mi.Float(l0), zero)
+        down.write(mi.Float(1.0), zero)
+        p.write(mi.Float(1.0), zero)
+        return ExitTable(l, down, p, scratch, mi.UInt32(1), mi.Float(1.0), capacity)
+
+    def state(self):
+        return (self.l, self.down, self.p, self.scratch, self.n, self.hit)
+
+    @staticmethod
+    def from_state(s, capacity):
+        return ExitTable(*s, capacity)
+
+    def _column(self, out, base, lx, x_down, active, own=False):
+        """out[base + i] = p(i, x) for i = 0..n, x a direction appended after d_{n−1} with |Λ(x)| = ``lx``,
+        pointing down where ``x_down`` (then p(i, x) = 0 for i < n). Returns (p(0, x), out): the buffer
+        is the column loop's state (a loop whose only effect were the writes would be optimised away)."""
+        l, down, n = self.l, self.down, self.n
+        p = None if own else self.p  # writing the triangle itself: read it through the loop's state
+        out.write(mi.Float(1.0), dr.select(active, base + n, 0), active)
+
+        def outer(i, value, out):
+            on = active & (i > 0)
+            i = dr.select(on, i - 1, 0)
+            li = l.read(i, on)
+            di = down.read(i, on) > 0.0
+            run = on & di & ~x_down
+            pp = out if p is None else p
+
+            def inner(k, total):
+                on2 = run & (k < n)
+                kk = dr.select(on2, k, 0)
+                c = out.read(dr.select(on2, base + kk + 1, 0), on2)
+                pik = pp.read(dr.select(on2, kk * (kk + 1) // 2 + i, 0), on2)
+                lk = l.read(kk, on2)
+                return k + 1, total + dr.select(on2, lk * pik * c, 0.0)
+
+            _, total = dr.while_loop((mi.UInt32(i), mi.Float(0.0)), lambda k, _t: run & (k < n), inner,
+                                     label="msx_invariance_exit_row")
+            value = dr.select(run, total / (li + lx), 0.0)
+            out.write(value, dr.select(on, base + i, 0), on)
+            return i, value, out
+
+        first = dr.select(n > 0, 0.0, 1.0)
+        _, value, out = dr.while_loop((mi.UInt32(n), mi.Float(first), out), lambda i, _v, _o: active & (i > 0),
+                                      outer, label="msx_invariance_exit_column")
+        return dr.select(active, value, 0.0), out
+
+    def exit_given_hits(self, lam, active):
+        """p_exit(d_0..d_m, x)/H_m for an upward x with Λ(x) = ``lam`` (0 where not active)."""
+        e, self.scratch = self._column(self.scratch, mi.UInt32(0), lam, mi.Bool(False), active)
+        return dr.select(active & (self.hit > 0.0), e / self.hit, 0.0)
+
+    def push(self, lx, x_down, active):
+        """Appends d_{m+1} (|Λ| = ``lx``, pointing down where ``x_down``) where ``active``: returns
+        (H_{m+1}/H_m, pushed); not pushed when the buffers are full (the walk ends there)."""
+        ok = active & (self.n < self.capacity)
+        n = self.n
+        _, self.p = self._column(self.p, n * (n + 1) // 2, lx, x_down, ok, own=True)
+        idx = dr.select(ok, n, 0)
+        self.l.write(mi.Float(lx), idx, ok)
+        self.down.write(dr.select(x_down, 1.0, 0.0), idx, ok)
+        self.n = dr.select(ok, n + 1, n)
+        h, self.scratch = self._column(self.scratch, mi.UInt32(0), mi.Float(0.0), mi.Bool(False), ok)
+        cont = dr.select(self.hit > 0.0, h / self.hit, 0.0)
+        self.hit = dr.select(ok, h, self.hit)
+        return dr.select(ok, cont, 0.0), ok
+
+
+def table_capacity(max_bounces):
+    """Directions an ``ExitTable`` holds: d_0 and one per vertex (the sampler pushes the direction that
+    leaves at the last vertex too), so max_bounces + 1, at most LOCAL_CAPACITY + 1 (the default cap is
+    LOCAL_CAPACITY). A longer walk ends where the table is full (only with a larger cap)."""
+    if isinstance(max_bounces, int):
+        return max(2, min(max_bounces, LOCAL_CAPACITY) + 1)
+    return LOCAL_CAPACITY + 1
+
+
+def diffuse_direction(mf, d):
+    """(|Λ(d)|, d points down, usable) of a new direction (Rust ``lam``: not horizontal, finite Λ)."""
+    l = mf.abs_lambda(d)
+    ok = dr.all(dr.isfinite(d)) & (d[2] != 0.0) & dr.isfinite(l)
+    return l, d[2] < 0.0, ok
+
+
+def diffuse_eval(mf, albedo, wi, wo, max_bounces, key):
+    """One unbiased estimate of f(ω_i, ω_o)·cos θ_o on Lambertian facets (Rust ``general::eval``): the
+    phase-function walk (visible normal m of −d_m, cosine lobe about m); at each vertex the next event
+    (a/π)⟨ω_o, m⟩⁺ with the same m times the exact conditional exit probability p_exit(d_0..d_m, ω_o)/H_m;
+    the throughput carries Π a · H_m/H_0 and Russian roulette from the second vertex on."""
+    last = max_bounces
+    capacity = table_capacity(last)
+    lambda_o = mf.lambda_(wo)
+    l0 = mf.abs_lambda(-wi)
+    start = (valid_direction(wi) & valid_direction(wo) & dr.isfinite(lambda_o) & dr.isfinite(l0)
+             & (last > 0))
+    table0 = ExitTable.new(l0, capacity)
+
+    def body(j, w, thr, result, active, counter, table_state):
+        rng = Stream(key, counter)
+        table = ExitTable.from_state(table_state, capacity)
+        order = j + 1
+        u1, u2 = rng.next2()
+        m, valid = mf.sample_visible(w, u1, u2)
+        active &= valid
+        c = dot(wo, m)
+        nee = active & (c > 0.0)
+        exit = table.exit_given_hits(lambda_o, nee)
+        result = dr.select(nee & (exit > 0.0), result + thr * albedo * (c * INV_PI * exit), result)
+        active &= order < last
+        u_rr, _ = rng.next2()
+        kept, survived = walk.russian_roulette(thr, u_rr)
+        play = j >= RR_START
+        thr = dr.select(play, kept, thr)
+        active &= ~play | survived
+        u3, u4 = rng.next2()
+        d = walk.cosine_about(m, u3, u4)
+        l, down, ok = diffuse_direction(mf, d)
+        active &= ok
+        thr = thr * albedo
+        cont, pushed = table.push(l, down, active)
+        thr = dr.select(active, thr * cont, thr)
+        active &= pushed & (cont > 0.0) & (max_channel(thr) > 0.0)
+        return j + 1, -d, thr, result, active, rng.counter, table.state()
+
+    state = (mi.UInt32(0), mi.Vector3f(wi), mi.Spectrum(1.0), dr.zeros(mi.Spectrum), mi.Bool(start),
+             mi.UInt32(0), table0.state())
+    state = dr.while_loop(state, lambda *s: s[4], body, label="msx_invariance_diffuse_eval")
+    return state[3]
+
+
+def diffuse_sample(mf, albedo, wi, sample1, u1, u2, max_bounces, key):
+    """Random-walk sampling on Lambertian facets (Rust ``general::sample``): phase-function directions,
+    and at each upward d_{m+1} exit with probability 1 − H_{m+1}/H_m. (sample1, u1, u2) drive the first
+    vertex's exit decision and visible normal, the lane's stream the cosine lobes and the rest. Returns
+    (ω_o, weight = Π albedo, valid); more than max_bounces vertices is invalid."""
+    last = max_bounces
+    capacity = table_capacity(last)
+    l0 = mf.abs_lambda(-wi)
+    start = valid_direction(wi) & dr.isfinite(l0) & (last > 0)
+
+    def clean(u):
+        return dr.clip(dr.select(dr.isfinite(u), u, 0.5), 0.0, ONE_MINUS)
+
+    table0 = ExitTable.new(l0, capacity)
+
+    def body(j, w, weight, done, active, counter, u_exit, u1, u2, table_state):
+        rng = Stream(key, counter)
+        table = ExitTable.from_state(table_state, capacity)
+        m, valid = mf.sample_visible(w, u1, u2)
+        active &= valid
+        u3, u4 = rng.next2()
+        d = walk.cosine_about(m, u3, u4)
+        l, down, ok = diffuse_direction(mf, d)
+        active &= ok
+        weight = weight * albedo
+        cont, pushed = table.push(l, down, active)
+        active &= pushed
+        leaves = active & ~down & (u_exit >= cont)
+        done = leaves
+        active &= ~leaves & (cont > 0.0) & (j + 1 < last)
+        a, b = rng.next2()
+        c, _ = rng.next2()
+        return j + 1, -d, weight, done, active, rng.counter, c, a, b, table.state()
+
+    state = (mi.UInt32(0), mi.Vector3f(wi), mi.Spectrum(1.0), mi.Bool(False), mi.Bool(start), mi.UInt32(0),
+             clean(mi.Float(sample1)), clean(mi.Float(u1)), clean(mi.Float(u2)), table0.state())
+    state = dr.while_loop(state, lambda *s: s[4], body, label="msx_invariance_diffuse_sample")
+    return -state[1], state[2], state[3]
+
+
+# ------------------------------------------------------------------ dielectric (dielectric.rs)
+
+
+class PieceChain:
+    """The exact depth law of the current vertex of a monotone one-sided run entered from above (twin of
+    ``PieceChain`` in ``dielectric.rs``), per lane: ``rates`` (Local, L_i of the downward directions),
+    ``pi`` (Local, π(c) up to the factor ``scale``; before the first upward direction π is the point
+    mass on the bottom piece, not materialised), ``a`` (pieces), ``has_up``, ``hit`` (H_m). Pass
+    :meth:`state` through the walk's loop; every buffer access names its lanes."""
+
+    def __init__(self, rates, pi, a, has_up, scale, hit, capacity):
+        self.rates, self.pi, self.a, self.has_up, self.scale, self.hit = rates, pi, a, has_up, scale, hit
+        self.capacity = capacity
+
+    @staticmethod
+    def new(l0, capacity):
+        rates = dr.alloc_local(mi.Float, capacity, mi.Float(0.0))
+        pi = dr.alloc_local(mi.Float, capacity, mi.Float(0.0))
+        rates.write(mi.Float(l0), mi.UInt32(0))
+        return PieceChain(rates, pi, mi.UInt32(1), mi.Bool(False), mi.Float(1.0), mi.Float(1.0), capacity)
+
+    def state(self):
+        return (self.rates, self.pi, self.a, self.has_up, self.scale, self.hit)
+
+    @staticmethod
+    def from_state(s, capacity):
+        return PieceChain(*s, capacity)
+
+    def _pi_at(self, pi, c, on):
+        """π(c) (normalised) where ``on``."""
+        stored = pi.read(c, on) * self.scale
+        point = dr.select(c + 1 == self.a, 1.0, 0.0)
+        return dr.select(on, dr.select(self.has_up, stored, point), 0.0)
+
+    def push_down(self, l, active):
+        """Appends a downward direction (|Λ| = ``l``) where ``active``; False on a non-monotone run or a
+        full buffer (the walk ends there)."""
+        ok = active & ~self.has_up & (self.a < self.capacity)
+        self.rates.write(mi.Float(l), dr.select(ok, self.a, 0), ok)
+        self.a = dr.select(ok, self.a + 1, self.a)
+        return ok
+
+    def push_up(self, lam, active):
+        """Appends an upward direction with Λ = ``lam`` where ``active``; returns H_{m+1}/H_m (0 where not
+        active). carry(c) = Σ_{c'' ≥ c} π(c'') Π_{i=c+1}^{c''} L_i/(L_i+Λ) is the mass whose jump reaches
+        piece c; a fraction Λ/(L_c+Λ) lands there (Λ = ∞: everything lands where it is)."""
+        rates, a = self.rates, self.a
+        inf = dr.isinf(lam)
+        run = active & (lam > 0.0)
+
+        def body(c, carry, cont, pi):
+            on = run & (c > 0)
+            c = dr.select(on, c - 1, 0)
+            l = rates.read(c, on)
+            nxt = on & (c + 1 < a)
+            ln = rates.read(dr.select(nxt, c + 1, 0), nxt)
+            carry = dr.select(nxt, carry * dr.select(inf, 0.0, ln / (ln + lam)), carry)
+            carry = carry + self._pi_at(pi, c, on)
+            land = carry * dr.select(inf, 1.0, lam / (l + lam))
+            pi.write(land, c, on)
+            return c, carry, cont + dr.select(on, land, 0.0), pi
+
+        _, _, cont, self.pi = dr.while_loop((mi.UInt32(a), mi.Float(0.0), mi.Float(0.0), self.pi),
+                                            lambda c, *_: run & (c > 0), body, label="msx_invariance_push_up_pieces")
+        good = run & (cont > 0.0) & dr.isfinite(cont)
+        self.scale = dr.select(good, 1.0 / cont, self.scale)
+        self.has_up = self.has_up | active
+        cont = dr.select(good, dr.minimum(cont, 1.0), 0.0)
+        self.hit = dr.select(active, self.hit * cont, self.hit)
+        return dr.select(active, cont, 0.0)
+
+    def exit_given_hits(self, lam, active):
+        """E[e^{−Λ τ}] given the hits: the probability of leaving along an upward direction with
+        Λ = ``lam`` from the current vertex (0 where not active, Λ < 0 or ∞)."""
+        rates, pi, a = self.rates, self.pi, self.a
+        run = active & (lam >= 0.0) & ~dr.isinf(lam)
+
+        def body(c, prod, total):
+            on = run & (c < a)
+            cc = dr.select(on, c, 0)
+            l = rates.read(cc, on)
+            prod = dr.select(on, prod * (l / (l + lam)), prod)
+            return c + 1, prod, total + self._pi_at(pi, cc, on) * prod
+
+        _, _, total = dr.while_loop((mi.UInt32(0), mi.Float(1.0), mi.Float(0.0)), lambda c, *_: run & (c < a),
+                                    body, label="msx_invariance_exit_pieces")
+        return dr.select(run, total, 0.0)
+
+
+def draw_depth(chain, c_min, key, counter, active):
+    """τ of ``PieceChain.sample_depth``: the piece c ≥ c_min from π (one number), then τ = X_0 + … + X_c
+    with fresh X_i ~ Exp(L_i) (one number each; L = ∞ adds no depth). Returns (τ, mass Σ_{c ≥ c_min} π(c),
+    counter)."""
+    rates, pi, a = chain.rates, chain.pi, chain.a
+
+    def total_body(c, total):
+        on = active & (c < a)
+        cc = dr.select(on, c, 0)
+        return c + 1, total + chain._pi_at(pi, cc, on)
+
+    _, total = dr.while_loop((mi.UInt32(c_min), mi.Float(0.0)), lambda c, _t: active & (c < a), total_body,
+                             label="msx_invariance_depth_mass")
+    rng = Stream(key, counter)
+    u_pick, _ = rng.next2()
+
+    def body(c, rest, tau, picking, counter):
+        on = active & (c < a) & picking
+        cc = dr.select(on, c, 0)
+        rng = Stream(key, counter)
+        u, _ = rng.next2()
+        l = rates.read(cc, on)
+        tau = dr.select(on, tau + optical_depth(u) / l, tau)
+        at = on & (cc >= c_min)
+        rest = dr.select(at, rest - chain._pi_at(pi, cc, at), rest)
+        picking &= ~(at & (rest < 0.0))
+        return c + 1, rest, tau, picking, dr.select(on, rng.counter, counter)
+
+    state = (mi.UInt32(0), u_pick * total, mi.Float(0.0), mi.Bool(active), mi.UInt32(rng.counter))
+    _, _, tau, _, counter = dr.while_loop(state, lambda c, _r, _t, picking, _n: active & picking & (c < a), body,
+                                          label="msx_invariance_depth")
+    return tau, total, counter
+
+
+def optical_depth(u):
+    """E = −ln(1 − U), an Exp(1) depth (finite: U is clamped below 1)."""
+    return -dr.log(1.0 - dr.clip(u, 0.0, ONE_MINUS))
+
+
+def transmit_exit(chain, lambda_t, key, counter, active):
+    """Unbiased estimate of E[(1 − e^{−τ})^{Λ'}] given the hits (Rust ``transmit_exit``): the top piece's
+    mass exactly, π(0)·L_0·B(L_0, 1+Λ'), one depth drawn from the deeper pieces for the rest. Returns
+    (estimate in [0, 1], counter)."""
+    run = active & (lambda_t >= 0.0) & ~dr.isinf(lambda_t)
+    zero = mi.UInt32(0)
+    p0 = chain._pi_at(chain.pi, zero, run)
+    l0 = chain.rates.read(zero, run)
+    e = p0 * l_beta(l0, lambda_t)
+    deeper = run & (chain.a > 1)
+    tau, rest, counter = draw_depth(chain, 1, key, counter, deeper)
+    above = -heitz.expm1(-tau)  # 1 − e^{−τ}
+    e = dr.select(deeper & (rest > 0.0), e + rest * dr.exp(lambda_t * dr.log(above)), e)
+    e = dr.select(dr.isfinite(e), dr.clip(e, 0.0, 1.0), 0.0)
+    return dr.select(run, e, 0.0), counter
+
+
+def dielectric_valid(w, eta):
+    return dr.all(dr.isfinite(w)) & (w[2] != 0.0) & dr.isfinite(eta) & (eta > 0.0)
+
+
+def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key):
+    """One unbiased estimate of f(ω_i, ω_o)·|cos θ_o| of the rough dielectric with the heights of the
+    first run integrated out (Rust ``dielectric::eval``), one channel. The first run (reflections in ω_i's
+    medium) draws visible normals, reflects with probability F, carries the exact hit probabilities and
+    estimates towards ω_o at every vertex with the phase function × the exact exit probability
+    (``exit_given_hits`` on ω_i's side, ``transmit_exit`` across); at the first refraction the vertex
+    depth is drawn from its exact law, flipped, and Heitz's walk (``heitz.dielectric_eval_from``) carries
+    the rest of the path. Radiance mode: × 1/η_r² when ω_o is across."""
+    last = max_bounces
+    capacity = capacity_of(last)
+    eta = mi.Float(eta)
+    wi, wo = mi.Vector3f(wi), mi.Vector3f(wo)
+    outside = wi[2] > 0.0
+    same = (wo[2] > 0.0) == outside
+    e = eta_seen(eta, outside)
+    wo_l = dr.select(outside, wo, -wo)
+    lambda_o = mf.lambda_(dr.select(same, wo_l, -wo_l))
+    w0 = dr.select(outside, wi, -wi)
+    l0 = mf.abs_lambda(-w0)
+    start = (dielectric_valid(wi, eta) & dielectric_valid(wo, eta) & dr.isfinite(lambda_o) & dr.isfinite(l0)
+             & (last > 0))
+    chain0 = PieceChain.new(l0, capacity)
+
+    def body(j, w, thr, result, active, counter, refracted, h_dir, h_t, chain_state):
+        chain = PieceChain.from_state(chain_state, capacity)
+        order = j + 1
+        # Next-event estimation: phase function × exact exit probability.
+        phase = dr.select(same, heitz.dielectric_phase_reflect(mf, w, wo_l, e),
+                          heitz.dielectric_phase_transmit(mf, w, wo_l, e))
+        nee = active & (phase > 0.0)
+        exit_r = chain.exit_given_hits(lambda_o, nee & same)
+        exit_t, counter = transmit_exit(chain, lambda_o, key, counter, nee & ~same)
+        result = dr.select(nee, result + thr * phase * dr.select(same, exit_r, exit_t), result)
+        active &= order < last
+        rng = Stream(key, counter)
+        u_rr, u_f = rng.next2()
+        kept, survived = walk.russian_roulette(thr, u_rr)
+        play = j >= RR_START
+        thr = dr.select(play, kept, thr)
+        active &= ~play | survived
+        # Scatter: visible normal, reflect with probability F.
+        u1, u2 = rng.next2()
+        m, cos_wm, valid = heitz.visible_normal(mf, w, u1, u2)
+        active &= valid
+        f = heitz.fresnel_dielectric(cos_wm, e)
+        o, ok_t = heitz.refract_unit(w, m, cos_wm, e)
+        refr = active & (u_f >= f) & ok_t
+        tau, _, counter = draw_depth(chain, 0, key, rng.counter, refr)
+        refracted = refracted | refr
+        h_dir = dr.select(refr, -o, h_dir)
+        h_t = dr.select(refr, heitz.flip_height(-tau), h_t)
+        active &= ~refr
+        # Reflect, and extend the run's exit table.
+        d = dr.normalize(reflect(w, m))
+        active &= dr.all(dr.isfinite(d)) & (d[2] != 0.0)
+        up = d[2] > 0.0
+        lam = mf.lambda_(d)
+        active &= ~(up & dr.isnan(lam))
+        cont = chain.push_up(lam, active & up)
+        thr = dr.select(active & up, thr * cont, thr)
+        active &= ~up | (cont > 0.0)
+        l = mf.abs_lambda(d)
+        pushed = chain.push_down(l, active & ~up & dr.isfinite(l))
+        active &= up | pushed
+        return j + 1, -d, thr, result, active, counter, refracted, h_dir, h_t, chain.state()
+
+    state = (mi.UInt32(0), mi.Vector3f(w0), mi.Float(1.0), mi.Float(0.0), mi.Bool(start), mi.UInt32(0),
+             mi.Bool(False), mi.Vector3f(0.0, 0.0, 1.0), mi.Float(0.0), chain0.state())
+    j, _, thr, result, _, counter, refracted, h_dir, h_t, _ = dr.while_loop(
+        state, lambda *s: s[4], body, label="msx_invariance_dielectric_eval")
+    # The rest of the refracted paths: Heitz's walk from the vertex after the refraction (order j + 1).
+    rest = heitz.dielectric_eval_from(mf, eta, wo, h_dir, h_t, ~outside, j + 1, thr, refracted, last, key,
+                                      counter)
+    v = (result + dr.select(refracted, rest, 0.0)) * radiance_scale(eta, radiance, outside, wo[2] > 0.0)
+    return dr.select(dr.isfinite(v) & (v > 0.0), v, 0.0)
+
+
+def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
+    """Random-walk sampling with the heights of the first run integrated out (Rust
+    ``dielectric::sample``): leave along an upward direction with the exact conditional exit probability;
+    at the first refraction draw the vertex depth from its exact law and continue with Heitz's walk
+    (``heitz.dielectric_sample_from``). (sample1, u1, u2) drive the first vertex (Fresnel choice, visible
+    normal). Returns (ω_o, weight = 1, × 1/η_r² for a Radiance-mode transmission, valid)."""
+    last = max_bounces
+    capacity = capacity_of(last)
+    eta = mi.Float(eta)
+    wi = mi.Vector3f(wi)
+    outside = wi[2] > 0.0
+    e = eta_seen(eta, outside)
+    w0 = dr.select(outside, wi, -wi)
+    l0 = mf.abs_lambda(-w0)
+    start = dielectric_valid(wi, eta) & dr.isfinite(l0) & (last > 0)
+    chain0 = PieceChain.new(l0, capacity)
+
+    def clean(u):
+        return dr.clip(dr.select(dr.isfinite(u), u, 0.5), 0.0, ONE_MINUS)
+
+    def body(j, w, done, active, counter, ua, u1, u2, refracted, h_dir, h_t, chain_state):
+        chain = PieceChain.from_state(chain_state, capacity)
+        m, cos_wm, valid = heitz.visible_normal(mf, w, u1, u2)
+        active &= valid
+        f = heitz.fresnel_dielectric(cos_wm, e)
+        o, ok_t = heitz.refract_unit(w, m, cos_wm, e)
+        refr = active & (ua >= f) & ok_t
+        tau, _, counter = draw_depth(chain, 0, key, counter, refr)
+        refracted = refracted | refr
+        h_dir = dr.select(refr, -o, h_dir)
+        h_t = dr.select(refr, heitz.flip_height(-tau), h_t)
+        active &= ~refr
+        d = dr.normalize(reflect(w, m))
+        active &= dr.all(dr.isfinite(d)) & (d[2] != 0.0)
+        up = d[2] > 0.0
+        lam = mf.lambda_(d)
+        active &= ~(up & dr.isnan(lam))
+        cont = chain.push_up(lam, active & up)
+        rng = Stream(key, counter)
+        u_exit, c = rng.next2()
+        leaves = active & up & (u_exit >= cont)
+        done = leaves
+        l = mf.abs_lambda(d)
+        pushed = chain.push_down(l, active & ~up & dr.isfinite(l))
+        active &= (up & ~leaves) | pushed
+        active &= j + 1 < last
+        a, b = rng.next2()
+        return j + 1, -d, done, active, rng.counter, c, a, b, refracted, h_dir, h_t, chain.state()
+
+    state = (mi.UInt32(0), mi.Vector3f(w0), mi.Bool(False), mi.Bool(start), mi.UInt32(0), clean(mi.Float(sample1)),
+             clean(mi.Float(u1)), clean(mi.Float(u2)), mi.Bool(False), mi.Vector3f(0.0, 0.0, 1.0), mi.Float(0.0),
+             chain0.state())
+    j, w, done, _, counter, _, _, _, refracted, h_dir, h_t, _ = dr.while_loop(
+        state, lambda *s: s[3], body, label="msx_invariance_dielectric_sample")
+    wo_run = -dr.select(outside, w, -w)  # the run's exit direction d in the macro frame
+    # Refracted paths: the next height from the flipped one, then Heitz's walk (the refraction was
+    # vertex j; leaving at once exits along the refracted direction).
+    rng = Stream(key, counter)
+    u_h, u_a = rng.next2()
+    a, b = rng.next2()
+    t1, hit1 = heitz.sample_height(mf, h_dir, h_t, u_h)
+    inside_now = ~outside
+    leave_now = refracted & ~hit1
+    wo_h, _, done_h = heitz.dielectric_sample_from(mf, eta, h_dir, t1, inside_now, j, mi.Float(1.0),
+                                                   refracted & hit1, last, key, rng.counter, u_a, a, b)
+    wo_now = dr.select(inside_now, h_dir, -h_dir)
+    wo = dr.select(refracted, dr.select(leave_now, wo_now, wo_h), wo_run)
+    valid = dr.select(refracted, dr.select(leave_now, mi.Bool(True), done_h), done)
+    valid &= dr.all(dr.isfinite(wo)) & (wo[2] != 0.0)
+    return wo, radiance_scale(eta, radiance, outside, wo[2] > 0.0), valid
+
+
 # The conductor walk this module provides (jit/bsdf.py collects it): height-correlated order-1 exit in
 # the MIS density, and no walk from below the macro surface (the core's eval and sample need ω_i up).
 CONDUCTOR_WALKS = {"invariance": ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, below=False)}
+# The walks on the other microsurfaces (MIS densities: ``mis.diffuse_pdf``, ``mis.dielectric_pdf``).
+DIFFUSE_WALKS = {"invariance": DiffuseWalk(diffuse_eval, diffuse_sample)}
+DIELECTRIC_WALKS = {"invariance": DielectricWalk(dielectric_eval, dielectric_sample)}

@@ -16,21 +16,29 @@ import mitsuba as mi
 from .._params import PLUGIN, MsxParameterError
 from .._plugin_base import make_base_class, make_factory, native_channels
 from .._vectorized_config import vectorized_config
-from . import analytic, heitz, mis, posfree, posfree_dielectric, single
+from . import analytic, auto, heitz, invariance, mis, posfree, posfree_dielectric
 from .microfacet import ConductorFresnel, Microfacet
 from .rng import hash_words
 
 # The random walks of the engine, by surface and model name: each model module provides its own table.
-CONDUCTOR_WALKS = {**posfree.CONDUCTOR_WALKS, **heitz.CONDUCTOR_WALKS}
+CONDUCTOR_WALKS = {**posfree.CONDUCTOR_WALKS, **heitz.CONDUCTOR_WALKS, **invariance.CONDUCTOR_WALKS}
 CONDUCTOR_ANALYTIC = {**analytic.CONDUCTOR_ANALYTIC}
-DIELECTRIC_WALKS = {**posfree_dielectric.DIELECTRIC_WALKS}
-DIFFUSE_WALKS = {**posfree.DIFFUSE_WALKS}
+DIELECTRIC_ANALYTIC = {**analytic.DIELECTRIC_ANALYTIC}
+DIELECTRIC_WALKS = {**posfree_dielectric.DIELECTRIC_WALKS, **heitz.DIELECTRIC_WALKS, **invariance.DIELECTRIC_WALKS}
+DIFFUSE_WALKS = {**posfree.DIFFUSE_WALKS, **heitz.DIFFUSE_WALKS, **invariance.DIFFUSE_WALKS}
+
+
+
+def _with_auto(models):
+    """``auto`` runs wherever ``correlated`` does (it is ``correlated`` with a per-lane bounce cap)."""
+    return models + (("auto",) if "correlated" in models else ())
+
 
 # The models the engine runs, per surface (the others are refused with a message naming the alternatives).
 ENGINE_MODELS = {
-    "conductor": tuple(CONDUCTOR_ANALYTIC) + tuple(CONDUCTOR_WALKS),
-    "dielectric": ("single",) + tuple(DIELECTRIC_WALKS),
-    "diffuse": tuple(DIFFUSE_WALKS),
+    "conductor": _with_auto(tuple(CONDUCTOR_ANALYTIC) + tuple(CONDUCTOR_WALKS)),
+    "dielectric": _with_auto(tuple(DIELECTRIC_ANALYTIC) + tuple(DIELECTRIC_WALKS)),
+    "diffuse": _with_auto(tuple(DIFFUSE_WALKS)),
 }
 
 # Largest material value the core accepts (src/bsdf.rs, MATERIAL_VALUE_MAX).
@@ -55,6 +63,11 @@ def engine_support(cfg):
             "symbolic loops off for the process" % (PLUGIN, what, cfg.surface, cfg.surface, runs))
 
 
+def walk_name(cfg):
+    """The walk a model runs: ``auto`` is ``correlated`` with a per-lane bounce cap."""
+    return "correlated" if cfg.model == "auto" else cfg.model
+
+
 class Call:
     """What one BSDF call gives a model (twin of ``Call`` in src/models/mod.rs): the microfacet statistics
     and the microsurface's material at the hit, Mitsuba's tints, the transport mode and whether the
@@ -70,16 +83,23 @@ class ConductorModel:
     its MIS density."""
 
     def __init__(self, cfg):
-        self.walk = CONDUCTOR_WALKS.get(cfg.model)  # None: an analytic model
+        self.walk = CONDUCTOR_WALKS.get(walk_name(cfg))  # None: an analytic model
         self.analytic = CONDUCTOR_ANALYTIC.get(cfg.model)
         self.max_bounces = cfg.max_bounces or DEFAULT_MAX_BOUNCES
+        self.rule = auto.OrderOneRule("conductor", cfg.distribution, cfg.auto_tolerance) if cfg.model == "auto" else None
+
+    def bounces(self, call, wi):
+        """The bounce cap of each lane (``auto``: 1 where order 1 suffices; ω_i below: the full model)."""
+        if self.rule is None:
+            return self.max_bounces
+        return auto.cap(self.rule, call.mf, wi[2], self.max_bounces, full=wi[2] >= 0.0)
 
     def eval_pdf(self, call, wi, wo, key, want_value=True, want_pdf=True):
         walk, mf = self.walk, call.mf
         if walk is None:
             value, pdf = self.analytic.eval_pdf(mf, call.fresnel, wi, wo)
         else:
-            value = walk.eval_pt(mf, call.fresnel, wi, wo, self.max_bounces, key) if want_value else None
+            value = walk.eval_pt(mf, call.fresnel, wi, wo, self.bounces(call, wi), key) if want_value else None
             pdf = mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo) if want_pdf else None
         return (value * call.tint_r if want_value else None), pdf
 
@@ -89,7 +109,7 @@ class ConductorModel:
         if walk is None:
             wo, pdf, weight, valid = self.analytic.sample(mf, call.fresnel, wi, u1, u2)
         else:
-            wo, weight, valid = walk.sample_walk(mf, call.fresnel, wi, s1, u1, u2, self.max_bounces, key)
+            wo, weight, valid = walk.sample_walk(mf, call.fresnel, wi, s1, u1, u2, self.bounces(call, wi), key)
             pdf = mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo)
         return wo, pdf, weight * call.tint_r, valid
 
@@ -99,8 +119,19 @@ class DielectricModel:
     channel, tinted by ``specular_reflectance`` or ``specular_transmittance``."""
 
     def __init__(self, cfg):
-        self.walk = DIELECTRIC_WALKS.get(cfg.model)
+        self.walk = DIELECTRIC_WALKS.get(walk_name(cfg))  # None: an analytic model
+        self.analytic = DIELECTRIC_ANALYTIC.get(cfg.model)
         self.max_bounces = cfg.max_bounces or DEFAULT_MAX_BOUNCES
+        self.rules = None
+        if cfg.model == "auto":  # the relative IOR seen from ω_i: η outside, 1/η inside
+            self.rules = tuple(auto.OrderOneRule("dielectric", cfg.distribution, cfg.auto_tolerance, e)
+                               for e in (cfg.ior, 1.0 / cfg.ior))
+
+    def bounces(self, call, wi):
+        if self.rules is None:
+            return self.max_bounces
+        outside, inside = (auto.cap(r, call.mf, dr.abs(wi[2]), self.max_bounces) for r in self.rules)
+        return dr.select(wi[2] > 0.0, outside, inside)
 
     @staticmethod
     def tinted(call, wi, wo, value):
@@ -111,20 +142,20 @@ class DielectricModel:
         value = pdf = None
         if want_value:
             if walk is None:
-                value = single.dielectric_eval(mf, eta, wi, wo, call.radiance)
+                value = self.analytic.eval(mf, eta, call.radiance, wi, wo)
             else:
-                value = walk.eval_pt(mf, eta, call.radiance, wi, wo, self.max_bounces, key)
+                value = walk.eval_pt(mf, eta, call.radiance, wi, wo, self.bounces(call, wi), key)
             value = self.tinted(call, wi, wo, value)
         if want_pdf:
-            pdf = single.dielectric_pdf(mf, eta, wi, wo) if walk is None else mis.dielectric_pdf(mf, eta, wi, wo)
+            pdf = self.analytic.pdf(mf, eta, wi, wo) if walk is None else mis.dielectric_pdf(mf, eta, wi, wo)
         return value, pdf
 
     def sample(self, call, wi, s1, u1, u2, key):
         walk, mf, eta = self.walk, call.mf, call.eta
         if walk is None:
-            wo, pdf, weight, valid = single.dielectric_sample(mf, eta, wi, s1, u1, u2, call.radiance)
+            wo, pdf, weight, valid = self.analytic.sample(mf, eta, call.radiance, wi, s1, u1, u2)
         else:
-            wo, weight, valid = walk.sample_walk(mf, eta, call.radiance, wi, s1, u1, u2, self.max_bounces, key)
+            wo, weight, valid = walk.sample_walk(mf, eta, call.radiance, wi, s1, u1, u2, self.bounces(call, wi), key)
             pdf = mis.dielectric_pdf(mf, eta, wi, wo)
         return wo, pdf, self.tinted(call, wi, wo, weight), valid
 
@@ -133,15 +164,21 @@ class DiffuseModel:
     """A walk on Lambertian facets with a cosine-lobe MIS density."""
 
     def __init__(self, cfg):
-        self.walk = DIFFUSE_WALKS[cfg.model]
+        self.walk = DIFFUSE_WALKS[walk_name(cfg)]
         self.max_bounces = cfg.max_bounces or DEFAULT_MAX_BOUNCES
+        self.rule = auto.OrderOneRule("diffuse", cfg.distribution, cfg.auto_tolerance) if cfg.model == "auto" else None
+
+    def bounces(self, call, wi):
+        if self.rule is None:
+            return self.max_bounces
+        return auto.cap(self.rule, call.mf, wi[2], self.max_bounces)
 
     def eval_pdf(self, call, wi, wo, key, want_value=True, want_pdf=True):
-        value = self.walk.eval_pt(call.mf, call.albedo, wi, wo, self.max_bounces, key) if want_value else None
+        value = self.walk.eval_pt(call.mf, call.albedo, wi, wo, self.bounces(call, wi), key) if want_value else None
         return value, (mis.diffuse_pdf(wi, wo) if want_pdf else None)
 
     def sample(self, call, wi, s1, u1, u2, key):
-        wo, weight, valid = self.walk.sample_walk(call.mf, call.albedo, wi, s1, u1, u2, self.max_bounces, key)
+        wo, weight, valid = self.walk.sample_walk(call.mf, call.albedo, wi, s1, u1, u2, self.bounces(call, wi), key)
         return wo, mis.diffuse_pdf(wi, wo), weight, valid
 
 

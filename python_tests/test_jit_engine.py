@@ -373,8 +373,9 @@ def test_bad_parameter_same_message_as_scalar():
 def test_models_outside_the_engine_are_named():
     """A model the engine does not run yet is refused at load with the parameter, the models it runs and
     the alternatives."""
-    with pytest.raises(Exception, match="estimator='bdpt'.*backend='batched'"):
-        mi.load_dict({"type": "msx_posfree", "alpha": 0.3, "model": "correlated", "estimator": "bdpt"})
+    with pytest.raises(Exception, match="estimator='bdpt' on surface 'diffuse'.*backend='batched'"):
+        mi.load_dict({"type": "msx_posfree", "surface": "diffuse", "alpha": 0.3, "model": "correlated",
+                      "estimator": "bdpt"})
 
 
 # A fresh process: the flags a user had stay untouched; a built-in scene renders in the same mode.

@@ -378,6 +378,17 @@ def test_models_outside_the_engine_are_named():
                       "estimator": "bdpt"})
 
 
+def test_local_array_walks_are_refused_in_scenes(monkeypatch):
+    """The invariance walks keep per-path arrays (dr.alloc_local), which drjit 1.5's LLVM backend cannot
+    compile inside Mitsuba's BSDF calls (it aborts the process): a scene asking for one is refused at load
+    with a message, instead of a crash at render time."""
+    import msx.jit.bsdf
+
+    monkeypatch.setattr(msx.jit.bsdf, "ALLOW_LOCAL_ARRAYS", False)
+    with pytest.raises(Exception, match="model='invariance' on surface 'diffuse'.*alloc_local.*scalar_rgb"):
+        mi.load_dict({"type": "msx_posfree", "surface": "diffuse", "alpha": 0.3, "model": "invariance"})
+
+
 # A fresh process: the flags a user had stay untouched; a built-in scene renders in the same mode.
 _FLAGS_SCRIPT = textwrap.dedent("""
     import drjit as dr, mitsuba as mi

@@ -49,18 +49,49 @@ DEFAULT_MAX_BOUNCES = 64
 INDEX_MATCHED = 1e-6
 
 
+def bdpt_models(surface):
+    """The models whose bidirectional estimator the engine runs on a surface."""
+    walks = CONDUCTOR_WALKS if surface == "conductor" else {}
+    return tuple(name for name, w in walks.items() if getattr(w, "eval_bdpt", None) is not None)
+
+
+# Walks that keep per-path arrays in dr.alloc_local: drjit 1.5's LLVM backend fails to compile a local
+# array inside a symbolic call ("use of undefined value '%arr_1'", then an abort), and Mitsuba calls every
+# BSDF through one, so a scene cannot use them (docs/engines.md, "What runs where").
+WALKS_BY_SURFACE = {"conductor": CONDUCTOR_WALKS, "dielectric": DIELECTRIC_WALKS, "diffuse": DIFFUSE_WALKS}
+
+
+# Direct calls of a BSDF's methods (outside a render: tests, studies) compile local arrays fine; setting
+# this to True lets such walks load for them.
+ALLOW_LOCAL_ARRAYS = False
+
+
+def needs_local_arrays(cfg):
+    walk = WALKS_BY_SURFACE.get(cfg.surface, {}).get(walk_name(cfg))
+    return bool(getattr(walk, "needs_local_arrays", False)) and not ALLOW_LOCAL_ARRAYS
+
+
 def engine_support(cfg):
     """None when the engine runs this configuration, else the message that says what to do instead."""
+    if needs_local_arrays(cfg):
+        return ("%s: model='%s' on surface '%s' keeps per-path arrays (dr.alloc_local), which drjit 1.5's LLVM "
+                "backend cannot compile inside Mitsuba's BSDF calls; render it in a scalar variant (scalar_rgb: "
+                "the native back end), or register the batched route, msx.register(backend='batched'), which "
+                "turns drjit's symbolic loops off for the process" % (PLUGIN, cfg.model, cfg.surface))
     models = ENGINE_MODELS.get(cfg.surface, ())
     if cfg.model in models and cfg.estimator == "pt":
+        return None
+    if cfg.estimator == "bdpt" and cfg.model in bdpt_models(cfg.surface):
         return None
     what = "model='%s'" % cfg.model if cfg.estimator == "pt" else "model='%s' with estimator='%s'" % (
         cfg.model, cfg.estimator)
     runs = ", ".join(models) if models else "none yet"
     return ("%s: %s on surface '%s' does not run in the Dr.Jit engine of the vectorized variants yet (there, "
-            "surface '%s' runs: %s, with estimator 'pt'); render it in a scalar variant (scalar_rgb: the native "
-            "back end), or register the batched route, msx.register(backend='batched'), which turns drjit's "
-            "symbolic loops off for the process" % (PLUGIN, what, cfg.surface, cfg.surface, runs))
+            "surface '%s' runs: %s with estimator 'pt'%s); render it in a scalar variant (scalar_rgb: the "
+            "native back end), or register the batched route, msx.register(backend='batched'), which turns "
+            "drjit's symbolic loops off for the process"
+            % (PLUGIN, what, cfg.surface, cfg.surface, runs,
+               ", and %s with 'bdpt'" % ", ".join(bdpt_models(cfg.surface)) if bdpt_models(cfg.surface) else ""))
 
 
 def walk_name(cfg):
@@ -85,6 +116,9 @@ class ConductorModel:
     def __init__(self, cfg):
         self.walk = CONDUCTOR_WALKS.get(walk_name(cfg))  # None: an analytic model
         self.analytic = CONDUCTOR_ANALYTIC.get(cfg.model)
+        self.estimate = None
+        if self.walk is not None:
+            self.estimate = self.walk.eval_bdpt if cfg.estimator == "bdpt" else self.walk.eval_pt
         self.max_bounces = cfg.max_bounces or DEFAULT_MAX_BOUNCES
         self.rule = auto.OrderOneRule("conductor", cfg.distribution, cfg.auto_tolerance) if cfg.model == "auto" else None
 
@@ -99,7 +133,7 @@ class ConductorModel:
         if walk is None:
             value, pdf = self.analytic.eval_pdf(mf, call.fresnel, wi, wo)
         else:
-            value = walk.eval_pt(mf, call.fresnel, wi, wo, self.bounces(call, wi), key) if want_value else None
+            value = self.estimate(mf, call.fresnel, wi, wo, self.bounces(call, wi), key) if want_value else None
             pdf = mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo) if want_pdf else None
         return (value * call.tint_r if want_value else None), pdf
 

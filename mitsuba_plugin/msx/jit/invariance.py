@@ -3,7 +3,9 @@ engine, PT estimators on the three microsurfaces: conductor facets (twin of
 ``src/models/invariance/conductor.rs``, ``eval``/``sample``, with the incremental exit table
 ``MonotoneExit`` of ``recursion.rs``), Lambertian facets (``general.rs``: the complete recursion
 ``ExitTable``) and the rough dielectric (``dielectric.rs``: the exact depth law ``PieceChain`` of the first
-run, Heitz's walk of jit/heitz.py after the first refraction). The BDPT estimator is not ported.
+run, Heitz's walk of jit/heitz.py after the first refraction). On conductor facets also the BDPT estimator
+(``eval_bdpt``: the position-free conductor's of jit/posfree.py with the whole path's exit probability,
+``WholePath``; the other microsurfaces have none in the core either).
 
 Lambertian facets: their paths are not monotone in z, so the exit probabilities need the whole triangle
 p(i, j) of ``ExitTable`` (O(m²) per lane): it lives in a ``dr.alloc_local`` buffer of (m+1)(m+2)/2 entries
@@ -211,33 +213,47 @@ def eval(mf, fresnel, wi, wo, max_bounces, key):
     pdf_scale_o = 0.25 / (wo[2] * (1.0 + lambda_o))
     connects = not isinstance(last, int) or last >= 2  # per lane: masked by order < last below
     rng0 = Stream(key)
+    light = None
     if connects:
         u1, u2 = rng0.next2()
         light = LightVertex(mf, fresnel, wo, pdf_scale_o, u1, u2)
         light.lambda_o = lambda_o
     l0 = mf.abs_lambda(-wi)
     dp0 = MonotoneExit.new(l0, capacity)
+    return walk_from(mf, fresnel, wo, lambda_o, light, CONNECT_MAX_ORDER, mi.Vector3f(wi), 0.25 / (wi[2] * l0),
+                     mi.Spectrum(1.0), dp0, start, 0, last, capacity, key, rng0.counter)
+
+
+def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, dp0, active, first_vertex, last,
+              capacity, key, counter, label="msx_invariance_conductor_eval"):
+    """The walk of ``eval`` from vertex ``first_vertex`` on (twin of ``Walk::from``), arriving there with
+    w = −d_m, ``pdf_scale`` = 1/(4 A(w)), the throughput Π F · H_m and the exit table ``dp0`` of d_0..d_m,
+    on the lanes ``active``; orders up to ``last``. ``light`` (a ``LightVertex`` with ``lambda_o`` set, or
+    None) and ``connect_max``: the connection strategy for orders 2..connect_max (none with None and 0: the
+    BDPT's tail). The lane's stream is (``key``, ``counter``)."""
+    connects = light is not None
 
     def body(j, w, pdf_scale, pdf_walk, thr, result, active, counter, dp_state):
         rng = Stream(key, counter)
         dp = MonotoneExit.from_state(dp_state, capacity)
         order = j + 1
         # NEE: D(h)/(4 A(w)) · F · p_exit(d_0..d_m, ω_o)/H_m, with the balance heuristic against the
-        # connection for orders 2..CONNECT_MAX_ORDER.
+        # connection for orders 2..connect_max.
         d_h, cos_wh = half_vector_d(mf, w, wo)
         value = d_h * pdf_scale
         lambda_y = light.l_y if connects else mi.Float(0.0)
         col_o, via_up = dp.columns(lambda_o, lambda_y, active)
-        mis_w = (j > 0) & (order <= CONNECT_MAX_ORDER) & (value > 0.0)
-        p_rev = d_h * pdf_scale_o
-        value = dr.select(mis_w, value * (pdf_walk / (pdf_walk + p_rev)), value)
+        if connects:
+            mis_w = (j > 0) & (order <= connect_max) & (value > 0.0)
+            p_rev = d_h * (0.25 / (wo[2] * (1.0 + lambda_o)))
+            value = dr.select(mis_w, value * (pdf_walk / (pdf_walk + p_rev)), value)
         ok = (value > 0.0) & dr.isfinite(value)
         result = dr.select(active & ok, result + thr * fresnel.eval(cos_wh) * (value * col_o), result)
         active &= order < last
         # The connection for order + 1: d_{m+1} = y from the side of ω_o.
         if connects:
             conn = light.connect(mf, fresnel, dp.has_up, w, pdf_scale, via_up, col_o)
-            conn_on = active & (order < CONNECT_MAX_ORDER)
+            conn_on = active & (order < connect_max)
             result = dr.select(conn_on, result + thr * conn, result)
         # Russian roulette on Π F · H_m, after the vertex's estimates.
         u_rr, _ = rng.next2()
@@ -255,7 +271,8 @@ def eval(mf, fresnel, wi, wo, max_bounces, key):
         # Along the upward run z only grows: once an upward d.z ≥ ω_o.z no later vertex reaches ω_o.
         active &= ~(up & (d_next[2] >= wo[2]))
         thr = thr * fresnel.eval(cos_wm)
-        pdf_walk = dr.select(order < CONNECT_MAX_ORDER, mf.d(m) * pdf_scale, pdf_walk)
+        if connects:
+            pdf_walk = dr.select(order < connect_max, mf.d(m) * pdf_scale, pdf_walk)
         l_up = mf.lambda_(d_next)
         l_down = mf.abs_lambda(d_next)
         l_next = dr.select(up, l_up, l_down)
@@ -269,10 +286,117 @@ def eval(mf, fresnel, wi, wo, max_bounces, key):
         pdf_scale = 0.25 / (dr.abs(d_next[2]) * l_next)
         return j + 1, w, pdf_scale, pdf_walk, thr, result, active, rng.counter, dp.state()
 
-    state = (mi.UInt32(0), mi.Vector3f(wi), 0.25 / (wi[2] * l0), mi.Float(0.0), mi.Spectrum(1.0),
-             dr.zeros(mi.Spectrum), mi.Bool(start), mi.UInt32(rng0.counter), dp0.state())
-    state = dr.while_loop(state, lambda *s: s[6], body, label="msx_invariance_conductor_eval")
+    width = dr.width(w)
+    state = (mi.UInt32(first_vertex), mi.Vector3f(w), mi.Float(pdf_scale), mi.Float(0.0), mi.Spectrum(thr),
+             dr.zeros(mi.Spectrum, width), mi.Bool(active), mi.UInt32(counter), dp0.state())
+    state = dr.while_loop(state, lambda *s: s[6], body, label=label)
     return state[5]
+
+
+# ------------------------------------------------------------------ the bidirectional estimator
+# Cui 2023: "the bidirectional estimator is the same as Wang et al. except for the segment term" — the
+# position-free conductor's (jit/posfree.py ``Bidirectional`` on jit/bdpt.py) with ``WholePath`` as its
+# segment term (twin of ``WholePath`` in conductor.rs): bare pair factors 1/L_j, the exit probability of the
+# whole path d_0..d_s, e_t..e_1, ω_o at each connection, this model's walk above K_b.
+
+
+class SmallExit:
+    """``MonotoneExit`` of at most ``n`` directions unrolled at trace time (the paths of the BDPT's
+    connections have at most K_b directions before ω_o), per lane: Python lists of the |Λ| of the downward
+    run and of g (normalised by the hit probability, as the Rust's), the run length ``a`` (UInt32),
+    ``has_up`` and the hit probability ``hit``. Slot i < a holds the run's i-th direction."""
+
+    def __init__(self, l0, n):
+        self.n = n
+        self.down = [mi.Float(l0)] + [mi.Float(1.0) for _ in range(n - 1)]
+        self.g = [mi.Float(0.0) for _ in range(n)]
+        self.a = mi.UInt32(1)
+        self.has_up = mi.Bool(False)
+        self.hit = mi.Float(1.0)
+
+    def push_down(self, l, active):
+        """Appends a downward direction where ``active``; False where that makes the path non-monotone."""
+        ok = active & ~self.has_up
+        for i in range(1, self.n):
+            self.down[i] = dr.select(ok & (self.a == i), l, self.down[i])
+        self.a = dr.select(ok, self.a + 1, self.a)
+        return ok | ~active
+
+    def push_up(self, lam, active):
+        """Appends an upward direction with Λ = ``lam`` where ``active`` (``push_up``)."""
+        was_up = self.has_up
+        c, cont = dr.select(was_up, 0.0, 1.0), mi.Float(0.0)
+        g_new = list(self.g)
+        for i in reversed(range(self.n)):
+            run = self.a > i
+            li = self.down[i]
+            gi = dr.select(was_up, self.g[i], 0.0)
+            c = dr.select(run, (li * c + gi) / (li + lam), c)
+            gv = lam * c
+            g_new[i] = gv
+            cont = dr.select(run, cont + gv / li, cont)
+        good = (cont > 0.0) & dr.isfinite(cont)
+        for i in range(self.n):
+            self.g[i] = dr.select(active, dr.select(good, g_new[i] / cont, g_new[i]), self.g[i])
+        self.hit = dr.select(active, dr.select(good, self.hit * cont, 0.0), self.hit)
+        self.has_up = self.has_up | active
+
+    def exit_probability(self, lam):
+        """p_exit(d_0..d_m, x) for an upward x with Λ(x) = ``lam``: H_m times the column."""
+        c = dr.select(self.has_up, 0.0, 1.0)
+        for i in reversed(range(self.n)):
+            li = self.down[i]
+            gi = dr.select(self.has_up, self.g[i], 0.0)
+            c = dr.select(self.a > i, (li * c + gi) / (li + lam), c)
+        return self.hit * c
+
+
+class WholePath:
+    """The segment term of the invariance model for jit/posfree.py's ``Bidirectional``."""
+
+    def cont(self, l, nxt, l_next):
+        return mi.Float(1.0)
+
+    def last(self, l, lambda_o):
+        return 1.0 / l
+
+    def whole_path(self, surface, cam, light):
+        """(p_exit of d_0..d_s, e_t, …, e_1, ω_o, monotone) (``exit_table`` + ``exit_probability``)."""
+        dirs = [(c.l, c.d) for c in cam] + [(v.l, v.e) for v in reversed(light[1:])]
+        dp = SmallExit(dirs[0][0], len(dirs))
+        ok = mi.Bool(True)
+        for l, d in dirs[1:]:
+            up = d[2] > 0.0
+            dp.push_up(l, up)
+            ok &= dp.push_down(l, ~up)
+        return dp.exit_probability(surface.lambda_o), ok
+
+    def pt_tail(self, surface, cam, ready, kb, orders, rng):
+        """Orders above K_b: the walk of ``eval`` without its connection strategy from camera vertex K_b,
+        with the exit table of d_0..d_{K_b} and the throughput Π F · H_{K_b}."""
+        last = orders[1]
+        capacity = capacity_of(last)
+        dp = MonotoneExit.new(cam[0].l, capacity)
+        hit, ok = mi.Float(1.0), mi.Bool(ready)
+        for c in cam[1 : kb + 1]:
+            up = c.d[2] > 0.0
+            cont = dp.push_up(c.l, ok & up)
+            hit = dr.select(up, hit * cont, hit)
+            ok &= up | dp.push_down(c.l, ok & ~up)
+        cv = cam[kb]
+        return walk_from(surface.mf, surface.fresnel, surface.wo, surface.lambda_o, None, 0, -cv.d,
+                         0.25 / cv.area_back, cv.thr * hit, dp, ok, kb, last, capacity, rng.key, rng.counter,
+                         label="msx_invariance_conductor_bdpt_tail")
+
+
+def eval_bdpt(mf, fresnel, wi, wo, max_bounces, key):
+    """BDPT estimate of f(ω_i, ω_o)·cos θ_o of the invariance model (twin of ``eval_bdpt``): orders up to
+    K_b = ``bdpt.DEFAULT_BDPT_ORDERS`` bidirectionally, higher ones by the walk of ``eval`` (without its
+    connection strategy). ``max_bounces``: a Python int."""
+    from .posfree import estimate_bdpt_above
+
+    active = valid_direction(wi) & valid_direction(wo) & dr.isfinite(mf.lambda_(wo))
+    return estimate_bdpt_above(mf, fresnel, WholePath(), wi, wo, active, max_bounces, key)
 
 
 def sample(mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
@@ -811,7 +935,14 @@ def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
 
 # The conductor walk this module provides (jit/bsdf.py collects it): height-correlated order-1 exit in
 # the MIS density, and no walk from below the macro surface (the core's eval and sample need ω_i up).
-CONDUCTOR_WALKS = {"invariance": ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, below=False)}
+CONDUCTOR_WALKS = {"invariance": ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, below=False,
+                                              eval_bdpt=eval_bdpt)}
 # The walks on the other microsurfaces (MIS densities: ``mis.diffuse_pdf``, ``mis.dielectric_pdf``).
 DIFFUSE_WALKS = {"invariance": DiffuseWalk(diffuse_eval, diffuse_sample)}
 DIELECTRIC_WALKS = {"invariance": DielectricWalk(dielectric_eval, dielectric_sample)}
+
+# These walks keep per-path arrays in ``dr.alloc_local``, which drjit 1.5's LLVM backend cannot compile
+# inside a symbolic call — and Mitsuba calls every BSDF through one (docs/engines.md): jit/bsdf.py refuses
+# them in scenes. They run, and are tested against the core, when called directly (python_tests/).
+for _walk in (*CONDUCTOR_WALKS.values(), *DIFFUSE_WALKS.values(), *DIELECTRIC_WALKS.values()):
+    _walk.needs_local_arrays = True

@@ -13,11 +13,14 @@ class ConductorWalk:
     - ``eval_pt(mf, fresnel, wi, wo, max_bounces, key)`` → one estimate of f·cos θ_o (mi.Spectrum);
     - ``sample_walk(mf, fresnel, wi, sample1, u1, u2, max_bounces, key)`` → (ω_o, weight, valid);
     - ``exit``: the order-1 exit of its MIS density (``mis.SEPARABLE`` or ``mis.HEIGHT_CORRELATED``);
-    - ``below``: whether the walk also starts below the macro surface (normal mapping).
+    - ``below``: whether the walk also starts below the macro surface (normal mapping);
+    - ``eval_bdpt`` (optional, same signature as ``eval_pt``): the bidirectional estimator, None where the
+      engine has none (the scene is then refused with a message).
     """
 
-    def __init__(self, eval_pt, sample_walk, exit, below):
+    def __init__(self, eval_pt, sample_walk, exit, below, eval_bdpt=None):
         self.eval_pt, self.sample_walk, self.exit, self.below = eval_pt, sample_walk, exit, below
+        self.eval_bdpt = eval_bdpt
 
 
 class ConductorAnalytic:

@@ -1,6 +1,7 @@
 """Position-free multiple scattering, Wang et al. 2022, in the Dr.Jit engine: twin of
 ``src/models/posfree/`` (``mod.rs``: the segment factors and the roulette; ``conductor.rs``: the PT
-estimator with next-event estimation and the random-walk sampler).
+estimator with next-event estimation, the random-walk sampler and the vertex terms of the bidirectional
+estimator, whose strategies are in jit/bdpt.py).
 
 A path is d_0 = −ω_i, …, d_k = ω_o; with L_j = |Λ(d_j)| the pair factors of the segment models are
 (``mod.rs`` has the table and its derivation):
@@ -19,7 +20,7 @@ from functools import partial
 import drjit as dr
 import mitsuba as mi
 
-from . import mis, walk
+from . import bdpt, mis, walk
 from .model import ConductorWalk, DiffuseWalk
 from .microfacet import INV_PI, dot, max_channel, reflect
 from .rng import Stream
@@ -69,6 +70,21 @@ def eval_pt(segments, mf, fresnel, wi, wo, max_bounces, key):
     ω_i may lie below the macro surface (normal mapping); ω_o must point up."""
     lambda_o = mf.lambda_(wo)
     start = (wi[2] != 0.0) & (wo[2] > 0.0)
+    width = dr.width(wi)
+    # Vertex 0: light arrives from ω_i, L_0 = |Λ(d_0)| = |Λ(−ω_i)| (1 + Λ(ω_i) for ω_i above).
+    return pt_walk(segments, mf, fresnel, wo, lambda_o, mi.Vector3f(wi), mf.abs_lambda(-wi),
+                   dr.full(mi.Spectrum, 1.0, width), start, 0, max_bounces, RR_START, key, mi.UInt32(0))
+
+
+def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex, max_bounces, rr_start, key,
+            counter, label="msx_posfree_conductor_pt"):
+    """The PT-with-NEE walk (twin of ``pt_walk`` in conductor.rs) from vertex ``first_vertex`` (0-based;
+    a Python int or a UInt32 per lane) on, arriving there with the state (w = −d_j, l = L_j, ``thr`` the
+    prefix throughput) on the lanes ``active``: at each vertex ≥ ``rr_start`` play Russian roulette on the
+    vertex's importance (its next-event value included), close the path towards ω_o, then sample the next
+    direction from the visible normals and multiply the Fresnel term and the continue factor; orders up to
+    ``max_bounces``. The lane's stream is (``key``, ``counter``). Shared by ``eval_pt`` and the PT tail of
+    the bidirectional estimator. Returns the estimate (mi.Spectrum)."""
 
     def body(j, w, l, thr, result, active, counter):
         rng = Stream(key, counter)
@@ -78,7 +94,7 @@ def eval_pt(segments, mf, fresnel, wi, wo, max_bounces, key):
         u_rr, _ = rng.next2()
         kept_thr, survived = walk.russian_roulette_keep(
             thr, u_rr, 1.0 / roulette_importance(nee, last_factor, RR_NEE_GAIN))
-        play = j >= RR_START
+        play = j >= rr_start
         thr = dr.select(play, kept_thr, thr)
         active &= ~play | survived
         result = dr.select(active & nee_ok, result + thr * fresnel.eval(cos_wh) * nee, result)
@@ -95,10 +111,10 @@ def eval_pt(segments, mf, fresnel, wi, wo, max_bounces, key):
         active &= valid & (cos_wm > 0.0)
         return j + 1, -d_next, lam, thr, result, active, rng.counter
 
-    width = dr.width(wi)
-    state = (mi.UInt32(0), mi.Vector3f(wi), mf.abs_lambda(-wi), dr.full(mi.Spectrum, 1.0, width),
-             dr.zeros(mi.Spectrum, width), mi.Bool(start), mi.UInt32(0))
-    state = dr.while_loop(state, lambda *s: s[5], body, label="msx_posfree_conductor_pt")
+    width = dr.width(thr)
+    state = (mi.UInt32(first_vertex), mi.Vector3f(w), mi.Float(l), mi.Spectrum(thr),
+             dr.zeros(mi.Spectrum, width), mi.Bool(active), mi.UInt32(counter))
+    state = dr.while_loop(state, lambda *s: s[5], body, label=label)
     return state[4]
 
 
@@ -130,6 +146,214 @@ def sample_walk(segments, mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
     state = dr.while_loop(state, lambda *s: s[5], body, label="msx_posfree_conductor_sample")
     wo = -state[1]
     return wo, state[3], state[4]
+
+
+# ------------------------------------------------------------------ the bidirectional estimator
+# (Wang 2022 §4.2, eqs. 27–29; conductor.rs ``Bidirectional``, jit/bdpt.py the strategies)
+#
+# With L_j = |Λ(d_j)| and the pair factors above, eq. 1 factors into one term per vertex j:
+#   f = Π φ_j(d_j, d_{j+1}),  φ_j = F_j·D(h_j)/(4|cos d_j|)·g_j,  h_j = normalize(−d_j + d_{j+1}),
+#   g_j = cont(L_j, d_{j+1})/L_j (j < k−1),  g_{k−1} = last(L_{k−1}, Λ(ω_o)).
+# Densities (solid angle), A(ω) the projected area (A(−d_j) = |cos d_j|·L_j):
+#   camera step at j: pf_j = D(h_j)/(4 A(−d_j)), so φ_j/pf_j = F_j·cont;
+#   light step at j:  pr_j = D(h_j)/(4 A(d_{j+1})), so φ_j/pr_j = F_j·A(d_{j+1})·g_j/|cos d_j|.
+
+
+def smith(mf, d):
+    """(L = |Λ(d)|, A(d), A(−d)) of a direction from one Λ evaluation (twin of ``smith``), without
+    cancellation: u = Λ of the upward direction with the same slope."""
+    u = mf.lambda_up(mf.alpha_tan2(d))
+    c = dr.abs(d[2])
+    up = d[2] >= 0.0
+    return (dr.select(up, u, 1.0 + u), dr.select(up, c * (1.0 + u), c * u), dr.select(up, c * u, c * (1.0 + u)))
+
+
+def cont(segments, l, nxt, l_next):
+    """g_j·L_j of a middle vertex: the continue factor of an upward next direction, 1 for a downward one."""
+    return dr.select(nxt[2] > 0.0, continue_up(segments, l, l_next), 1.0)
+
+
+class CamVertex:
+    """A camera vertex: d_s, L_s, A(−d_s) and the prefix f/p (Π F·cont)."""
+
+    def __init__(self, d, l, area_back, thr):
+        self.d, self.l, self.area_back, self.thr = d, l, area_back, thr
+
+
+class LightVertex:
+    """A light vertex: e_t = d_{k−t}, |Λ(e_t)|, A(e_t) and Π φ/pr of its t steps."""
+
+    def __init__(self, e, l, area, w):
+        self.e, self.l, self.area, self.w = e, l, area, w
+
+
+class PairSegments:
+    """Wang's segment models as the bidirectional estimator uses them (twin of ``ConductorSegments for
+    Segments``): pair factors along the path, no whole-path factor, the PT tail is ``pt_walk``."""
+
+    whole_path = None
+
+    def __init__(self, segments):
+        self.segments = segments
+
+    def cont(self, l, nxt, l_next):
+        return cont(self.segments, l, nxt, l_next)
+
+    def last(self, l, lambda_o):
+        return last(self.segments, l, lambda_o)
+
+    def pt_tail(self, surface, cam, ready, kb, orders, rng):
+        """Orders above K_b: ``pt_walk`` from camera vertex K_b (roulette from vertex K_b + RR_START) on the
+        lanes ``ready``; on the lanes ``surface.below`` (ω_i below the macro surface) the whole PT estimate
+        from vertex 0, in the same loop."""
+        cv, below = cam[kb], surface.below
+        width = dr.width(cv.l)
+        w = dr.select(below, surface.wi, -cv.d)
+        l = dr.select(below, surface.mf.abs_lambda(-surface.wi), cv.l)
+        thr = dr.select(below, dr.full(mi.Spectrum, 1.0, width), cv.thr)
+        first = dr.select(below, mi.UInt32(0), mi.UInt32(kb))
+        rr_start = dr.select(below, mi.UInt32(RR_START), mi.UInt32(kb + RR_START))
+        return pt_walk(self.segments, surface.mf, surface.fresnel, surface.wo, surface.lambda_o, w, l, thr,
+                       ready | below, first, orders[1], rr_start, rng.key, rng.counter,
+                       label="msx_posfree_conductor_bdpt_tail")
+
+
+class Bidirectional:
+    """The conductor's vertex terms for jit/bdpt.py (twin of ``Bidirectional`` in conductor.rs), with the
+    segment term ``seg`` (``PairSegments`` or a model's whole-path term). ``active``: the lanes with ω_i and
+    ω_o above the surface; ``below``: the lanes the PT tail serves whole (ω_i below, ω_o above)."""
+
+    def __init__(self, mf, fresnel, seg, wi, wo, active, below):
+        self.mf, self.fresnel, self.seg, self.wi, self.wo = mf, fresnel, seg, wi, wo
+        self.lambda_o = mf.lambda_(wo)
+        self.active, self.below = active, below
+        self.width = dr.width(wi)
+
+    def zero(self):
+        return dr.zeros(mi.Spectrum, self.width)
+
+    def g(self, l, nxt, l_next, is_last):
+        """g_j of the vertex between an arriving direction with |Λ| = l and the next direction ``nxt``
+        (|Λ(nxt)| = l_next; ω_o when ``is_last``, a Python bool)."""
+        if is_last:
+            return self.seg.last(l, self.lambda_o)
+        return self.seg.cont(l, nxt, l_next) / l
+
+    # ---- camera subpath
+
+    def camera_start(self):
+        l0 = 1.0 + self.mf.lambda_(self.wi)
+        return CamVertex(-mi.Vector3f(self.wi), l0, self.mf.projected_area(self.wi),
+                         dr.full(mi.Spectrum, 1.0, self.width))
+
+    def camera_ready(self, v):
+        return (v.l > 0.0) & dr.isfinite(v.l) & (v.area_back > 0.0)
+
+    def camera_step(self, v, s, rng):
+        w = -v.d
+        u1, u2 = rng.next2()
+        m, valid = self.mf.sample_visible(w, u1, u2)
+        cos_wm = dot(w, m)
+        d_next = reflect(w, m)
+        l_next, area_next, area_back_next = smith(self.mf, d_next)
+        dm = self.mf.d(m)
+        pf = dm / (4.0 * v.area_back)
+        valid &= (cos_wm > 0.0) & (pf > 0.0) & dr.isfinite(pf) & (area_next > 0.0)
+        p_rev = dm / (4.0 * area_next) if s >= 1 else mi.Float(0.0)
+        thr = v.thr * self.fresnel.eval(cos_wm) * self.seg.cont(v.l, d_next, l_next)
+        return CamVertex(d_next, l_next, area_back_next, thr), pf, p_rev, valid
+
+    def camera_last(self, v, ready, rng):
+        return v
+
+    # ---- light subpath
+
+    def light_start(self):
+        return LightVertex(mi.Vector3f(self.wo), self.lambda_o, self.mf.projected_area(self.wo),
+                           dr.full(mi.Spectrum, 1.0, self.width))
+
+    def light_ready(self, v):
+        return (v.area > 0.0) & dr.isfinite(v.area)
+
+    def light_step(self, v, t, rng):
+        u1, u2 = rng.next2()
+        m, valid = self.mf.sample_visible(v.e, u1, u2)
+        cos_em = dot(v.e, m)
+        e_next = -reflect(v.e, m)  # d_j, arriving at vertex j = k−1−t
+        l_next, area_next, area_back_next = smith(self.mf, e_next)
+        cos_next = dr.abs(e_next[2])
+        dm = self.mf.d(m)
+        pr = dm / (4.0 * v.area)
+        valid &= ((cos_em > 0.0) & (l_next > 0.0) & dr.isfinite(l_next) & (cos_next > 0.0)
+                  & (pr > 0.0) & dr.isfinite(pr) & (area_back_next > 0.0))
+        # φ_j / pr_j = F·A(d_{j+1})·g_j / |cos d_j|.
+        g = self.g(l_next, v.e, v.l, t == 0)
+        w = v.w * self.fresnel.eval(cos_em) * (v.area * g / cos_next)
+        p_rev = dm / (4.0 * area_back_next) if t >= 1 else mi.Float(0.0)
+        return LightVertex(e_next, l_next, area_next, w), pr, p_rev, valid
+
+    # ---- connections
+
+    def connect(self, cam, light):
+        s, t = len(cam) - 1, len(light) - 1
+        cv, lv = cam[s], light[t]
+        cos_s = dr.abs(cv.d[2])
+        h = -cv.d + lv.e
+        length = dr.norm(h)
+        h = h / length
+        cos_h = -dot(cv.d, h)
+        dh = self.mf.d(h)
+        valid = ((max_channel(cv.thr) > 0.0) & (max_channel(lv.w) > 0.0) & (cv.l > 0.0) & dr.isfinite(cv.l)
+                 & (cos_s > 0.0) & (lv.area > 0.0) & (length > 0.0) & (h[2] > 0.0) & (cos_h > 0.0) & (dh > 0.0))
+        phi = dh * self.g(cv.l, lv.e, lv.l, t == 0) / (4.0 * cos_s)
+        if self.seg.whole_path is not None:
+            whole, ok = self.seg.whole_path(self, cam, light)
+            phi = phi * whole
+            valid &= ok
+        pr = dh / (4.0 * lv.area) if s >= 1 else mi.Float(0.0)
+        pf = dh / (4.0 * cv.area_back) if t >= 1 else mi.Float(0.0)
+        return pr, pf, (phi, cos_h), valid
+
+    def weighted(self, data, cv, lv, denom):
+        phi, cos_h = data
+        weight = phi / denom
+        return cv.thr * lv.w * self.fresnel.eval(cos_h) * weight, dr.isfinite(weight)
+
+    def pt_tail(self, cam, ready, kb, orders, rng):
+        return self.seg.pt_tail(self, cam, ready, kb, orders, rng)
+
+
+def estimate_bdpt(mf, fresnel, seg, wi, wo, max_bounces, key, bdpt_orders=bdpt.DEFAULT_BDPT_ORDERS):
+    """The bidirectional estimate of a conductor with the segment term ``seg`` (twin of ``eval_bdpt_with``
+    and ``estimate_bdpt``), orders 1..max_bounces (a Python int): ω_i and ω_o above the surface
+    bidirectionally; ω_i below with ω_o above by the PT walk (same expectation; in the tail's loop when
+    there is one); 0 elsewhere."""
+    if max_bounces < 1:
+        return dr.zeros(mi.Spectrum, dr.width(wi))
+    active = (wi[2] > 0.0) & (wo[2] > 0.0)
+    below = (wi[2] < 0.0) & (wo[2] > 0.0)
+    surface = Bidirectional(mf, fresnel, seg, wi, wo, active, below)
+    kb = bdpt.bdpt_orders(max_bounces, bdpt_orders)
+    rng = Stream(key)
+    result = bdpt.estimate(surface, (1, max_bounces), bdpt_orders, rng=rng)
+    if max_bounces <= kb:  # no PT tail: the lanes below get their own walk
+        width = dr.width(wi)
+        result += pt_walk(seg.segments, mf, fresnel, wo, surface.lambda_o, mi.Vector3f(wi), mf.abs_lambda(-wi),
+                          dr.full(mi.Spectrum, 1.0, width), below, 0, max_bounces, RR_START, key, rng.counter)
+    return result
+
+
+def estimate_bdpt_above(mf, fresnel, seg, wi, wo, active, max_bounces, key, bdpt_orders=bdpt.DEFAULT_BDPT_ORDERS):
+    """The bidirectional estimate with the segment term ``seg`` on the lanes ``active`` (ω_i and ω_o above
+    the surface; twin of ``estimate_bdpt``), orders 1..max_bounces (a Python int); no walk from below."""
+    surface = Bidirectional(mf, fresnel, seg, wi, wo, active, mi.Bool(False))
+    return bdpt.estimate(surface, (1, max_bounces), bdpt_orders, rng=Stream(key))
+
+
+def conductor_eval_bdpt(segments, mf, fresnel, wi, wo, max_bounces, key):
+    """BDPT estimate of f(ω_i, ω_o)·cos θ_o (Wang eqs. 27–29) with K_b = ``bdpt.DEFAULT_BDPT_ORDERS``
+    (twin of ``eval_bdpt`` in conductor.rs)."""
+    return estimate_bdpt(mf, fresnel, PairSegments(segments), wi, wo, max_bounces, key)
 
 
 # ------------------------------------------------------------------ diffuse facets (diffuse.rs)
@@ -199,7 +423,8 @@ def diffuse_sample_walk(segments, mf, albedo, wi, sample1, u1, u2, max_bounces, 
 
 # The conductor walks this module provides, by model name (jit/bsdf.py collects them).
 CONDUCTOR_WALKS = {
-    name: ConductorWalk(partial(eval_pt, name), partial(sample_walk, name), exit, below=True)
+    name: ConductorWalk(partial(eval_pt, name), partial(sample_walk, name), exit, below=True,
+                        eval_bdpt=partial(conductor_eval_bdpt, name))
     for name, exit in ((UNCORRELATED, mis.SEPARABLE), (CORRELATED, mis.HEIGHT_CORRELATED))
 }
 DIFFUSE_WALKS = {name: DiffuseWalk(partial(diffuse_eval_pt, name), partial(diffuse_sample_walk, name))

@@ -46,6 +46,9 @@ def worker(route, res, spp, repeats):
     configs = {}
     if backend == "builtin-symbolic":  # no msx in this process: drjit's default mode stays on
         configs["roughconductor (symbolic)"] = mi.load_file(path, bsdf="roughconductor", **size)
+    elif backend == "jit-registered":  # msx registered, the scene has no msx: what registering costs others
+        msx.register(backend="jit")
+        configs["roughconductor (msx registered)"] = mi.load_file(path, bsdf="roughconductor", **size)
     else:
         msx.register(backend=None if backend == "auto" else backend)
         if variant.startswith("scalar"):
@@ -59,7 +62,10 @@ def worker(route, res, spp, repeats):
         else:
             models = MODELS if backend != "python" else MODELS[:2]
         for m in models:
-            configs[f"msx {m}"] = mi.load_file(path, bsdf="msx_posfree", model=m, **size)
+            try:
+                configs[f"msx {m}"] = mi.load_file(path, bsdf="msx_posfree", model=m, **size)
+            except Exception as e:  # a model this route refuses (it says why)
+                print(f"{route}: msx {m} skipped: {str(e).strip().splitlines()[-1]}", file=sys.stderr)
     for s in configs.values():
         mi.render(s, spp=1)  # warm-up (kernel compilation in LLVM)
     times = {k: [] for k in configs}
@@ -86,11 +92,15 @@ def main():
     if args.routes in ("all", "scalar"):
         routes += ["scalar_rgb:native:1", "scalar_rgb:native:all", "scalar_rgb:python:1", "scalar_rgb:python:all"]
     if args.routes in ("all", "llvm"):
-        routes += ["llvm_ad_rgb:builtin-symbolic:all", "llvm_ad_rgb:jit:all", "llvm_ad_rgb:batched:all"]
+        routes += ["llvm_ad_rgb:builtin-symbolic:all", "llvm_ad_rgb:jit-registered:all", "llvm_ad_rgb:jit:all",
+                   "llvm_ad_rgb:batched:all"]
     results = {}
     for r in routes:
         p = subprocess.run([sys.executable, __file__, "--worker", r, "--res", str(args.res), "--spp", str(args.spp),
                             "--repeats", str(args.repeats)], capture_output=True, text=True)
+        for line in p.stderr.splitlines():
+            if " skipped: " in line:
+                print(line, file=sys.stderr)
         if p.returncode != 0:
             print(f"{r}: failed: {p.stderr.strip().splitlines()[-1:]}", file=sys.stderr)
             continue
@@ -102,13 +112,16 @@ def main():
     for r, res in results.items():
         variant, backend, threads = r.split(":")
         base_key = next((k for k in res if k.startswith("roughconductor")), None)
-        if backend == "builtin-symbolic":
+        if backend in ("builtin-symbolic", "jit-registered"):
             continue
         base = res[base_key]
         for k, t in res.items():
             print(f"| {variant} {backend} | {threads if variant.startswith('scalar') else 'all'} | {k} | {t:.3f} | "
                   f"{t / base:.2f} |")
     sym = results.get("llvm_ad_rgb:builtin-symbolic:all", {}).get("roughconductor (symbolic)")
+    reg = results.get("llvm_ad_rgb:jit-registered:all", {}).get("roughconductor (msx registered)")
+    if sym and reg:
+        print(f"\nThe built-in in a process with msx registered (no msx in the scene) / without msx: {reg / sym:.2f} ×")
     for route in ("llvm_ad_rgb:jit:all", "llvm_ad_rgb:batched:all"):
         if sym and route in results:
             print(f"\n{route}, against the built-in in drjit's default (symbolic) mode in a process without msx:")

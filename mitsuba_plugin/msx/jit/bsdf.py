@@ -28,7 +28,6 @@ DIELECTRIC_WALKS = {**posfree_dielectric.DIELECTRIC_WALKS, **heitz.DIELECTRIC_WA
 DIFFUSE_WALKS = {**posfree.DIFFUSE_WALKS, **heitz.DIFFUSE_WALKS, **invariance.DIFFUSE_WALKS}
 
 
-
 def _with_auto(models):
     """``auto`` runs wherever ``correlated`` does (it is ``correlated`` with a per-lane bounce cap)."""
     return models + (("auto",) if "correlated" in models else ())
@@ -71,13 +70,17 @@ def needs_local_arrays(cfg):
     return bool(getattr(walk, "needs_local_arrays", False)) and not ALLOW_LOCAL_ARRAYS
 
 
+# What a user can do instead, ending every refusal.
+ALTERNATIVES = ("render it in a scalar variant (scalar_rgb: the native back end), or register the batched route, "
+                "msx.register(backend='batched'), which turns drjit's symbolic loops off for the process")
+
+
 def engine_support(cfg):
     """None when the engine runs this configuration, else the message that says what to do instead."""
     if needs_local_arrays(cfg):
         return ("%s: model='%s' on surface '%s' keeps per-path arrays (dr.alloc_local), which drjit 1.5's LLVM "
-                "backend cannot compile inside Mitsuba's BSDF calls; render it in a scalar variant (scalar_rgb: "
-                "the native back end), or register the batched route, msx.register(backend='batched'), which "
-                "turns drjit's symbolic loops off for the process" % (PLUGIN, cfg.model, cfg.surface))
+                "backend cannot compile inside Mitsuba's BSDF calls; %s" % (PLUGIN, cfg.model, cfg.surface,
+                                                                            ALTERNATIVES))
     models = ENGINE_MODELS.get(cfg.surface, ())
     if cfg.model in models and cfg.estimator == "pt":
         return None
@@ -86,12 +89,11 @@ def engine_support(cfg):
     what = "model='%s'" % cfg.model if cfg.estimator == "pt" else "model='%s' with estimator='%s'" % (
         cfg.model, cfg.estimator)
     runs = ", ".join(models) if models else "none yet"
+    bdpt = bdpt_models(cfg.surface)
     return ("%s: %s on surface '%s' does not run in the Dr.Jit engine of the vectorized variants yet (there, "
-            "surface '%s' runs: %s with estimator 'pt'%s); render it in a scalar variant (scalar_rgb: the "
-            "native back end), or register the batched route, msx.register(backend='batched'), which turns "
-            "drjit's symbolic loops off for the process"
+            "surface '%s' runs: %s with estimator 'pt'%s); %s"
             % (PLUGIN, what, cfg.surface, cfg.surface, runs,
-               ", and %s with 'bdpt'" % ", ".join(bdpt_models(cfg.surface)) if bdpt_models(cfg.surface) else ""))
+               ", and %s with 'bdpt'" % ", ".join(bdpt) if bdpt else "", ALTERNATIVES))
 
 
 def walk_name(cfg):

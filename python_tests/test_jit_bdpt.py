@@ -34,11 +34,9 @@ if _REASON:
     pytest.skip(_REASON, allow_module_level=True)
 
 import msx  # noqa: E402
-import msx.jit.bsdf  # noqa: E402
 
-# The invariance walks keep per-path arrays (dr.alloc_local), which a render cannot compile (drjit 1.5,
-# docs/engines.md) but direct calls of the BSDF's methods can: these tests call the methods directly.
-msx.jit.bsdf.ALLOW_LOCAL_ARRAYS = True
+# The conductor invariance walk keeps its run in registers: it loads (and renders) without
+# msx.jit.bsdf.ALLOW_LOCAL_ARRAYS, which only the Lambertian invariance walk needs.
 from msx.core import CoreBsdf  # noqa: E402
 
 SEED_OFFSET = int(os.environ.get("MSX_TEST_SEED_OFFSET", "0"))

@@ -37,6 +37,8 @@ CASES = [
     ("fig09_copper_sphere.xml", "heitz"),
     ("fig01_dielectric_slab.xml", "correlated"),
     ("fig01_dielectric_slab.xml", "single"),
+    ("fig09_copper_sphere.xml", "invariance"),
+    ("fig01_dielectric_slab.xml", "invariance"),
 ]
 FAMILY_RATE = 1e-3
 Z_MAX = statistics.NormalDist().inv_cdf(1 - (1 - (1 - FAMILY_RATE) ** (1 / len(CASES))) / 2)

@@ -43,7 +43,7 @@ if _REASON:
 import msx  # noqa: E402
 import msx.jit.bsdf  # noqa: E402
 
-# The invariance walks keep per-path arrays (dr.alloc_local), which a render cannot compile (drjit 1.5,
+# The Lambertian invariance walk keeps its table in dr.alloc_local, which a render cannot compile (drjit 1.5,
 # docs/engines.md) but direct calls of the BSDF's methods can: these tests call the methods directly.
 msx.jit.bsdf.ALLOW_LOCAL_ARRAYS = True
 from msx.core import CoreBsdf  # noqa: E402

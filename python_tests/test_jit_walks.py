@@ -43,11 +43,9 @@ if _REASON:
 mi.set_variant("llvm_ad_rgb")
 
 import msx  # noqa: E402
-import msx.jit.bsdf  # noqa: E402
 
-# The invariance walks keep per-path arrays (dr.alloc_local), which a render cannot compile (drjit 1.5,
-# docs/engines.md) but direct calls of the BSDF's methods can: these tests call the methods directly.
-msx.jit.bsdf.ALLOW_LOCAL_ARRAYS = True
+# The conductor invariance walk keeps its run in registers: it loads (and renders) without
+# msx.jit.bsdf.ALLOW_LOCAL_ARRAYS, which only the Lambertian invariance walk needs.
 from msx.core import CoreBsdf  # noqa: E402
 
 LANES = 1 << 17
@@ -317,3 +315,44 @@ def test_lane_stream_numbers_uncorrelated():
     z = z[np.triu_indices(STREAM_NUMBERS, 1)]
     print("stream correlations · √n: max |z| = %.1f" % np.abs(z).max())
     assert np.all(np.abs(z) <= Z_MAX), np.abs(z).max()
+
+
+_SYMBOLIC_CALL_RENDER = """
+import sys
+import numpy as np
+import mitsuba as mi
+mi.set_variant("llvm_ad_rgb")
+import msx
+import msx.jit.bsdf
+msx.register()
+assert not msx.jit.bsdf.ALLOW_LOCAL_ARRAYS
+def sphere(x, bsdf):
+    return {"type": "sphere", "center": [x, 0.0, 0.0], "radius": 0.9, "bsdf": bsdf}
+scene = mi.load_dict({
+    "type": "scene",
+    "integrator": {"type": "path", "max_depth": 4},
+    "sensor": {"type": "perspective", "fov": 60, "to_world": mi.ScalarTransform4f().look_at(
+        origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0]),
+        "film": {"type": "hdrfilm", "width": 16, "height": 8, "rfilter": {"type": "box"}}},
+    "emitter": {"type": "constant"},
+    "a": sphere(-2.0, {"type": "msx_posfree", "material": "Cu", "alpha": 1.0, "model": "invariance"}),
+    "b": sphere(0.0, {"type": "msx_posfree", "surface": "dielectric", "int_ior": 1.5, "alpha": 1.0,
+                      "model": "invariance"}),
+    "c": sphere(2.0, {"type": "diffuse"}),
+})
+img = np.array(mi.render(scene, spp=4), dtype=np.float64)
+print(float(img.mean()), bool(np.all(np.isfinite(img))))
+"""
+
+
+def test_invariance_walks_compile_in_symbolic_calls():
+    """The conductor and dielectric invariance walks keep their downward run in registers, so a render —
+    Mitsuba's symbolic call over the scene's BSDFs (three kinds here) — compiles them (a local array
+    aborts the process in drjit 1.5: the render runs in a subprocess)."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-c", _SYMBOLIC_CALL_RENDER], capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    mean, finite = r.stdout.split()[-2:]
+    assert finite == "True" and float(mean) > 0.0, r.stdout

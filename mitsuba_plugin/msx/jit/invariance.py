@@ -16,7 +16,8 @@ Dielectric: until the first refraction the path reflects in ω_i's medium, a mon
 depth has the exact law of ``PieceChain`` (pieces of rates L_i, π over the piece index); the next events
 use its exact exit probability (reflection) or the top piece's Beta term plus one sampled depth
 (transmission); at the first refraction the depth is drawn from that law, flipped, and
-``heitz.dielectric_eval_from`` / ``dielectric_sample_from`` continue the path.
+``heitz.dielectric_eval_from`` / ``dielectric_sample_from`` continue the path. The pieces live in
+``DIELECTRIC_RUN_SLOTS`` registers (below).
 
 The conductor walk:
 
@@ -24,14 +25,40 @@ Heitz's walk with the heights integrated out: a conductor path is a run of a ≥
 d_0..d_{a−1} followed by upward ones, and the probability that it hits at every vertex and leaves along an
 upward x is a column recursion over the downward run (``recursion.rs``, "Monotone paths"). Its state is
 the |Λ| of the downward directions and one value g_i per downward direction: a per-path array whose length
-is the length of the downward run. Here it lives in two ``dr.alloc_local`` buffers of ``capacity``
-entries (the walk's bounce cap, at most ``LOCAL_CAPACITY``) plus the run length a; the O(a) column passes
-are inner ``dr.while_loop``s. Up to that capacity the state is the core's, exactly; a path whose downward
-run would exceed it ends there (only with max_bounces > LOCAL_CAPACITY, and such a run of downward
-reflections has a negligible probability).
+is the length of the downward run.
 
-The normalisation of g by the hit probability (the core's ``g ← g/cont`` after each upward direction) is
-carried as one scale factor instead of a second pass over the buffer.
+Registers, not arrays. A local array (``dr.alloc_local``) cannot be compiled inside a symbolic call by
+drjit 1.5's LLVM backend, and Mitsuba calls every BSDF through one; so the run lives in K per-lane
+registers, Python lists of mi.Float carried through the walk's ``dr.while_loop`` (``MonotoneExit``:
+K = ``CONDUCTOR_RUN_SLOTS`` = 20 slots of |Λ| and of g; ``PieceChain``: K = ``DIELECTRIC_RUN_SLOTS`` = 18
+slots of L_i and π), plus the run length a. An indexed write is a select over the K slots, the O(a) passes
+over the run are unrolled over the K slots and masked by i < a. Up to K the state is the core's, exactly;
+a path whose downward run would be longer than K (or than the bounce cap, when that is smaller) **ends
+there**: the push of its (K+1)-th downward direction fails, the walk stops, and what it would still have
+added (its higher orders, or a sampled direction: the sample is invalid) is lost — a bias of at most the
+fractions below. The BDPT's connections use the same class with one slot per direction of their path.
+
+K is measured, not guessed: the run length a (conductor) / piece count (dielectric) at the end of each
+lane of the former ``dr.alloc_local`` walks (capacity 64, default max_bounces 64), eval (ω_o uniform on
+the hemisphere / sphere) and sample, Cu / η = 1.5168, GGX and Beckmann, α ∈ {1, 2, 4}, θ_i ∈ {0, 0.4, 0.8,
+1.3, 1.5, 1.55} (dielectric: from both sides). Grazing incidence gives *short* runs (P(a > 4) ≤ 2e-6 at
+θ_i = 1.55); the longest come at normal incidence with α = 4, GGX (Beckmann's are shorter). The tail is
+faster than geometric (each further step ×0.2–0.3 at a ≈ 15–20). Worst cases, fraction of lanes with
+a > K (paths) and of the estimate's sum they carry (energy; their whole estimates, a bound on what the
+walk ending at K loses), eval / sample:
+
+- conductor, GGX α = 4, θ_i = 0 (8.4e7 lanes): K = 17: 5.0e-6 / 5.7e-6 paths, 2.3e-6 / 2.5e-6 energy;
+  K = 18: 1.0e-6 / 1.5e-6, 5.6e-7 / 6.2e-7; K = 19: 3.3e-7 / 3.3e-7, 1.0e-7 / 1.3e-7; **K = 20**: 4.8e-8 /
+  6.0e-8 (4 / 5 lanes), 3.7e-9 / 2.3e-8; K = 21: 1.2e-8 / 2.4e-8; no run longer than 22. Other cases are
+  shorter: α = 4, θ_i = 0.4: a > 18 in 3e-8; α = 2, θ_i = 0: a > 13 in 6e-8; α = 4, θ_i = 0.8: a > 16 in
+  6e-8 (3.4e7 lanes each).
+- dielectric from below (total internal reflection lengthens the run), GGX α = 4, θ_i = 0 (5.5e7 lanes):
+  K = 15: 1.6e-6 / 2.2e-6 paths, 7.1e-6 / 2.1e-6 energy; K = 16: 5.1e-7 / 4.6e-7, 1.2e-6 / 3.7e-7; K = 17:
+  3.7e-8 / 1.1e-7, 1.6e-7 / 5.9e-8; **K = 18**: 0 / 1.8e-8 (0 / 1 lane), 0 / 9.8e-9; no run longer than
+  20. θ_i = 0.4 from below: a > 15 in 2.4e-7 / 3.6e-7 of 1.7e7 lanes, none above 17; from above: a > 8 in
+  ≤ 1.2e-7.
+
+A larger α than 4 (outside the measured range) gives longer runs, so more paths end at K.
 
 ``eval``: visible-normal walk with NEE towards ω_o weighed by the exit probability given the hits, the
 connection strategy (a one-vertex light subpath y from the side of ω_o) for orders 2 and 3 with the
@@ -57,8 +84,12 @@ RR_START = 1
 RR_KEEP = 0.5
 CONNECT_MAX_ORDER = 3
 
-# Largest downward run the local buffers hold (their size is the bounce cap when that is smaller).
+# Largest table of the Lambertian walk's local buffers (their size is the bounce cap when that is smaller).
 LOCAL_CAPACITY = 64
+# Registers of a downward run (conductor ``MonotoneExit``, dielectric ``PieceChain``), chosen by
+# measurement (the module docstring): a path whose run would be longer ends there.
+CONDUCTOR_RUN_SLOTS = 20
+DIELECTRIC_RUN_SLOTS = 18
 
 ONE_MINUS = 0.99999994  # largest float32 below 1
 
@@ -67,80 +98,81 @@ ONE_MINUS = 0.99999994  # largest float32 below 1
 
 
 class MonotoneExit:
-    """Incremental exit probabilities of a monotone path d_0..d_m (twin of ``MonotoneExit``), per lane:
-    ``down`` (Local, |Λ| of the downward directions), ``g`` (Local, the column's second term up to the
-    factor ``scale``), ``a`` (the number of downward directions), ``has_up`` (an upward direction was
-    pushed). Pass :meth:`state` through the walk's loop and rebuild with :meth:`from_state`."""
+    """Incremental exit probabilities of a monotone path d_0..d_m (twin of ``MonotoneExit``), per lane in
+    ``n`` registers, unrolled at trace time: Python lists ``down`` (|Λ| of the downward run; slot i < a holds
+    its i-th direction) and ``g`` (the column's second term, normalised by the hit probability as the
+    Rust's), the run length ``a`` (UInt32), ``has_up`` (an upward direction was pushed) and the hit
+    probability ``hit`` = H_m. Every indexed access is a select over the slots, every pass over the run
+    is masked by i < a. Pass :meth:`state` through the walk's loop and rebuild with :meth:`from_state`."""
 
-    def __init__(self, down, g, a, has_up, scale, capacity):
-        self.down, self.g, self.a, self.has_up, self.scale, self.capacity = down, g, a, has_up, scale, capacity
+    def __init__(self, down, g, a, has_up, hit):
+        self.down, self.g = list(down), list(g)
+        self.a, self.has_up, self.hit = a, has_up, hit
+        self.n = len(self.down)
 
     @staticmethod
-    def new(l0, capacity):
-        """A path starting with d_0 (downward) of |Λ(d_0)| = ``l0``."""
-        down = dr.alloc_local(mi.Float, capacity, mi.Float(0.0))
-        g = dr.alloc_local(mi.Float, capacity, mi.Float(0.0))
-        down.write(mi.Float(l0), mi.UInt32(0))
-        return MonotoneExit(down, g, mi.UInt32(1), mi.Bool(False), mi.Float(1.0), capacity)
+    def new(l0, n):
+        """A path starting with d_0 (downward) of |Λ(d_0)| = ``l0``, room for ``n`` downward directions."""
+        return MonotoneExit([mi.Float(l0)] + [mi.Float(1.0) for _ in range(n - 1)], [mi.Float(0.0) for _ in range(n)],
+                            mi.UInt32(1), mi.Bool(False), mi.Float(1.0))
 
     def state(self):
-        return (self.down, self.g, self.a, self.has_up, self.scale)
+        return (self.down, self.g, self.a, self.has_up, self.hit)
 
     @staticmethod
-    def from_state(s, capacity):
-        return MonotoneExit(*s, capacity)
+    def from_state(s):
+        return MonotoneExit(*s)
 
     def push_down(self, l, active):
-        """Appends a downward direction of |Λ| = ``l`` where ``active``; False on a non-monotone path (or
-        a full buffer), which ends the walk."""
-        ok = active & ~self.has_up & (self.a < self.capacity)
-        self.down.write(mi.Float(l), dr.select(ok, self.a, 0), ok)
+        """Appends a downward direction of |Λ| = ``l`` where ``active``; False on a non-monotone path or a
+        full run (a = n), which ends the walk."""
+        ok = active & ~self.has_up & (self.a < self.n)
+        for i in range(1, self.n):
+            self.down[i] = dr.select(ok & (self.a == i), l, self.down[i])
         self.a = dr.select(ok, self.a + 1, self.a)
         return ok
 
-    def columns(self, lambda_x, lambda_y, active):
+    def columns(self, lambda_x, lambda_y):
         """One pass over the downward run: (column(Λ_x), exit_via_up(Λ_y, Λ_x)), i.e. p_exit(d_0..d_m, x)/H_m
         and p_exit(d_0..d_m, y, x)/H_m for virtual upward x, y (``exit_given_hits``, ``exit_via_up``)."""
-        has_up, scale, down, g = self.has_up, self.scale, self.down, self.g
-        init_c = dr.select(has_up, 0.0, 1.0)
-
-        # Every access to the local buffers names its lanes: a lane whose pass is over would otherwise go
-        # on to index 2^32 − 1 while the others finish theirs (it corrupted the buffers in symbolic loops).
-        def body(i, c, c_y, c_x):
-            on = active & (i > 0)
-            i = dr.select(on, i - 1, 0)
-            li = down.read(i, on)
-            gi = dr.select(has_up, g.read(i, on) * scale, 0.0)
-            c = (li * c + gi) / (li + lambda_x)
-            c_y = (li * c_y + gi) / (li + lambda_y)
-            c_x = (li * c_x + lambda_y * c_y) / (li + lambda_x)
-            return i, c, c_y, c_x
-
-        state = (mi.UInt32(self.a), mi.Float(init_c), mi.Float(init_c), mi.Float(0.0))
-        _, c, _, c_x = dr.while_loop(state, lambda i, *_: active & (i > 0), body, label="msx_invariance_columns")
+        has_up = self.has_up
+        c = c_y = dr.select(has_up, 0.0, 1.0)
+        c_x = mi.Float(0.0)
+        for i in reversed(range(self.n)):
+            run = self.a > i
+            li = self.down[i]
+            gi = dr.select(has_up, self.g[i], 0.0)
+            r_x = 1.0 / (li + lambda_x)
+            c_y_new = (li * c_y + gi) / (li + lambda_y)
+            c_x = dr.select(run, (li * c_x + lambda_y * c_y_new) * r_x, c_x)
+            c = dr.select(run, (li * c + gi) * r_x, c)
+            c_y = dr.select(run, c_y_new, c_y)
         return c, c_x
 
     def push_up(self, lam, active):
         """Appends an upward direction with Λ = ``lam`` where ``active``; returns H_{m+1}/H_m, the
         probability that it hits the surface again (0 where not active)."""
-        has_up, scale, down, g = self.has_up, self.scale, self.down, self.g
-
-        def body(i, c, cont):  # masked accesses: see ``columns``
-            on = active & (i > 0)
-            i = dr.select(on, i - 1, 0)
-            li = down.read(i, on)
-            gi = dr.select(has_up, g.read(i, on) * scale, 0.0)
-            c = (li * c + gi) / (li + lam)
-            g_new = lam * c
-            g.write(g_new, i, on)
-            return i, c, cont + g_new / li
-
-        state = (mi.UInt32(self.a), mi.Float(dr.select(has_up, 0.0, 1.0)), mi.Float(0.0))
-        _, _, cont = dr.while_loop(state, lambda i, *_: active & (i > 0), body, label="msx_invariance_push_up")
+        was_up = self.has_up
+        c, cont = dr.select(was_up, 0.0, 1.0), mi.Float(0.0)
+        g_new = list(self.g)
+        for i in reversed(range(self.n)):
+            run = self.a > i
+            li = self.down[i]
+            gi = dr.select(was_up, self.g[i], 0.0)
+            c = dr.select(run, (li * c + gi) / (li + lam), c)
+            g_new[i] = lam * c
+            cont = dr.select(run, cont + g_new[i] / li, cont)
         good = (cont > 0.0) & dr.isfinite(cont)
-        self.scale = dr.select(active, dr.select(good, 1.0 / cont, 0.0), self.scale)
+        inv = dr.select(good, 1.0 / cont, 0.0)
+        for i in range(self.n):
+            self.g[i] = dr.select(active, g_new[i] * inv, self.g[i])
+        self.hit = dr.select(active, self.hit * dr.select(good, cont, 0.0), self.hit)
         self.has_up = self.has_up | active
         return dr.select(active, cont, 0.0)
+
+    def exit_probability(self, lam):
+        """p_exit(d_0..d_m, x) for an upward x with Λ(x) = ``lam``: H_m times the column."""
+        return self.hit * self.columns(lam, mi.Float(0.0))[0]
 
 
 # ------------------------------------------------------------------ helpers
@@ -160,12 +192,14 @@ def valid_direction(w):
     return dr.all(dr.isfinite(w)) & (w[2] > 0.0)
 
 
-def capacity_of(max_bounces):
-    """The size of the local buffers: the bounce cap (a path has at most that many downward directions),
-    at most LOCAL_CAPACITY; LOCAL_CAPACITY when the cap is per lane."""
+def run_slots(max_bounces, slots=None):
+    """The registers of a downward run: ``slots`` (default ``CONDUCTOR_RUN_SLOTS``), fewer when the bounce
+    cap is smaller (a path has at most that many downward directions), all of them when the cap is per
+    lane."""
+    slots = CONDUCTOR_RUN_SLOTS if slots is None else slots
     if isinstance(max_bounces, int):
-        return max(1, min(max_bounces, LOCAL_CAPACITY))
-    return LOCAL_CAPACITY
+        return max(1, min(max_bounces, slots))
+    return slots
 
 
 class LightVertex:
@@ -207,7 +241,7 @@ def eval(mf, fresnel, wi, wo, max_bounces, key):
     """One unbiased estimate of f(ω_i, ω_o)·cos θ_o, orders 1..max_bounces (Rust ``eval`` and
     ``Walk::from``)."""
     last = max_bounces  # a Python int, or a UInt32 per lane
-    capacity = capacity_of(last)
+    slots = run_slots(last)
     lambda_o = mf.lambda_(wo)
     start = valid_direction(wi) & valid_direction(wo) & dr.isfinite(lambda_o) & (last > 0)
     pdf_scale_o = 0.25 / (wo[2] * (1.0 + lambda_o))
@@ -219,13 +253,13 @@ def eval(mf, fresnel, wi, wo, max_bounces, key):
         light = LightVertex(mf, fresnel, wo, pdf_scale_o, u1, u2)
         light.lambda_o = lambda_o
     l0 = mf.abs_lambda(-wi)
-    dp0 = MonotoneExit.new(l0, capacity)
+    dp0 = MonotoneExit.new(l0, slots)
     return walk_from(mf, fresnel, wo, lambda_o, light, CONNECT_MAX_ORDER, mi.Vector3f(wi), 0.25 / (wi[2] * l0),
-                     mi.Spectrum(1.0), dp0, start, 0, last, capacity, key, rng0.counter)
+                     mi.Spectrum(1.0), dp0, start, 0, last, key, rng0.counter)
 
 
 def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, dp0, active, first_vertex, last,
-              capacity, key, counter, label="msx_invariance_conductor_eval"):
+              key, counter, label="msx_invariance_conductor_eval"):
     """The walk of ``eval`` from vertex ``first_vertex`` on (twin of ``Walk::from``), arriving there with
     w = −d_m, ``pdf_scale`` = 1/(4 A(w)), the throughput Π F · H_m and the exit table ``dp0`` of d_0..d_m,
     on the lanes ``active``; orders up to ``last``. ``light`` (a ``LightVertex`` with ``lambda_o`` set, or
@@ -235,14 +269,14 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
 
     def body(j, w, pdf_scale, pdf_walk, thr, result, active, counter, dp_state):
         rng = Stream(key, counter)
-        dp = MonotoneExit.from_state(dp_state, capacity)
+        dp = MonotoneExit.from_state(dp_state)
         order = j + 1
         # NEE: D(h)/(4 A(w)) · F · p_exit(d_0..d_m, ω_o)/H_m, with the balance heuristic against the
         # connection for orders 2..connect_max.
         d_h, cos_wh = half_vector_d(mf, w, wo)
         value = d_h * pdf_scale
         lambda_y = light.l_y if connects else mi.Float(0.0)
-        col_o, via_up = dp.columns(lambda_o, lambda_y, active)
+        col_o, via_up = dp.columns(lambda_o, lambda_y)
         if connects:
             mis_w = (j > 0) & (order <= connect_max) & (value > 0.0)
             p_rev = d_h * (0.25 / (wo[2] * (1.0 + lambda_o)))
@@ -300,57 +334,6 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
 # whole path d_0..d_s, e_t..e_1, ω_o at each connection, this model's walk above K_b.
 
 
-class SmallExit:
-    """``MonotoneExit`` of at most ``n`` directions unrolled at trace time (the paths of the BDPT's
-    connections have at most K_b directions before ω_o), per lane: Python lists of the |Λ| of the downward
-    run and of g (normalised by the hit probability, as the Rust's), the run length ``a`` (UInt32),
-    ``has_up`` and the hit probability ``hit``. Slot i < a holds the run's i-th direction."""
-
-    def __init__(self, l0, n):
-        self.n = n
-        self.down = [mi.Float(l0)] + [mi.Float(1.0) for _ in range(n - 1)]
-        self.g = [mi.Float(0.0) for _ in range(n)]
-        self.a = mi.UInt32(1)
-        self.has_up = mi.Bool(False)
-        self.hit = mi.Float(1.0)
-
-    def push_down(self, l, active):
-        """Appends a downward direction where ``active``; False where that makes the path non-monotone."""
-        ok = active & ~self.has_up
-        for i in range(1, self.n):
-            self.down[i] = dr.select(ok & (self.a == i), l, self.down[i])
-        self.a = dr.select(ok, self.a + 1, self.a)
-        return ok | ~active
-
-    def push_up(self, lam, active):
-        """Appends an upward direction with Λ = ``lam`` where ``active`` (``push_up``)."""
-        was_up = self.has_up
-        c, cont = dr.select(was_up, 0.0, 1.0), mi.Float(0.0)
-        g_new = list(self.g)
-        for i in reversed(range(self.n)):
-            run = self.a > i
-            li = self.down[i]
-            gi = dr.select(was_up, self.g[i], 0.0)
-            c = dr.select(run, (li * c + gi) / (li + lam), c)
-            gv = lam * c
-            g_new[i] = gv
-            cont = dr.select(run, cont + gv / li, cont)
-        good = (cont > 0.0) & dr.isfinite(cont)
-        for i in range(self.n):
-            self.g[i] = dr.select(active, dr.select(good, g_new[i] / cont, g_new[i]), self.g[i])
-        self.hit = dr.select(active, dr.select(good, self.hit * cont, 0.0), self.hit)
-        self.has_up = self.has_up | active
-
-    def exit_probability(self, lam):
-        """p_exit(d_0..d_m, x) for an upward x with Λ(x) = ``lam``: H_m times the column."""
-        c = dr.select(self.has_up, 0.0, 1.0)
-        for i in reversed(range(self.n)):
-            li = self.down[i]
-            gi = dr.select(self.has_up, self.g[i], 0.0)
-            c = dr.select(self.a > i, (li * c + gi) / (li + lam), c)
-        return self.hit * c
-
-
 class WholePath:
     """The segment term of the invariance model for jit/posfree.py's ``Bidirectional``."""
 
@@ -363,20 +346,19 @@ class WholePath:
     def whole_path(self, surface, cam, light):
         """(p_exit of d_0..d_s, e_t, …, e_1, ω_o, monotone) (``exit_table`` + ``exit_probability``)."""
         dirs = [(c.l, c.d) for c in cam] + [(v.l, v.e) for v in reversed(light[1:])]
-        dp = SmallExit(dirs[0][0], len(dirs))
+        dp = MonotoneExit.new(dirs[0][0], len(dirs))
         ok = mi.Bool(True)
         for l, d in dirs[1:]:
             up = d[2] > 0.0
             dp.push_up(l, up)
-            ok &= dp.push_down(l, ~up)
+            ok &= up | dp.push_down(l, ~up)
         return dp.exit_probability(surface.lambda_o), ok
 
     def pt_tail(self, surface, cam, ready, kb, orders, rng):
         """Orders above K_b: the walk of ``eval`` without its connection strategy from camera vertex K_b,
         with the exit table of d_0..d_{K_b} and the throughput Π F · H_{K_b}."""
         last = orders[1]
-        capacity = capacity_of(last)
-        dp = MonotoneExit.new(cam[0].l, capacity)
+        dp = MonotoneExit.new(cam[0].l, run_slots(last))
         hit, ok = mi.Float(1.0), mi.Bool(ready)
         for c in cam[1 : kb + 1]:
             up = c.d[2] > 0.0
@@ -385,7 +367,7 @@ class WholePath:
             ok &= up | dp.push_down(c.l, ok & ~up)
         cv = cam[kb]
         return walk_from(surface.mf, surface.fresnel, surface.wo, surface.lambda_o, None, 0, -cv.d,
-                         0.25 / cv.area_back, cv.thr * hit, dp, ok, kb, last, capacity, rng.key, rng.counter,
+                         0.25 / cv.area_back, cv.thr * hit, dp, ok, kb, last, rng.key, rng.counter,
                          label="msx_invariance_conductor_bdpt_tail")
 
 
@@ -404,17 +386,17 @@ def sample(mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
     direction, leave with probability 1 − H_m/H_{m−1}. (sample1, u1, u2) drive the first vertex, the
     lane's stream the rest. Returns (ω_o, weight = Π F, valid); more than max_bounces vertices is invalid."""
     last = max_bounces  # a Python int, or a UInt32 per lane
-    capacity = capacity_of(last)
+    slots = run_slots(last)
     start = valid_direction(wi) & (last > 0)
 
     def clean(u):
         return dr.clip(dr.select(dr.isfinite(u), u, 0.5), 0.0, ONE_MINUS)
 
-    dp0 = MonotoneExit.new(mf.abs_lambda(-wi), capacity)
+    dp0 = MonotoneExit.new(mf.abs_lambda(-wi), slots)
 
     def body(j, w, weight, done, active, counter, u_exit, u1, u2, dp_state):
         rng = Stream(key, counter)
-        dp = MonotoneExit.from_state(dp_state, capacity)
+        dp = MonotoneExit.from_state(dp_state)
         m, valid = mf.sample_visible(w, u1, u2)
         cos_wm = dot(w, m)
         active &= valid & (cos_wm > 0.0)
@@ -640,40 +622,40 @@ def diffuse_sample(mf, albedo, wi, sample1, u1, u2, max_bounces, key):
 
 class PieceChain:
     """The exact depth law of the current vertex of a monotone one-sided run entered from above (twin of
-    ``PieceChain`` in ``dielectric.rs``), per lane: ``rates`` (Local, L_i of the downward directions),
-    ``pi`` (Local, π(c) up to the factor ``scale``; before the first upward direction π is the point
-    mass on the bottom piece, not materialised), ``a`` (pieces), ``has_up``, ``hit`` (H_m). Pass
-    :meth:`state` through the walk's loop; every buffer access names its lanes."""
+    ``PieceChain`` in ``dielectric.rs``), per lane in ``n`` registers unrolled at trace time (as
+    ``MonotoneExit``): Python lists ``rates`` (L_i of the downward directions, slot i < a) and ``pi`` (π(c)
+    up to the factor ``scale``; before the first upward direction π is the point mass on the bottom piece,
+    not materialised), ``a`` (pieces), ``has_up``, ``hit`` (H_m). Pass :meth:`state` through the walk's
+    loop and rebuild with :meth:`from_state`."""
 
-    def __init__(self, rates, pi, a, has_up, scale, hit, capacity):
-        self.rates, self.pi, self.a, self.has_up, self.scale, self.hit = rates, pi, a, has_up, scale, hit
-        self.capacity = capacity
+    def __init__(self, rates, pi, a, has_up, scale, hit):
+        self.rates, self.pi = list(rates), list(pi)
+        self.a, self.has_up, self.scale, self.hit = a, has_up, scale, hit
+        self.n = len(self.rates)
 
     @staticmethod
-    def new(l0, capacity):
-        rates = dr.alloc_local(mi.Float, capacity, mi.Float(0.0))
-        pi = dr.alloc_local(mi.Float, capacity, mi.Float(0.0))
-        rates.write(mi.Float(l0), mi.UInt32(0))
-        return PieceChain(rates, pi, mi.UInt32(1), mi.Bool(False), mi.Float(1.0), mi.Float(1.0), capacity)
+    def new(l0, n):
+        return PieceChain([mi.Float(l0)] + [mi.Float(1.0) for _ in range(n - 1)], [mi.Float(0.0) for _ in range(n)],
+                          mi.UInt32(1), mi.Bool(False), mi.Float(1.0), mi.Float(1.0))
 
     def state(self):
         return (self.rates, self.pi, self.a, self.has_up, self.scale, self.hit)
 
     @staticmethod
-    def from_state(s, capacity):
-        return PieceChain(*s, capacity)
+    def from_state(s):
+        return PieceChain(*s)
 
-    def _pi_at(self, pi, c, on):
-        """π(c) (normalised) where ``on``."""
-        stored = pi.read(c, on) * self.scale
-        point = dr.select(c + 1 == self.a, 1.0, 0.0)
-        return dr.select(on, dr.select(self.has_up, stored, point), 0.0)
+    def pi_at(self, c, on):
+        """π(c) (normalised) of the slot c (a Python int) where ``on``."""
+        point = dr.select(self.a == c + 1, 1.0, 0.0)
+        return dr.select(on, dr.select(self.has_up, self.pi[c] * self.scale, point), 0.0)
 
     def push_down(self, l, active):
         """Appends a downward direction (|Λ| = ``l``) where ``active``; False on a non-monotone run or a
-        full buffer (the walk ends there)."""
-        ok = active & ~self.has_up & (self.a < self.capacity)
-        self.rates.write(mi.Float(l), dr.select(ok, self.a, 0), ok)
+        full run (a = n): the walk ends there."""
+        ok = active & ~self.has_up & (self.a < self.n)
+        for i in range(1, self.n):
+            self.rates[i] = dr.select(ok & (self.a == i), l, self.rates[i])
         self.a = dr.select(ok, self.a + 1, self.a)
         return ok
 
@@ -681,24 +663,20 @@ class PieceChain:
         """Appends an upward direction with Λ = ``lam`` where ``active``; returns H_{m+1}/H_m (0 where not
         active). carry(c) = Σ_{c'' ≥ c} π(c'') Π_{i=c+1}^{c''} L_i/(L_i+Λ) is the mass whose jump reaches
         piece c; a fraction Λ/(L_c+Λ) lands there (Λ = ∞: everything lands where it is)."""
-        rates, a = self.rates, self.a
         inf = dr.isinf(lam)
         run = active & (lam > 0.0)
-
-        def body(c, carry, cont, pi):
-            on = run & (c > 0)
-            c = dr.select(on, c - 1, 0)
-            l = rates.read(c, on)
-            nxt = on & (c + 1 < a)
-            ln = rates.read(dr.select(nxt, c + 1, 0), nxt)
-            carry = dr.select(nxt, carry * dr.select(inf, 0.0, ln / (ln + lam)), carry)
-            carry = carry + self._pi_at(pi, c, on)
-            land = carry * dr.select(inf, 1.0, lam / (l + lam))
-            pi.write(land, c, on)
-            return c, carry, cont + dr.select(on, land, 0.0), pi
-
-        _, _, cont, self.pi = dr.while_loop((mi.UInt32(a), mi.Float(0.0), mi.Float(0.0), self.pi),
-                                            lambda c, *_: run & (c > 0), body, label="msx_invariance_push_up_pieces")
+        carry, cont = mi.Float(0.0), mi.Float(0.0)
+        pi_new = list(self.pi)
+        for c in reversed(range(self.n)):
+            on = run & (self.a > c)
+            if c + 1 < self.n:
+                ln = self.rates[c + 1]
+                carry = dr.select(on & (self.a > c + 1), carry * dr.select(inf, 0.0, ln / (ln + lam)), carry)
+            carry = carry + self.pi_at(c, on)
+            land = carry * dr.select(inf, 1.0, lam / (self.rates[c] + lam))
+            pi_new[c] = dr.select(on, land, self.pi[c])
+            cont = cont + dr.select(on, land, 0.0)
+        self.pi = pi_new
         good = run & (cont > 0.0) & dr.isfinite(cont)
         self.scale = dr.select(good, 1.0 / cont, self.scale)
         self.has_up = self.has_up | active
@@ -709,18 +687,13 @@ class PieceChain:
     def exit_given_hits(self, lam, active):
         """E[e^{−Λ τ}] given the hits: the probability of leaving along an upward direction with
         Λ = ``lam`` from the current vertex (0 where not active, Λ < 0 or ∞)."""
-        rates, pi, a = self.rates, self.pi, self.a
         run = active & (lam >= 0.0) & ~dr.isinf(lam)
-
-        def body(c, prod, total):
-            on = run & (c < a)
-            cc = dr.select(on, c, 0)
-            l = rates.read(cc, on)
+        prod, total = mi.Float(1.0), mi.Float(0.0)
+        for c in range(self.n):
+            on = run & (self.a > c)
+            l = self.rates[c]
             prod = dr.select(on, prod * (l / (l + lam)), prod)
-            return c + 1, prod, total + self._pi_at(pi, cc, on) * prod
-
-        _, _, total = dr.while_loop((mi.UInt32(0), mi.Float(1.0), mi.Float(0.0)), lambda c, *_: run & (c < a),
-                                    body, label="msx_invariance_exit_pieces")
+            total = total + self.pi_at(c, on) * prod
         return dr.select(run, total, 0.0)
 
 
@@ -728,33 +701,21 @@ def draw_depth(chain, c_min, key, counter, active):
     """τ of ``PieceChain.sample_depth``: the piece c ≥ c_min from π (one number), then τ = X_0 + … + X_c
     with fresh X_i ~ Exp(L_i) (one number each; L = ∞ adds no depth). Returns (τ, mass Σ_{c ≥ c_min} π(c),
     counter)."""
-    rates, pi, a = chain.rates, chain.pi, chain.a
-
-    def total_body(c, total):
-        on = active & (c < a)
-        cc = dr.select(on, c, 0)
-        return c + 1, total + chain._pi_at(pi, cc, on)
-
-    _, total = dr.while_loop((mi.UInt32(c_min), mi.Float(0.0)), lambda c, _t: active & (c < a), total_body,
-                             label="msx_invariance_depth_mass")
+    total = mi.Float(0.0)
+    for c in range(c_min, chain.n):
+        total = total + chain.pi_at(c, active & (chain.a > c))
     rng = Stream(key, counter)
     u_pick, _ = rng.next2()
-
-    def body(c, rest, tau, picking, counter):
-        on = active & (c < a) & picking
-        cc = dr.select(on, c, 0)
+    rest, tau, picking, counter = u_pick * total, mi.Float(0.0), mi.Bool(active), mi.UInt32(rng.counter)
+    for c in range(chain.n):
+        on = picking & (chain.a > c)
         rng = Stream(key, counter)
         u, _ = rng.next2()
-        l = rates.read(cc, on)
-        tau = dr.select(on, tau + optical_depth(u) / l, tau)
-        at = on & (cc >= c_min)
-        rest = dr.select(at, rest - chain._pi_at(pi, cc, at), rest)
-        picking &= ~(at & (rest < 0.0))
-        return c + 1, rest, tau, picking, dr.select(on, rng.counter, counter)
-
-    state = (mi.UInt32(0), u_pick * total, mi.Float(0.0), mi.Bool(active), mi.UInt32(rng.counter))
-    _, _, tau, _, counter = dr.while_loop(state, lambda c, _r, _t, picking, _n: active & picking & (c < a), body,
-                                          label="msx_invariance_depth")
+        tau = dr.select(on, tau + optical_depth(u) / chain.rates[c], tau)
+        if c >= c_min:
+            rest = dr.select(on, rest - chain.pi_at(c, on), rest)
+            picking &= ~(on & (rest < 0.0))
+        counter = dr.select(on, rng.counter, counter)
     return tau, total, counter
 
 
@@ -768,9 +729,8 @@ def transmit_exit(chain, lambda_t, key, counter, active):
     mass exactly, π(0)·L_0·B(L_0, 1+Λ'), one depth drawn from the deeper pieces for the rest. Returns
     (estimate in [0, 1], counter)."""
     run = active & (lambda_t >= 0.0) & ~dr.isinf(lambda_t)
-    zero = mi.UInt32(0)
-    p0 = chain._pi_at(chain.pi, zero, run)
-    l0 = chain.rates.read(zero, run)
+    p0 = chain.pi_at(0, run)
+    l0 = chain.rates[0]
     e = p0 * l_beta(l0, lambda_t)
     deeper = run & (chain.a > 1)
     tau, rest, counter = draw_depth(chain, 1, key, counter, deeper)
@@ -793,7 +753,7 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key):
     depth is drawn from its exact law, flipped, and Heitz's walk (``heitz.dielectric_eval_from``) carries
     the rest of the path. Radiance mode: × 1/η_r² when ω_o is across."""
     last = max_bounces
-    capacity = capacity_of(last)
+    slots = run_slots(last, DIELECTRIC_RUN_SLOTS)
     eta = mi.Float(eta)
     wi, wo = mi.Vector3f(wi), mi.Vector3f(wo)
     outside = wi[2] > 0.0
@@ -805,10 +765,10 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key):
     l0 = mf.abs_lambda(-w0)
     start = (dielectric_valid(wi, eta) & dielectric_valid(wo, eta) & dr.isfinite(lambda_o) & dr.isfinite(l0)
              & (last > 0))
-    chain0 = PieceChain.new(l0, capacity)
+    chain0 = PieceChain.new(l0, slots)
 
     def body(j, w, thr, result, active, counter, refracted, h_dir, h_t, chain_state):
-        chain = PieceChain.from_state(chain_state, capacity)
+        chain = PieceChain.from_state(chain_state)
         order = j + 1
         # Next-event estimation: phase function × exact exit probability.
         phase = dr.select(same, heitz.dielectric_phase_reflect(mf, w, wo_l, e),
@@ -868,7 +828,7 @@ def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
     (``heitz.dielectric_sample_from``). (sample1, u1, u2) drive the first vertex (Fresnel choice, visible
     normal). Returns (ω_o, weight = 1, × 1/η_r² for a Radiance-mode transmission, valid)."""
     last = max_bounces
-    capacity = capacity_of(last)
+    slots = run_slots(last, DIELECTRIC_RUN_SLOTS)
     eta = mi.Float(eta)
     wi = mi.Vector3f(wi)
     outside = wi[2] > 0.0
@@ -876,13 +836,13 @@ def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
     w0 = dr.select(outside, wi, -wi)
     l0 = mf.abs_lambda(-w0)
     start = dielectric_valid(wi, eta) & dr.isfinite(l0) & (last > 0)
-    chain0 = PieceChain.new(l0, capacity)
+    chain0 = PieceChain.new(l0, slots)
 
     def clean(u):
         return dr.clip(dr.select(dr.isfinite(u), u, 0.5), 0.0, ONE_MINUS)
 
     def body(j, w, done, active, counter, ua, u1, u2, refracted, h_dir, h_t, chain_state):
-        chain = PieceChain.from_state(chain_state, capacity)
+        chain = PieceChain.from_state(chain_state)
         m, cos_wm, valid = heitz.visible_normal(mf, w, u1, u2)
         active &= valid
         f = heitz.fresnel_dielectric(cos_wm, e)
@@ -941,8 +901,9 @@ CONDUCTOR_WALKS = {"invariance": ConductorWalk(eval, sample, mis.HEIGHT_CORRELAT
 DIFFUSE_WALKS = {"invariance": DiffuseWalk(diffuse_eval, diffuse_sample)}
 DIELECTRIC_WALKS = {"invariance": DielectricWalk(dielectric_eval, dielectric_sample)}
 
-# These walks keep per-path arrays in ``dr.alloc_local``, which drjit 1.5's LLVM backend cannot compile
-# inside a symbolic call — and Mitsuba calls every BSDF through one (docs/engines.md): jit/bsdf.py refuses
-# them in scenes. They run, and are tested against the core, when called directly (python_tests/).
-for _walk in (*CONDUCTOR_WALKS.values(), *DIFFUSE_WALKS.values(), *DIELECTRIC_WALKS.values()):
+# The Lambertian walk keeps its O(m²) table in ``dr.alloc_local``, which drjit 1.5's LLVM backend cannot
+# compile inside a symbolic call — and Mitsuba calls every BSDF through one (docs/engines.md): jit/bsdf.py
+# refuses it in scenes. It runs, and is tested against the core, when called directly (python_tests/). The
+# conductor and dielectric walks keep their run in registers and render.
+for _walk in DIFFUSE_WALKS.values():
     _walk.needs_local_arrays = True

@@ -13,8 +13,10 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = str(ROOT / "scenes" / "fig09_copper_sphere.xml")
-DEADLINE = 5.0  # seconds a bad input may take to end the run
-STOP_DEADLINE = 15.0  # seconds for a dying worker or Ctrl-C to end a running render (generous under load)
+# Only failure paths are timed: a run still alive this long after a bad input, a dying worker or a signal has
+# hung (the runs end in well under 2 s, even beside two busy processes: docs/testing.md). Never a measure of
+# the machine's speed.
+HUNG = 60.0
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -25,8 +27,12 @@ def native_plugin_built():
     subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, check=True)
 
 
-def msx(*args, timeout=60, **kw):
-    return subprocess.run([sys.executable, "-m", "msx", *args], capture_output=True, text=True, timeout=timeout, **kw)
+def msx(*args, timeout=HUNG, **kw):
+    try:
+        return subprocess.run([sys.executable, "-m", "msx", *args], capture_output=True, text=True, timeout=timeout,
+                              **kw)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"msx {' '.join(args)} was still running after {timeout:.0f} s")
 
 
 @pytest.mark.parametrize("workers", [1, 2])
@@ -36,14 +42,13 @@ def msx(*args, timeout=60, **kw):
     ("alpha=nan", "'alpha'"),
 ])
 def test_bad_parameter_ends_fast_with_one_line(tmp_path, workers, define, names):
+    """A bad parameter ends the run (a pool that respawned failing workers would run until HUNG) with one line."""
     t0 = time.perf_counter()
-    r = msx("render", SCENE, "-D", define, "--workers", str(workers), "--spp", "8", "-o", str(tmp_path / "x.exr"),
-            timeout=60)
+    r = msx("render", SCENE, "-D", define, "--workers", str(workers), "--spp", "8", "-o", str(tmp_path / "x.exr"))
     took = time.perf_counter() - t0
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     print(f"\n[{define}, workers {workers}] exit {r.returncode} in {took:.2f} s: {lines}")
     assert r.returncode == 1
-    assert took < DEADLINE
     assert len(lines) == 1 and lines[0].startswith("msx: error: ")
     assert names in lines[0] and "Traceback" not in r.stderr
     assert not (tmp_path / "x.exr").exists()
@@ -101,20 +106,24 @@ def _children(pid):
     return out
 
 
-def _start_long_render(tmp_path):
-    """A render with two workers that runs for a while; returns the process once both workers exist."""
-    p = subprocess.Popen([sys.executable, "-m", "msx", "render", SCENE, "--workers", "2", "--spp", "100000",
+def _start_long_render(tmp_path, workers=2, env=None):
+    """A render that would run for many minutes; returns the process once its workers exist (or, with one
+    worker, once it had time to start rendering in-process)."""
+    p = subprocess.Popen([sys.executable, "-m", "msx", "render", SCENE, "--workers", str(workers), "--spp", "100000",
                           "-o", str(tmp_path / "x.exr")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         start_new_session=True)
+                         start_new_session=True, env=None if env is None else {**os.environ, **env})
+    if workers == 1:
+        time.sleep(3.0)  # usually inside mi.render by now; earlier or later ends the same way (asserted alike)
+        return p, []
     t0 = time.perf_counter()
-    while time.perf_counter() - t0 < 30:
+    while time.perf_counter() - t0 < HUNG:
         kids = _children(p.pid)
-        if len(kids) >= 2:
+        if len(kids) >= workers:
             time.sleep(1.0)  # let them load the scene and start rendering
             return p, kids
         time.sleep(0.1)
-    p.kill()
-    pytest.fail("the render did not start two workers in 30 s")
+    os.killpg(p.pid, signal.SIGKILL)
+    pytest.fail(f"the render did not start {workers} workers in {HUNG:.0f} s")
 
 
 def _alive(pid):
@@ -129,36 +138,84 @@ def _alive(pid):
 
 
 def _ends(p, failure):
-    """The process's stderr once it has exited; fails (and kills it) if it runs past STOP_DEADLINE."""
+    """(stderr, seconds) once the process has exited; fails (and kills its group) if it is alive after HUNG."""
+    t0 = time.perf_counter()
     try:
-        return p.communicate(timeout=STOP_DEADLINE)[1]
+        err = p.communicate(timeout=HUNG)[1]
     except subprocess.TimeoutExpired:
         os.killpg(p.pid, signal.SIGKILL)
-        pytest.fail(failure)
+        p.communicate()
+        pytest.fail(f"{failure}: still alive after {HUNG:.0f} s")
+    return err, time.perf_counter() - t0
 
 
-@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc to find the worker processes")
+def _blocked(pid):
+    """The signals a process blocks (its SigBlk mask in /proc)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("SigBlk:"):
+            mask = int(line.split()[1], 16)
+            return {s for s in range(1, 64) if mask >> (s - 1) & 1}
+    return set()
+
+
+needs_proc = pytest.mark.skipif(not Path("/proc/self/task").exists(),
+                                reason="needs Linux /proc to find the worker processes")
+
+
+@needs_proc
 def test_a_dying_worker_ends_the_run(tmp_path):
     p, kids = _start_long_render(tmp_path)
     os.kill(kids[0], signal.SIGKILL)
-    t0 = time.perf_counter()
-    err = _ends(p, "the run went on after a worker died")
-    print(f"\n[worker killed] exit {p.returncode} after {time.perf_counter() - t0:.2f} s: {err.strip()!r}")
+    err, took = _ends(p, "the run went on after a worker died")
+    print(f"\n[worker killed] exit {p.returncode} after {took:.2f} s: {err.strip()!r}")
     assert p.returncode == 1
-    assert "a render worker process died" in err and "Traceback" not in err
+    assert err.strip() == "msx: error: fig09_copper_sphere.xml: a render worker process died (exit code -9)"
     assert not any(_alive(k) for k in kids)
 
 
-@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc to find the worker processes")
-def test_ctrl_c_stops_everything(tmp_path):
-    p, kids = _start_long_render(tmp_path)
-    os.killpg(p.pid, signal.SIGINT)  # what a terminal sends to the whole foreground group
-    t0 = time.perf_counter()
-    err = _ends(p, "Ctrl-C did not stop the run")
-    print(f"\n[Ctrl-C] exit {p.returncode} after {time.perf_counter() - t0:.2f} s: {err.strip()!r}")
+STOPS = [("SIGINT", 130, "msx: interrupted"), ("SIGTERM", 143, "msx: terminated (SIGTERM)"),
+         ("SIGHUP", 129, "msx: hang-up (SIGHUP: the terminal closed)")]
+
+
+@needs_proc
+@pytest.mark.parametrize("name, code, line", STOPS, ids=[s[0] for s in STOPS])
+def test_ctrl_c_stops_everything(tmp_path, name, code, line):
+    """Ctrl-C (or SIGTERM, or a closed terminal's SIGHUP) sent to the whole process group, as a terminal does,
+    ends a render with two workers: one line, exit code 128 + the signal, no worker left. The last-resort exit
+    is off (MSX_STOP_GRACE=inf): the run must end by itself. It once hung 1 run in 20 beside two busy processes
+    (a worker stopped while sending its result left the executor's reader thread waiting forever)."""
+    p, kids = _start_long_render(tmp_path, env={"MSX_STOP_GRACE": "inf"})
+    for k in kids:  # the workers leave stop signals to the parent (Mitsuba's render would act on SIGINT)
+        assert {signal.SIGINT, signal.SIGTERM, signal.SIGHUP} <= _blocked(k), f"worker {k} acts on stop signals"
+    os.killpg(p.pid, getattr(signal, name))  # what a terminal sends to the whole foreground group
+    err, took = _ends(p, f"{name} did not stop the run")
+    print(f"\n[{name}] exit {p.returncode} after {took:.2f} s: {err.strip()!r}")
+    assert p.returncode == code
+    assert err.strip() == line
+    assert not any(_alive(k) for k in kids), "a worker outlived the run"
+
+
+@pytest.mark.parametrize("name, code, line", STOPS[1:], ids=[s[0] for s in STOPS[1:]])
+def test_a_stop_signal_ends_an_in_process_render(tmp_path, name, code, line):
+    """With one worker the render runs in the main process, inside Mitsuba, where a SIGTERM's Python handler
+    cannot run until the render returns: the watcher ends the run after MSX_STOP_GRACE (here 1 s)."""
+    p, _ = _start_long_render(tmp_path, workers=1, env={"MSX_STOP_GRACE": "1"})
+    os.killpg(p.pid, getattr(signal, name))
+    err, took = _ends(p, f"{name} did not stop the in-process render")
+    print(f"\n[{name}, 1 worker] exit {p.returncode} after {took:.2f} s: {err.strip()!r}")
+    assert p.returncode == code
+    assert err.strip().startswith(line) and len(err.strip().splitlines()) == 1
+
+
+def test_ctrl_c_stops_compare(tmp_path):
+    """`msx compare` renders in its own process (Mitsuba's threads): Ctrl-C cancels the running render and
+    ends the run by itself (the last-resort exit is off) with one line."""
+    p = subprocess.Popen([sys.executable, "-m", "msx", "compare", "--quick", "--out", str(tmp_path / "out"),
+                          "--cache", str(tmp_path / "cache")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True, start_new_session=True, env={**os.environ, "MSX_STOP_GRACE": "inf"})
+    time.sleep(4.0)  # into the first sweep's renders, usually; before or after ends the same way
+    os.killpg(p.pid, signal.SIGINT)
+    err, took = _ends(p, "Ctrl-C did not stop msx compare")
+    print(f"\n[compare, SIGINT] exit {p.returncode} after {took:.2f} s: {err.strip().splitlines()[-1]!r}")
     assert p.returncode == 130
-    assert "interrupted" in err and "Traceback" not in err
-    deadline = time.perf_counter() + STOP_DEADLINE
-    while any(_alive(k) for k in kids) and time.perf_counter() < deadline:
-        time.sleep(0.1)
-    assert not any(_alive(k) for k in kids)
+    assert err.strip().splitlines()[-1] == "msx: interrupted" and "Traceback" not in err

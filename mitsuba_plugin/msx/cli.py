@@ -2,14 +2,26 @@
 (ray tracing on generated microgeometry, msx/microgeometry.py).
 
 Errors end the run with one line on stderr naming the problem (exit code 1;
-``--verbose`` adds the traceback); Ctrl-C stops every worker (exit code 130).
+``--verbose`` adds the traceback). Ctrl-C (SIGINT), SIGTERM and a closed terminal (SIGHUP) stop every
+worker and end the run with one line and exit code 128 + the signal's number (130 for Ctrl-C).
+
+A signal's Python handler runs only when the main thread runs Python: inside a long native call (a scene
+load, an in-process render that a SIGTERM does not cancel, a long Rust call of ``msx compare``) it would
+wait for the call to return. A watcher thread (woken through ``signal.set_wakeup_fd``) bounds that: if the
+run has not ended ``MSX_STOP_GRACE`` seconds (default 1; ``inf``: never) after the signal, it kills the
+workers, prints the same line with the reason, and exits with the same code.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
+import signal
+import socket
 import sys
+import threading
+import time
 import traceback
 from pathlib import Path
 
@@ -20,6 +32,106 @@ __all__ = ["main", "render_scene", "write_image"]
 
 class UsageError(Exception):
     """Bad command-line input; the message is one line."""
+
+
+class Stopped(KeyboardInterrupt):
+    """SIGTERM or SIGHUP as an exception: the run unwinds (workers stopped) as on Ctrl-C."""
+
+    def __init__(self, signum):
+        super().__init__(signum)
+        self.signum = signum
+
+
+_STOP_SIGNALS = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated (SIGTERM)"}
+if hasattr(signal, "SIGHUP"):
+    _STOP_SIGNALS[signal.SIGHUP] = "hang-up (SIGHUP: the terminal closed)"
+
+
+def _say(line: str):
+    """One line on stderr; a closed terminal (after SIGHUP) is not an error."""
+    try:
+        sys.stderr.write(line + "\n")
+        sys.stderr.flush()
+    except (OSError, ValueError):
+        pass
+
+
+def _grace() -> float:
+    text = os.environ.get("MSX_STOP_GRACE", "1")
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not value >= 0:
+        raise UsageError(f"MSX_STOP_GRACE must be a number of seconds ≥ 0 or inf (got {text!r})")
+    return value
+
+
+class _StopSignals:
+    """While the command runs: SIGTERM and SIGHUP raise Stopped in the main thread, and a watcher thread ends
+    the process if a stop signal has not ended the run within the grace time (see the module's docstring)."""
+
+    def __init__(self):
+        self.active = threading.current_thread() is threading.main_thread()
+        self.lock = threading.Lock()
+        self.reported = False
+
+    def __enter__(self):
+        if not self.active:
+            return self
+        self.grace = _grace()
+        self.old = {sig: signal.getsignal(sig) for sig in _STOP_SIGNALS}
+        for sig in _STOP_SIGNALS:
+            if sig != signal.SIGINT:  # SIGINT keeps Python's handler: KeyboardInterrupt
+                signal.signal(sig, self._raise)
+        self.reader, self.writer = socket.socketpair()
+        self.writer.setblocking(False)
+        self.old_fd = signal.set_wakeup_fd(self.writer.fileno(), warn_on_full_buffer=False)
+        threading.Thread(target=self._watch, name="msx-stop-watch", daemon=True).start()
+        return self
+
+    def __exit__(self, *exc):
+        if not self.active:
+            return False
+        self.report_done()
+        signal.set_wakeup_fd(self.old_fd)
+        for sig, handler in self.old.items():
+            signal.signal(sig, handler)
+        self.writer.close()  # ends the watcher
+        return False
+
+    @staticmethod
+    def _raise(signum, frame):
+        raise Stopped(signum)
+
+    def report_done(self):
+        """The main thread has reported (or finished): the watcher must not."""
+        with self.lock:
+            self.reported = True
+
+    def _watch(self):
+        try:
+            while True:
+                data = self.reader.recv(64)
+                if not data:
+                    return
+                sigs = [b for b in data if b in _STOP_SIGNALS]
+                if sigs:
+                    break
+            sig = sigs[0]
+            if not math.isfinite(self.grace):
+                return
+            time.sleep(self.grace)
+            with self.lock:
+                if self.reported:
+                    return
+                from ._render import stop_workers
+
+                stop_workers()
+                _say(f"\nmsx: {_STOP_SIGNALS[sig]} (ended {self.grace:g} s later: a native call did not return)")
+                os._exit(128 + sig)
+        finally:
+            self.reader.close()
 
 
 def _parse_defines(items):
@@ -112,10 +224,16 @@ def main(argv=None):
     args = build_parser().parse_args(argv)
     verbose = getattr(args, "verbose", False)
     try:
-        args.func(args)
-    except KeyboardInterrupt:
-        print("\nmsx: interrupted", file=sys.stderr)
-        return 130
+        with _StopSignals() as stop:
+            try:
+                args.func(args)
+            except KeyboardInterrupt as e:
+                sig = getattr(e, "signum", signal.SIGINT)
+                for other in _STOP_SIGNALS:  # a second Ctrl-C must not interrupt the report
+                    signal.signal(other, signal.SIG_IGN)
+                stop.report_done()
+                _say(f"\nmsx: {_STOP_SIGNALS.get(sig, 'interrupted')}")
+                return 128 + sig
     except (RenderError, UsageError) as e:
         if verbose:
             traceback.print_exc()

@@ -92,6 +92,93 @@ def test_a_shipped_scene_renders_by_name(tmp_path):
     assert r.returncode == 1 and "shipped scenes: " in r.stderr and "fig09_copper_sphere.xml" in r.stderr
 
 
+FIG09_PARAMS = "alpha, bsdf, distribution, estimator, height, material, max_depth, model, spp, width"
+
+
+def _one_error_line(r, *fragments):
+    """The run failed with exactly one line on stderr, an error naming every fragment, and no traceback."""
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 1, (r.returncode, r.stderr)
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("msx: error: ") and "Traceback" not in r.stderr, lines
+    assert "--verbose" not in lines[0], f"a user's mistake reported as an unexpected error: {lines[0]}"
+    for f in fragments:
+        assert f in lines[0], f"{f!r} not in {lines[0]!r}"
+    return lines[0]
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_misspelled_define_is_named_with_a_suggestion(tmp_path, workers):
+    """`-D alhpa=0.5` (Mitsuba: "Found unused parameters") names what was typed, suggests the close name and
+    lists the scene's parameters, with the scene loaded in the CLI's process or in the workers."""
+    r = msx("render", "fig09_copper_sphere.xml", "-D", "alhpa=0.5", "--workers", str(workers), "--spp", "4",
+            "-o", str(tmp_path / "x.exr"), cwd=tmp_path)
+    line = _one_error_line(r, "-D alhpa=0.5", "unknown parameter 'alhpa'", "did you mean 'alpha'?",
+                           f"the scene's parameters: {FIG09_PARAMS}")
+    assert not (tmp_path / "x.exr").exists(), line
+
+
+def test_unused_defines_are_named(tmp_path):
+    """A name the scene does not have, and a name it has but does not read with the other values (`model`
+    with Mitsuba's roughconductor): both named; the list holds what the scene reads with these values."""
+    r = msx("render", SCENE, "-D", "surface=dielectric", "--workers", "1", "-o", str(tmp_path / "x.exr"))
+    line = _one_error_line(r, "-D surface=dielectric: unknown parameter 'surface'", FIG09_PARAMS)
+    assert "did you mean" not in line  # nothing close to 'surface'
+    r = msx("render", SCENE, "-D", "bsdf=roughconductor", "-D", "model=heitz", "--workers", "1",
+            "-o", str(tmp_path / "x.exr"))
+    _one_error_line(r, "-D model=heitz: 'model' is not used with these values",
+                    "the scene's parameters: alpha, bsdf, distribution, height, material, max_depth, spp, width")
+
+
+def test_a_scene_without_spp_renders(tmp_path):
+    """A user's scene without a $spp parameter: --spp goes to the render alone (passing it to the scene too
+    was rejected as an unused parameter)."""
+    scene = tmp_path / "mine.xml"
+    scene.write_text('<scene version="3.0.0"><integrator type="path"/><sensor type="perspective">'
+                     '<film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>'
+                     '</sensor><shape type="sphere"><bsdf type="msx_posfree"/></shape>'
+                     '<emitter type="constant"/></scene>')
+    r = msx("render", str(scene), "--spp", "2", "--workers", "1", "-o", str(tmp_path / "x.exr"))
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "x.exr").exists()
+
+
+def test_bad_inputs_give_one_line(tmp_path, capsys):
+    """Unknown scenes, unreadable files, bad values and unwritable outputs, in render, compare, simulate and
+    assets: one line naming what was typed, before any work is done (msx.cli.main in this process: fast)."""
+    from types import SimpleNamespace
+
+    from msx import cli
+
+    a_file = tmp_path / "a_file"
+    a_file.write_text("not a folder")
+    (tmp_path / "folder.xml").mkdir()
+    cases = [
+        (("render", "nope.xml"), ["scene file not found: nope.xml", "shipped scenes: "]),
+        (("render", str(tmp_path / "folder.xml")), ["the scene is a folder, not a file: "]),
+        (("render", SCENE, "-D", "spp=many"), ["-D spp=many", "integer"]),
+        (("render", SCENE, "-D", "alpha"), ["-D expects key=value, got 'alpha'"]),
+        (("render", SCENE, "-o", str(a_file / "x.exr")), [f"-o {a_file / 'x.exr'}", "is not a folder"]),
+        (("compare", "--variant", "scalar_bogus", "--out", str(tmp_path / "c")), ["--variant scalar_bogus",
+                                                                                  "scalar_rgb"]),
+        (("compare", "--out", str(a_file)), [f"--out {a_file}", "is not a folder"]),
+        (("compare", "--scenes", str(a_file), "--out", str(tmp_path / "c")), [f"--scenes {a_file}: not a folder"]),
+        (("compare", "--cache", str(a_file / "c"), "--out", str(tmp_path / "c")), [f"--cache {a_file / 'c'}"]),
+        (("assets", str(a_file)), [f"msx assets {a_file}", "is not a folder"]),
+        (("simulate", "--surface", "conductor", "--alpha", "-1", "--theta-i", "0.5", "--rays", "100",
+          "--out", str(tmp_path / "s")), ["alpha must lie in"]),
+        (("simulate", "--surface", "conductor", "--alpha", "0.5", "--theta-i", "0.5", "--rays", "-5",
+          "--out", str(tmp_path / "s")), ["--rays must be an integer ≥ 1 (got -5)"]),
+        (("simulate", "--surface", "conductor", "--alpha", "0.5", "--theta-i", "0.5", "--rays", "100",
+          "--out", str(a_file)), [f"--out {a_file}", "is not a folder"]),
+    ]
+    for args, fragments in cases:
+        code = cli.main([*args, "--workers", "1"] if args[0] == "render" else list(args))
+        r = SimpleNamespace(returncode=code, stderr=capsys.readouterr().err)
+        _one_error_line(r, *fragments)
+        assert "chunks" not in r.stderr and "%" not in r.stderr, f"{args}: the error came after the work"
+
+
 def _children(pid):
     """Worker processes of `pid` (multiprocessing spawn children, not its resource tracker)."""
     out = []

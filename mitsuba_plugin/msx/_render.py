@@ -51,6 +51,101 @@ def one_line(error: BaseException) -> str:
     return message
 
 
+_REF = re.compile(r"\$(\w+)")
+_UNUSED = re.compile(r"^\s*-\s*\$(\w+)=", re.M)
+
+
+def output_folder(path, option: str) -> Path:
+    """Creates the output folder `path` (given as `option`, e.g. "--out out") or raises a RenderError naming
+    it and why — before any work is done, not after."""
+    folder = Path(path)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise RenderError(f"{option}: {folder} exists and is not a folder") from None
+    except OSError as e:
+        raise RenderError(f"{option}: cannot create the folder {folder} ({e.strerror or e})") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise RenderError(f"{option}: the folder {folder} is not writable")
+    return folder
+
+
+def read_scene(scene) -> str:
+    """The text of a scene file, or a RenderError naming the file and why it cannot be read."""
+    try:
+        return Path(scene).read_text()
+    except FileNotFoundError:
+        raise RenderError(f"scene file not found: {scene}") from None
+    except IsADirectoryError:
+        raise RenderError(f"the scene is a folder, not a file: {scene}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise RenderError(f"cannot read scene file {scene}: {getattr(e, 'strerror', None) or e}") from None
+
+
+def scene_parameters(scene, values: dict | None = None):
+    """(names the scene reads as ``$name`` with these parameter values — in its file and the files it includes,
+    ``include/conductor_$bsdf.xml`` resolved with the values —, its ``<default>`` values). What Mitsuba calls
+    an unused parameter is a value passed for a name outside the first set."""
+    import xml.etree.ElementTree as ET
+
+    top = Path(scene)
+    used, defaults, seen = set(), {}, set()
+    try:
+        root = ET.parse(top).getroot()
+    except (OSError, ET.ParseError):
+        return used, defaults
+    for el in root.iter("default"):
+        if el.get("name"):
+            defaults.setdefault(el.get("name"), el.get("value", ""))
+    values = {**defaults, **(values or {})}
+
+    def visit(path: Path, root):
+        seen.add(path.resolve())
+        for el in root.iter():
+            for text in el.attrib.values():
+                used.update(_REF.findall(text))
+            if el.tag == "include" and el.get("filename"):
+                name = _REF.sub(lambda m: str(values.get(m.group(1), m.group(0))), el.get("filename"))
+                for base in (path.parent, top.parent):
+                    target = base / name
+                    if target.is_file():
+                        if target.resolve() not in seen:
+                            try:
+                                visit(target, ET.parse(target).getroot())
+                            except (OSError, ET.ParseError):
+                                pass
+                        break
+
+    visit(top, root)
+    return used, defaults
+
+
+def unused_message(scene, params: dict, names) -> str:
+    """One line for -D names a scene does not read: each name as typed, a close match (difflib) when there is
+    one, and the names the scene reads with these values."""
+    import difflib
+
+    used, defaults = scene_parameters(scene, params)
+    parts = []
+    for name in names:
+        typed = f"-D {name}={params[name]}" if name in params else f"-D {name}"
+        if name in defaults:
+            parts.append(f"{typed}: '{name}' is not used with these values")
+            continue
+        close = difflib.get_close_matches(name, sorted(used | set(defaults)), n=1)
+        parts.append(f"{typed}: unknown parameter '{name}'" + (f" (did you mean '{close[0]}'?)" if close else ""))
+    listed = ", ".join(sorted(used)) or "none"
+    return f"{Path(scene).name}: {'; '.join(parts)}; the scene's parameters: {listed}"
+
+
+def load_message(error: BaseException, scene, params: dict) -> str:
+    """The one-line message of a failed scene load; unused -D names get unused_message."""
+    names = _UNUSED.findall(str(error)) if "unused parameters" in str(error) else []
+    if names:
+        return unused_message(scene, params, names)
+    return one_line(error)
+
+
 # ----------------------------------------------------------------- progress
 
 
@@ -134,7 +229,7 @@ def _load(variant: str, scene: str, params: dict):
         try:
             _scenes[key] = load_scene(mi, scene, **params)
         except Exception as e:
-            raise RenderError(one_line(e)) from None
+            raise RenderError(load_message(e, scene, params)) from None
     return _scenes[key]
 
 
@@ -284,7 +379,7 @@ def with_assets(scene: str, params: dict) -> dict:
     from . import assets
 
     path = Path(scene)
-    if "$assets" not in path.read_text():
+    if "$assets" not in read_scene(path):
         return params
     if "assets" in params:
         assets.ensure(params["assets"])
@@ -360,11 +455,18 @@ def render_scene(scene: str, *, variant: str = DEFAULT_VARIANT, spp: int | None 
 
     scene = resolve_scene(scene)
     params = with_assets(scene, {k: str(v) for k, v in (params or {}).items()})
+    used, defaults = scene_parameters(scene, params)
     if spp is None:
-        spp = int(params.get("spp", 16))
+        text = params.get("spp", defaults.get("spp", "16"))
+        try:
+            spp = int(text)
+        except ValueError:
+            raise RenderError(f"spp must be an integer ≥ 1 (got -D spp={text})" if "spp" in params else
+                              f"{Path(scene).name}: its default spp is not an integer ({text!r}); pass --spp") from None
     if spp < 1:
         raise RenderError(f"spp must be ≥ 1 (got {spp})")
-    params["spp"] = str(spp)
+    if "spp" in used:  # the scene's own sample count (mi.render is also given spp); a scene without $spp
+        params["spp"] = str(spp)  # would reject it as an unused parameter
     counts = _chunks(spp, chunks or max(workers, 4))
     tasks = [(seed * 1000 + k, c) for k, c in enumerate(counts)]
     results = []

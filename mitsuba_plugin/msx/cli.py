@@ -25,7 +25,7 @@ import time
 import traceback
 from pathlib import Path
 
-from ._render import DEFAULT_VARIANT, RenderError, one_line, render_scene, write_image
+from ._render import DEFAULT_VARIANT, RenderError, one_line, output_folder, render_scene, write_image
 
 __all__ = ["main", "render_scene", "write_image"]
 
@@ -160,9 +160,13 @@ def _positive(name):
 def cmd_render(args):
     params = _parse_defines(args.define)
     out = Path(args.output or Path(args.scene).with_suffix("").name + ".exr")
+    output_folder(out.parent, f"-o {out}")  # before the render, not after it
     img, _, wall = render_scene(args.scene, variant=args.variant, spp=args.spp, params=params,
                                 workers=args.workers, seed=args.seed)
-    write_image(out, img, args.variant)
+    try:
+        write_image(out, img, args.variant)
+    except (OSError, RuntimeError) as e:
+        raise RenderError(f"-o {out}: cannot write the image ({one_line(e)})") from None
     print(f"wrote {out.with_suffix('.exr')} and {out.with_suffix('.png')} ({wall:.1f} s)")
 
 
@@ -175,7 +179,7 @@ def cmd_compare(args):
 def cmd_assets(args):
     from . import assets
 
-    folder = assets.ensure(args.folder)
+    folder = assets.ensure(output_folder(args.folder, f"msx assets {args.folder}"))
     print(f"assets in {folder}: {', '.join(assets.FILES)}")
 
 

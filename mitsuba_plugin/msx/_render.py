@@ -388,7 +388,7 @@ def with_assets(scene: str, params: dict) -> dict:
         assets.ensure(path.parent / "assets")
         return params
     except OSError:
-        cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "msx" / "assets"
+        cache = cache_root() / "assets"
         assets.ensure(cache)
         return dict(params, assets=str(cache))
 
@@ -525,14 +525,39 @@ def resolve_scene(scene) -> str:
     hint = ""
     if os.path.dirname(str(scene)) == "":  # a bare name: look among the shipped scenes
         try:
-            shipped = scenes_dir()
+            return str(shipped_scene(scene))
         except RenderError:
-            shipped = None
-        if shipped is not None:
-            if (shipped / str(scene)).exists():
-                return str(shipped / str(scene))
-            hint = "; shipped scenes: " + ", ".join(sorted(p.name for p in shipped.glob("*.xml")))
+            names = shipped_scenes()
+            hint = "; shipped scenes: " + ", ".join(names) if names else ""
     raise RenderError(f"scene file not found: {scene}{hint}")
+
+
+def shipped_scenes() -> list:
+    """File names of the shipped scenes (none if the scene files are missing)."""
+    try:
+        return sorted(p.name for p in scenes_dir().glob("*.xml"))
+    except RenderError:
+        return []
+
+
+def shipped_scene(name) -> Path:
+    """The shipped scene `name` (a file name; ``.xml`` may be left out), or a RenderError naming the shipped
+    scenes."""
+    name = str(name)
+    if os.path.dirname(name) == "" and name not in ("", ".", ".."):
+        folder = scenes_dir()
+        for candidate in (name, name + ".xml"):
+            if (folder / candidate).is_file():
+                return folder / candidate
+    raise RenderError(f"no shipped scene {name!r}; shipped scenes: {', '.join(shipped_scenes())}")
+
+
+def cache_root() -> Path:
+    """msx's cache folder: $MSX_CACHE_DIR, else $XDG_CACHE_HOME/msx, else ~/.cache/msx."""
+    base = os.environ.get("MSX_CACHE_DIR")
+    if base:
+        return Path(base)
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "msx"
 
 
 def scenes_dir() -> Path:

@@ -179,7 +179,10 @@ def cmd_compare(args):
 def cmd_assets(args):
     from . import assets
 
-    folder = assets.ensure(output_folder(args.folder, f"msx assets {args.folder}"))
+    from ._render import scenes_dir
+
+    target = args.folder or scenes_dir() / "assets"  # where the shipped scenes look ($assets = "assets")
+    folder = assets.ensure(output_folder(target, f"msx assets {target}"))
     print(f"assets in {folder}: {', '.join(assets.FILES)}")
 
 
@@ -215,7 +218,8 @@ def build_parser():
 
     a = sub.add_parser("assets", help="write the generated scene assets (sky, sculpted mesh, normal map)",
                        parents=[common])
-    a.add_argument("folder", nargs="?", default=str(Path(__file__).resolve().parent / "scenes" / "assets"))
+    a.add_argument("folder", nargs="?", default=None,
+                   help="default: the shipped scenes' assets folder (where they look for them)")
     a.set_defaults(func=cmd_assets)
 
     from .microgeometry import add_simulate_parser

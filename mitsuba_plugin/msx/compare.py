@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._render import RenderError, output_folder, scenes_dir
+from ._render import RenderError, cache_root, output_folder, scenes_dir
 from .evaluation import atlas as atlas_mod
 from .evaluation import charts, common
 from .evaluation import energy as energy_mod
@@ -77,7 +77,7 @@ def run(args):
     for s in SWEEP_SCENES:
         if not (sdir / f"{s.name}.xml").exists():
             raise RenderError(f"scene not found: {sdir / (s.name + '.xml')}")
-    cache = Path(args.cache) if args.cache else Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "msx"
+    cache = Path(args.cache) if args.cache else cache_root()
     output_folder(cache, f"--cache {cache}" if args.cache else f"the cache folder {cache} (--cache to choose one)")
     stages = [f"sweep {s.name}" for s in SWEEP_SCENES] + ["side-by-side scenes", "stability atlas", "lobes",
                                                           "energy curves"]

@@ -75,6 +75,7 @@ class _StopSignals:
         self.active = threading.current_thread() is threading.main_thread()
         self.lock = threading.Lock()
         self.reported = False
+        self.signum = None  # the first stop signal received
 
     def __enter__(self):
         if not self.active:
@@ -82,8 +83,7 @@ class _StopSignals:
         self.grace = _grace()
         self.old = {sig: signal.getsignal(sig) for sig in _STOP_SIGNALS}
         for sig in _STOP_SIGNALS:
-            if sig != signal.SIGINT:  # SIGINT keeps Python's handler: KeyboardInterrupt
-                signal.signal(sig, self._raise)
+            signal.signal(sig, self._raise)
         self.reader, self.writer = socket.socketpair()
         self.writer.setblocking(False)
         self.old_fd = signal.set_wakeup_fd(self.writer.fileno(), warn_on_full_buffer=False)
@@ -100,9 +100,22 @@ class _StopSignals:
         self.writer.close()  # ends the watcher
         return False
 
-    @staticmethod
-    def _raise(signum, frame):
-        raise Stopped(signum)
+    def _raise(self, signum, frame):
+        """Remembers the signal (an exception raised in a callback from native code, e.g. a plugin
+        constructor called by Mitsuba's scene loader, may come back wrapped in another one) and raises
+        KeyboardInterrupt (SIGINT) or Stopped."""
+        if self.signum is None:
+            self.signum = signum
+        raise KeyboardInterrupt if signum == signal.SIGINT else Stopped(signum)
+
+    def stop_signal(self, error: BaseException):
+        """The stop signal behind `error`, if any: its own, or one received while it unwound."""
+        if isinstance(error, SystemExit):
+            return None
+        sig = getattr(error, "signum", None) or self.signum
+        if sig is None and isinstance(error, KeyboardInterrupt):
+            sig = signal.SIGINT
+        return sig
 
     def report_done(self):
         """The main thread has reported (or finished): the watcher must not."""
@@ -235,8 +248,10 @@ def main(argv=None):
         with _StopSignals() as stop:
             try:
                 args.func(args)
-            except KeyboardInterrupt as e:
-                sig = getattr(e, "signum", signal.SIGINT)
+            except BaseException as e:
+                sig = stop.stop_signal(e)
+                if sig is None:
+                    raise
                 for other in _STOP_SIGNALS:  # a second Ctrl-C must not interrupt the report
                     signal.signal(other, signal.SIG_IGN)
                 stop.report_done()

@@ -193,12 +193,21 @@ def _children(pid):
     return out
 
 
+def _like_a_terminal_job():
+    """In the child, before exec: the stop signals' default actions, as for a terminal's foreground job (the
+    tests may run in the background, which ignores SIGINT, or under nohup, which ignores SIGHUP; msx keeps an
+    ignored signal ignored)."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_DFL)
+
+
 def _start_long_render(tmp_path, workers=2, env=None):
     """A render that would run for many minutes; returns the process once its workers exist (or, with one
     worker, once it had time to start rendering in-process)."""
     p = subprocess.Popen([sys.executable, "-m", "msx", "render", SCENE, "--workers", str(workers), "--spp", "100000",
                           "-o", str(tmp_path / "x.exr")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         start_new_session=True, env=None if env is None else {**os.environ, **env})
+                         start_new_session=True, preexec_fn=_like_a_terminal_job,
+                         env=None if env is None else {**os.environ, **env})
     if workers == 1:
         time.sleep(3.0)  # usually inside mi.render by now; earlier or later ends the same way (asserted alike)
         return p, []
@@ -299,7 +308,8 @@ def test_ctrl_c_stops_compare(tmp_path):
     ends the run by itself (the last-resort exit is off) with one line."""
     p = subprocess.Popen([sys.executable, "-m", "msx", "compare", "--quick", "--out", str(tmp_path / "out"),
                           "--cache", str(tmp_path / "cache")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                         text=True, start_new_session=True, env={**os.environ, "MSX_STOP_GRACE": "inf"})
+                         text=True, start_new_session=True, preexec_fn=_like_a_terminal_job,
+                         env={**os.environ, "MSX_STOP_GRACE": "inf"})
     time.sleep(4.0)  # into the first sweep's renders, usually; before or after ends the same way
     os.killpg(p.pid, signal.SIGINT)
     err, took = _ends(p, "Ctrl-C did not stop msx compare")
@@ -323,7 +333,21 @@ def test_ctrl_c_inside_a_native_callback_is_an_interrupt(tmp_path, capsys, monke
         pytest.fail("SIGINT was not handled")
 
     monkeypatch.setattr(_render, "load_scene", load_scene)
-    code = cli.main(["render", SCENE, "--workers", "1", "--spp", "1", "-o", str(tmp_path / "x.exr")])
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a terminal (pytest may run in the
+    try:  # background, SIGINT ignored)
+        code = cli.main(["render", SCENE, "--workers", "1", "--spp", "1", "-o", str(tmp_path / "x.exr")])
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # main() restored it
+    finally:
+        signal.signal(signal.SIGINT, before)
     err = capsys.readouterr().err
     assert (code, err.strip()) == (130, "msx: interrupted")
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # main() restored it
+
+
+def test_an_ignored_hangup_stays_ignored(tmp_path):
+    """`nohup msx …` (SIGHUP ignored by whoever started msx) survives a closed terminal: msx must not install
+    its own SIGHUP handler over the inherited SIG_IGN."""
+    code = ("import signal, sys\nfrom msx import cli\nsignal.signal(signal.SIGHUP, signal.SIG_IGN)\n"
+            "def hang_up(args):\n    signal.raise_signal(signal.SIGHUP)\n    print('survived')\n"
+            "cli.cmd_assets = hang_up\nsys.exit(cli.main(['assets', sys.argv[1]]))\n")
+    r = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=HUNG)
+    assert (r.returncode, r.stdout.strip()) == (0, "survived"), r.stderr

@@ -81,8 +81,11 @@ class _StopSignals:
         if not self.active:
             return self
         self.grace = _grace()
-        self.old = {sig: signal.getsignal(sig) for sig in _STOP_SIGNALS}
-        for sig in _STOP_SIGNALS:
+        # A signal ignored by whoever started msx stays ignored: `nohup msx compare &` must survive the
+        # terminal's SIGHUP, and a shell's background job its Ctrl-C.
+        self.old = {sig: signal.getsignal(sig) for sig in _STOP_SIGNALS
+                    if signal.getsignal(sig) is not signal.SIG_IGN}
+        for sig in self.old:
             signal.signal(sig, self._raise)
         self.reader, self.writer = socket.socketpair()
         self.writer.setblocking(False)
@@ -254,7 +257,7 @@ def main(argv=None):
                 sig = stop.stop_signal(e)
                 if sig is None:
                     raise
-                for other in _STOP_SIGNALS:  # a second Ctrl-C must not interrupt the report
+                for other in stop.old:  # a second Ctrl-C must not interrupt the report
                     signal.signal(other, signal.SIG_IGN)
                 stop.report_done()
                 _say(f"\nmsx: {_STOP_SIGNALS.get(sig, 'interrupted')}")

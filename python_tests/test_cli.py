@@ -172,6 +172,18 @@ def test_bad_inputs_give_one_line(tmp_path, capsys):
         (("simulate", "--surface", "conductor", "--alpha", "0.5", "--theta-i", "0.5", "--rays", "100",
           "--out", str(a_file)), [f"--out {a_file}", "is not a folder"]),
     ]
+    usage = [  # argparse's checks: one line too (exit status 2), naming the option and the value
+        (("render", SCENE, "--seed", "abc"), ["msx render: error: argument --seed: invalid int value: 'abc'"]),
+        (("render", SCENE, "--workers", "0"), ["msx render: error: argument --workers: ", "(got 0)"]),
+        (("simulate", "--surface", "plastic"), ["msx simulate: error: argument --surface: invalid choice: 'plastic'"]),
+        (("bogus",), ["msx: error: argument command: invalid choice: 'bogus'"]),
+    ]
+    for args, fragments in usage:
+        with pytest.raises(SystemExit) as e:
+            cli.main(list(args))
+        err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+        assert e.value.code == 2 and len(err) == 1, (args, err)
+        assert all(f in err[0] for f in fragments) and err[0].endswith("--help)"), (args, err)
     for args, fragments in cases:
         code = cli.main([*args, "--workers", "1"] if args[0] == "render" else list(args))
         r = SimpleNamespace(returncode=code, stderr=capsys.readouterr().err)
@@ -314,7 +326,7 @@ def test_ctrl_c_stops_compare(tmp_path):
     os.killpg(p.pid, signal.SIGINT)
     err, took = _ends(p, "Ctrl-C did not stop msx compare")
     print(f"\n[compare, SIGINT] exit {p.returncode} after {took:.2f} s: {err.strip().splitlines()[-1]!r}")
-    assert p.returncode == 130
+    assert p.returncode == 130, err
     assert err.strip().splitlines()[-1] == "msx: interrupted" and "Traceback" not in err
 
 
@@ -341,6 +353,20 @@ def test_ctrl_c_inside_a_native_callback_is_an_interrupt(tmp_path, capsys, monke
         signal.signal(signal.SIGINT, before)
     err = capsys.readouterr().err
     assert (code, err.strip()) == (130, "msx: interrupted")
+
+
+def test_a_stop_raised_inside_a_finalizer_is_not_lost(tmp_path):
+    """The handler of a stop signal can run inside a __del__ (garbage collection in the main thread), where
+    Python prints the exception and goes on: the run must still stop, not finish as if nothing happened."""
+    code = ("import os, signal, sys, time\nfrom msx import cli\n"
+            "class Finalized:\n    def __del__(self):\n        os.kill(os.getpid(), signal.SIGTERM)\n"
+            "        for _ in range(1000):  # the handler runs here, its exception unraisable\n            pass\n"
+            "def run(args):\n    Finalized()  # freed at once: __del__ runs\n    time.sleep(float(sys.argv[2]))\n"
+            "    print('went on')\n"
+            "cli.cmd_assets = run\nsys.exit(cli.main(['assets', sys.argv[1]]))\n")
+    r = subprocess.run([sys.executable, "-c", code, str(tmp_path), str(HUNG / 2)], capture_output=True, text=True,
+                       timeout=HUNG, env={**os.environ, "MSX_STOP_GRACE": "inf"}, preexec_fn=_like_a_terminal_job)
+    assert (r.returncode, r.stderr.strip(), r.stdout) == (143, "msx: terminated (SIGTERM)", "")
 
 
 def test_an_ignored_hangup_stays_ignored(tmp_path):

@@ -254,6 +254,13 @@ _WORKER_BLOCKED = {signal.SIGINT, signal.SIGTERM} | ({signal.SIGHUP} if hasattr(
 _live: set = set()  # worker processes of this (parent) process, for stop_workers()
 
 
+def _block(signals):
+    """Blocks `signals` in this thread; the previous mask (None where signal masks do not exist: Windows)."""
+    if not hasattr(signal, "pthread_sigmask"):
+        return None
+    return signal.pthread_sigmask(signal.SIG_BLOCK, signals)
+
+
 def _die_with_parent():
     """Linux: the kernel kills this worker when its parent dies, however it dies (even SIGKILL)."""
     if sys.platform.startswith("linux"):
@@ -272,7 +279,7 @@ def _worker_main(conn, workers: int, parent: int):
     in it: the parent alone decides when it stops."""
     global _workers
     _workers = workers
-    signal.pthread_sigmask(signal.SIG_BLOCK, _WORKER_BLOCKED)  # already blocked; keeps it so if spawned otherwise
+    _block(_WORKER_BLOCKED)  # already blocked (inherited); keeps it so if spawned otherwise
     _die_with_parent()
     if os.getppid() != parent:  # the parent died before prctl: nobody will read the results
         return
@@ -314,7 +321,7 @@ class _Workers:
         # it before blocking, so that the workers inherit the blocked mask.
         resource_tracker.ensure_running()
         try:
-            old = signal.pthread_sigmask(signal.SIG_BLOCK, _WORKER_BLOCKED)
+            old = _block(_WORKER_BLOCKED)
             try:
                 for _ in range(n):
                     mine, theirs = ctx.Pipe()
@@ -327,7 +334,8 @@ class _Workers:
                     self.conns.append(mine)
                     _live.add(p)
             finally:
-                signal.pthread_sigmask(signal.SIG_SETMASK, old)  # a signal that came meanwhile is raised here
+                if old is not None:  # a signal that came meanwhile is raised here
+                    signal.pthread_sigmask(signal.SIG_SETMASK, old)
         except BaseException:
             self.close(kill=True)
             raise

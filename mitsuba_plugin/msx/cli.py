@@ -76,6 +76,7 @@ class _StopSignals:
         self.lock = threading.Lock()
         self.reported = False
         self.signum = None  # the first stop signal received
+        self.old = {}  # the handlers replaced (none outside the main thread, where signals cannot be handled)
 
     def __enter__(self):
         if not self.active:
@@ -87,6 +88,8 @@ class _StopSignals:
                     if signal.getsignal(sig) is not signal.SIG_IGN}
         for sig in self.old:
             signal.signal(sig, self._raise)
+        self.old_hook = sys.unraisablehook
+        sys.unraisablehook = self._unraisable
         self.reader, self.writer = socket.socketpair()
         self.writer.setblocking(False)
         self.old_fd = signal.set_wakeup_fd(self.writer.fileno(), warn_on_full_buffer=False)
@@ -97,6 +100,7 @@ class _StopSignals:
         if not self.active:
             return False
         self.report_done()
+        sys.unraisablehook = self.old_hook
         signal.set_wakeup_fd(self.old_fd)
         for sig, handler in self.old.items():
             signal.signal(sig, handler)
@@ -110,6 +114,22 @@ class _StopSignals:
         if self.signum is None:
             self.signum = signum
         raise KeyboardInterrupt if signum == signal.SIGINT else Stopped(signum)
+
+    def _unraisable(self, info):
+        """The stop's exception, raised where Python cannot propagate it (a __del__ or a gc callback that ran in
+        the main thread when the signal's handler did), would be printed and lost, and the run would go on:
+        the signal is delivered again instead, to be handled once the main thread is out of there."""
+        if self.signum is not None and isinstance(info.exc_value, KeyboardInterrupt) and not self.reported:
+            main, sig = threading.main_thread().ident, self.signum
+            # Later and from another thread: here, the handler would run at once and be lost again.
+            threading.Timer(0.05, self._deliver, (main, sig)).start()
+            return
+        self.old_hook(info)
+
+    def _deliver(self, thread, sig):
+        with self.lock:
+            if not self.reported:
+                signal.pthread_kill(thread, sig)
 
     def stop_signal(self, error: BaseException):
         """The stop signal behind `error`, if any: its own, or one received while it unwound."""
@@ -126,28 +146,31 @@ class _StopSignals:
             self.reported = True
 
     def _watch(self):
+        """Reads the wakeup fd until __exit__ closes it (closing it earlier would make Python print an error on
+        each later signal); the first stop signal arms the last-resort exit."""
+        armed = False
         try:
             while True:
                 data = self.reader.recv(64)
                 if not data:
                     return
                 sigs = [b for b in data if b in _STOP_SIGNALS]
-                if sigs:
-                    break
-            sig = sigs[0]
-            if not math.isfinite(self.grace):
-                return
-            time.sleep(self.grace)
-            with self.lock:
-                if self.reported:
-                    return
-                from ._render import stop_workers
-
-                stop_workers()
-                _say(f"\nmsx: {_STOP_SIGNALS[sig]} (ended {self.grace:g} s later: a native call did not return)")
-                os._exit(128 + sig)
+                if sigs and not armed and math.isfinite(self.grace):
+                    armed = True
+                    threading.Thread(target=self._force_exit, args=(sigs[0],), daemon=True).start()
         finally:
             self.reader.close()
+
+    def _force_exit(self, sig):
+        time.sleep(self.grace)
+        with self.lock:
+            if self.reported:
+                return
+            from ._render import stop_workers
+
+            stop_workers()
+            _say(f"\nmsx: {_STOP_SIGNALS[sig]} (ended {self.grace:g} s later: a native call did not return)")
+            os._exit(128 + sig)
 
 
 def _parse_defines(items):
@@ -202,13 +225,20 @@ def cmd_assets(args):
     print(f"assets in {folder}: {', '.join(assets.FILES)}")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (argparse prints its usage first, several lines for msx simulate)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser():
     workers = os.cpu_count() or 1
     common = argparse.ArgumentParser(add_help=False)
     # Subcommands accept -v too; SUPPRESS keeps a top-level `msx -v render …` from being reset.
     common.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
                         help="show tracebacks on errors")
-    p = argparse.ArgumentParser(prog="msx", description="Multiple-scattering microfacet BSDFs for Mitsuba 3")
+    p = _Parser(prog="msx", description="Multiple-scattering microfacet BSDFs for Mitsuba 3")
     p.add_argument("-v", "--verbose", action="store_true", help="show tracebacks on errors")
     sub = p.add_subparsers(dest="command", required=True)
 

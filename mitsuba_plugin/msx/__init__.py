@@ -15,10 +15,12 @@ the hit and forwards each BSDF call to the C ABI (``include/msx.h``).
 import os
 import threading
 
+from ._scenes import scene_path
+
 __version__ = "0.1.0"
 
 __all__ = ["register", "backend", "registered_variants", "native_version", "diagnostics", "evaluated_mode", "check_fallback",
-           "__version__"]
+           "__version__", "scene_path"]
 
 # Variants for which msx_posfree has been registered in this process.
 _REGISTERED = {}

@@ -5,8 +5,10 @@ call, without Python and without the GIL, so Mitsuba's render threads run in
 parallel. It is compiled on first use against the headers of the *installed*
 Mitsuba and Dr.Jit (their struct layouts must match the wheel exactly; the
 wheels are built with AVX, hence ``-mavx``) plus nanobind's headers (a PyPI
-dependency), and cached under ``~/.cache/msx/native/<key>/`` — the key hashes
-the sources and every version involved, so an upgrade rebuilds it.
+dependency), and cached under ``native/<key>/`` of msx's cache folder
+(``$MSX_CACHE_DIR``, else ``$XDG_CACHE_HOME/msx``, default ``~/.cache/msx``) — the key hashes the sources
+and every version involved, so an upgrade rebuilds it. A compile that fails is remembered there with its
+reason (``build-failed.txt``), so that other processes (the render workers) do not retry it.
 
 Before it is used, the build is checked against Mitsuba's own
 ``roughconductor`` (``model="single"`` must agree on eval and sample): a
@@ -20,7 +22,6 @@ back end) and instantiates the native class ``msx_posfree_native`` with them.
 from __future__ import annotations
 
 import ctypes
-import fcntl
 import hashlib
 import os
 import shutil
@@ -82,17 +83,23 @@ def build(verbose=False) -> Path:
     cxx, inc, mi_dir, dr_dir, ext, versions = _toolchain()
     h = hashlib.sha256()
     for part in (src.read_bytes(), hdr.read_bytes(), repr(versions).encode(), str(ext).encode(), cxx.encode(),
-                 sys.version.encode()):
+                 sys.version.encode(), Path(__file__).read_bytes()):  # this file: the compile command
         h.update(part)
     out_dir = _cache_root() / h.hexdigest()[:20]
     target = out_dir / "msx_native.so"
     if target.exists():
         return target
+    _remembered_failure(out_dir)
+    try:
+        import fcntl  # POSIX only: imported here, so that elsewhere the fallback can say why
+    except ImportError:
+        raise NativeUnavailable(f"the native back end needs a POSIX system (Linux); this is {sys.platform}") from None
     out_dir.mkdir(parents=True, exist_ok=True)
     with open(out_dir / ".lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # several processes may ask at once: one builds
         if target.exists():
             return target
+        _remembered_failure(out_dir)  # another process failed meanwhile
         tmp = out_dir / f"msx_native.{os.getpid()}.so"
         cmd = [cxx, "-std=c++20", "-O2", "-fPIC", "-shared", "-mavx", "-DNDEBUG", "-fvisibility=hidden",
                *[f"-I{d}" for d in inc], f"-I{hdr.parent}", str(src), "-o", str(tmp), str(ext),
@@ -106,9 +113,32 @@ def build(verbose=False) -> Path:
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode != 0:
             tail = "\n".join(r.stderr.strip().splitlines()[-8:])
-            raise NativeUnavailable(f"compiling the native plugin failed ({cxx}):\n{tail}")
+            reason = f"compiling the native plugin failed ({cxx}):\n{tail}"
+            tmp.unlink(missing_ok=True)
+            if r.returncode > 0:  # the compiler's verdict on these inputs (not a signal): remembered
+                failed = out_dir / _FAILED
+                part = out_dir / f"{_FAILED}.{os.getpid()}"
+                part.write_text(reason)
+                os.replace(part, failed)  # atomic: whole or absent
+            raise NativeUnavailable(reason)
         os.replace(tmp, target)
     return target
+
+
+_FAILED = "build-failed.txt"
+
+
+def _remembered_failure(out_dir: Path):
+    """A build of these exact inputs (the folder's key) failed before: raise its reason instead of compiling
+    again (every worker process would otherwise retry). Deleting the folder, or any change of the inputs
+    (sources, versions, compiler), tries again."""
+    try:
+        reason = (out_dir / _FAILED).read_text()
+    except (OSError, UnicodeDecodeError):
+        return
+    first, _, rest = reason.partition("\n")
+    raise NativeUnavailable(f"{first} [remembered from an earlier build of the same inputs; delete {out_dir} to "
+                            f"retry]" + (f"\n{rest}" if rest else ""))
 
 
 def load():

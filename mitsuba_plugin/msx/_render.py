@@ -13,14 +13,13 @@ a worker that dies and Ctrl-C all end the run at once with one clear line
 
 from __future__ import annotations
 
+import atexit
 import multiprocessing as mp
 import os
 import re
 import signal
 import sys
 import time
-from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 DEFAULT_VARIANT = "scalar_rgb"
@@ -50,6 +49,101 @@ def one_line(error: BaseException) -> str:
     if at and at.group(1) not in message:
         message = f"{at.group(1)}:{at.group(2)}: {message}"
     return message
+
+
+_REF = re.compile(r"\$(\w+)")
+_UNUSED = re.compile(r"^\s*-\s*\$(\w+)=", re.M)
+
+
+def output_folder(path, option: str) -> Path:
+    """Creates the output folder `path` (given as `option`, e.g. "--out out") or raises a RenderError naming
+    it and why — before any work is done, not after."""
+    folder = Path(path)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise RenderError(f"{option}: {folder} exists and is not a folder") from None
+    except OSError as e:
+        raise RenderError(f"{option}: cannot create the folder {folder} ({e.strerror or e})") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise RenderError(f"{option}: the folder {folder} is not writable")
+    return folder
+
+
+def read_scene(scene) -> str:
+    """The text of a scene file, or a RenderError naming the file and why it cannot be read."""
+    try:
+        return Path(scene).read_text()
+    except FileNotFoundError:
+        raise RenderError(f"scene file not found: {scene}") from None
+    except IsADirectoryError:
+        raise RenderError(f"the scene is a folder, not a file: {scene}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise RenderError(f"cannot read scene file {scene}: {getattr(e, 'strerror', None) or e}") from None
+
+
+def scene_parameters(scene, values: dict | None = None):
+    """(names the scene reads as ``$name`` with these parameter values — in its file and the files it includes,
+    ``include/conductor_$bsdf.xml`` resolved with the values —, its ``<default>`` values). What Mitsuba calls
+    an unused parameter is a value passed for a name outside the first set."""
+    import xml.etree.ElementTree as ET
+
+    top = Path(scene)
+    used, defaults, seen = set(), {}, set()
+    try:
+        root = ET.parse(top).getroot()
+    except (OSError, ET.ParseError):
+        return used, defaults
+    for el in root.iter("default"):
+        if el.get("name"):
+            defaults.setdefault(el.get("name"), el.get("value", ""))
+    values = {**defaults, **(values or {})}
+
+    def visit(path: Path, root):
+        seen.add(path.resolve())
+        for el in root.iter():
+            for text in el.attrib.values():
+                used.update(_REF.findall(text))
+            if el.tag == "include" and el.get("filename"):
+                name = _REF.sub(lambda m: str(values.get(m.group(1), m.group(0))), el.get("filename"))
+                for base in (path.parent, top.parent):
+                    target = base / name
+                    if target.is_file():
+                        if target.resolve() not in seen:
+                            try:
+                                visit(target, ET.parse(target).getroot())
+                            except (OSError, ET.ParseError):
+                                pass
+                        break
+
+    visit(top, root)
+    return used, defaults
+
+
+def unused_message(scene, params: dict, names) -> str:
+    """One line for -D names a scene does not read: each name as typed, a close match (difflib) when there is
+    one, and the names the scene reads with these values."""
+    import difflib
+
+    used, defaults = scene_parameters(scene, params)
+    parts = []
+    for name in names:
+        typed = f"-D {name}={params[name]}" if name in params else f"-D {name}"
+        if name in defaults:
+            parts.append(f"{typed}: '{name}' is not used with these values")
+            continue
+        close = difflib.get_close_matches(name, sorted(used | set(defaults)), n=1)
+        parts.append(f"{typed}: unknown parameter '{name}'" + (f" (did you mean '{close[0]}'?)" if close else ""))
+    listed = ", ".join(sorted(used)) or "none"
+    return f"{Path(scene).name}: {'; '.join(parts)}; the scene's parameters: {listed}"
+
+
+def load_message(error: BaseException, scene, params: dict) -> str:
+    """The one-line message of a failed scene load; unused -D names get unused_message."""
+    names = _UNUSED.findall(str(error)) if "unused parameters" in str(error) else []
+    if names:
+        return unused_message(scene, params, names)
+    return one_line(error)
 
 
 # ----------------------------------------------------------------- progress
@@ -135,7 +229,7 @@ def _load(variant: str, scene: str, params: dict):
         try:
             _scenes[key] = load_scene(mi, scene, **params)
         except Exception as e:
-            raise RenderError(one_line(e)) from None
+            raise RenderError(load_message(e, scene, params)) from None
     return _scenes[key]
 
 
@@ -153,30 +247,137 @@ def _render_chunk(variant: str, scene: str, params: dict, seed: int, spp: int):
     return seed, spp, np.array(img, dtype=np.float64), time.perf_counter() - t0
 
 
-def _worker_init(workers):
+# Signals a worker never acts on: the parent stops the workers itself (SIGKILL), whatever stopped it. A worker
+# that reacted would race with that stop: Mitsuba's render installs its own SIGINT handler (even over SIG_IGN)
+# that cancels the render and returns the partial image, which the worker then sends as a result.
+_WORKER_BLOCKED = {signal.SIGINT, signal.SIGTERM} | ({signal.SIGHUP} if hasattr(signal, "SIGHUP") else set())
+_live: set = set()  # worker processes of this (parent) process, for stop_workers()
+
+
+def _block(signals):
+    """Blocks `signals` in this thread; the previous mask (None where signal masks do not exist: Windows)."""
+    if not hasattr(signal, "pthread_sigmask"):
+        return None
+    return signal.pthread_sigmask(signal.SIG_BLOCK, signals)
+
+
+def _die_with_parent():
+    """Linux: the kernel kills this worker when its parent dies, however it dies (even SIGKILL)."""
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+
+
+def _worker_main(conn, workers: int, parent: int):
+    """A worker: renders the chunks it receives on `conn` until it gets None or the pipe closes. It starts with
+    the signals of _WORKER_BLOCKED blocked (inherited from the parent's mask at spawn), so that neither a
+    terminal's Ctrl-C nor a hang-up, which reach the whole process group, nor Mitsuba's own SIGINT handler act
+    in it: the parent alone decides when it stops."""
     global _workers
     _workers = workers
-    # Ctrl-C reaches the whole process group: the parent stops the workers itself.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _block(_WORKER_BLOCKED)  # already blocked (inherited); keeps it so if spawned otherwise
+    _die_with_parent()
+    if os.getppid() != parent:  # the parent died before prctl: nobody will read the results
+        return
+    while True:
+        try:
+            task = conn.recv()
+        except (EOFError, OSError):
+            return
+        if task is None:
+            return
+        try:
+            reply = ("ok", _render_chunk(*task))
+        except RenderError as e:
+            reply = ("error", str(e))
+        except Exception as e:  # noqa: BLE001 - sent to the parent as its one line
+            reply = ("error", f"{Path(task[1]).name}: {one_line(e)}")
+        try:
+            conn.send(reply)
+        except (BrokenPipeError, OSError):
+            return
 
 
-def _stop(executor: ProcessPoolExecutor):
-    """Ends the workers now (running chunks included)."""
-    procs = list(getattr(executor, "_processes", {}).values())
-    executor.shutdown(wait=False, cancel_futures=True)
-    for p in procs:
-        if p.is_alive():
-            p.terminate()
-    for p in procs:
-        p.join(timeout=5)
-        if p.is_alive():
+class _Workers:
+    """Worker processes (spawn), one pipe each, read only by the parent's main thread.
+
+    Not a ProcessPoolExecutor: its results come back through one shared pipe read by a management thread,
+    and the parent process itself keeps that pipe's write end open. A worker stopped while writing a result
+    (a rendered image is ~1 MB, far more than a pipe holds) left a partial message there; the management
+    thread then waited forever for the rest, and the interpreter's exit waited forever for that thread (the
+    hang of issue 17: "msx: interrupted" printed, then a futex wait). Here each worker's pipe has one writer,
+    the worker: when it dies, the parent's read ends at once (EOFError), and there is no thread to join."""
+
+    def __init__(self, n: int):
+        from multiprocessing import resource_tracker
+
+        ctx = mp.get_context("spawn")
+        self.procs, self.conns = [], []
+        # The resource tracker (started by the first spawn) unblocks SIGINT and SIGTERM when it starts: start
+        # it before blocking, so that the workers inherit the blocked mask.
+        resource_tracker.ensure_running()
+        try:
+            old = _block(_WORKER_BLOCKED)
+            try:
+                for _ in range(n):
+                    mine, theirs = ctx.Pipe()
+                    p = ctx.Process(target=_worker_main, args=(theirs, n, os.getpid()), daemon=True)
+                    try:
+                        p.start()
+                    finally:
+                        theirs.close()  # the worker holds the only write end of its results now
+                    self.procs.append(p)
+                    self.conns.append(mine)
+                    _live.add(p)
+            finally:
+                if old is not None:  # a signal that came meanwhile is raised here
+                    signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        except BaseException:
+            self.close(kill=True)
+            raise
+
+    def exit_code(self, k: int):
+        p = self.procs[k]
+        p.join(timeout=2.0)
+        return p.exitcode
+
+    def close(self, kill: bool):
+        """Ends the workers: at once (SIGKILL, running chunks included) or, after a complete run, by asking."""
+        if not kill:
+            for c in self.conns:
+                try:
+                    c.send(None)
+                except OSError:
+                    pass
+        for p in self.procs:
+            if kill and p.is_alive():
+                p.kill()
+        for p in self.procs:
+            p.join(timeout=None if kill else 10.0)
+            if p.is_alive():
+                p.kill()
+                p.join()
+            _live.discard(p)
+        for c in self.conns:
+            c.close()
+
+
+def stop_workers():
+    """Kills every worker process of this process now (at exit, and for the last-resort exit of cli.py)."""
+    for p in list(_live):
+        try:
             p.kill()
+        except (OSError, ValueError, AttributeError):
+            pass
 
 
-def _exit_codes(executor: ProcessPoolExecutor):
-    """Exit codes of dead workers, without the SIGTERM the executor sends to the others when the pool breaks."""
-    return sorted({p.exitcode for p in getattr(executor, "_processes", {}).values()
-                   if p.exitcode not in (None, 0, -signal.SIGTERM)})
+# Runs before multiprocessing's own exit handler (registered earlier, atexit runs last-in first-out), which
+# would SIGTERM the workers (blocked in them) and wait for them.
+atexit.register(stop_workers)
 
 
 def with_assets(scene: str, params: dict) -> dict:
@@ -186,7 +387,7 @@ def with_assets(scene: str, params: dict) -> dict:
     from . import assets
 
     path = Path(scene)
-    if "$assets" not in path.read_text():
+    if "$assets" not in read_scene(path):
         return params
     if "assets" in params:
         assets.ensure(params["assets"])
@@ -195,7 +396,7 @@ def with_assets(scene: str, params: dict) -> dict:
         assets.ensure(path.parent / "assets")
         return params
     except OSError:
-        cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "msx" / "assets"
+        cache = cache_root() / "assets"
         assets.ensure(cache)
         return dict(params, assets=str(cache))
 
@@ -209,30 +410,45 @@ def _chunks(spp: int, n: int):
 def render_chunks(scene: str, tasks, *, variant: str, params: dict, workers: int, on_result):
     """Renders the (seed, spp) `tasks` of `scene`, calling `on_result(chunk)` as each finishes.
 
-    The first failure (scene load, render, a dying worker, Ctrl-C) stops every
-    worker and raises: RenderError, or KeyboardInterrupt."""
+    The first failure (scene load, render, a dying worker, Ctrl-C or another signal turned into an exception)
+    stops every worker and raises: RenderError, or KeyboardInterrupt."""
     if workers <= 1 or len(tasks) <= 1:
         for seed, spp in tasks:
             on_result(_render_chunk(variant, scene, params, seed, spp))
         return
-    ctx = mp.get_context("spawn")
-    n = min(workers, len(tasks))
-    executor = ProcessPoolExecutor(n, mp_context=ctx, initializer=_worker_init, initargs=(n,))
+    from multiprocessing.connection import wait as wait_any
+
+    todo = list(tasks)
+    pool = None
     try:
-        pending = {executor.submit(_render_chunk, variant, scene, params, seed, spp) for seed, spp in tasks}
-        while pending:
-            done, pending = wait(pending, return_when=FIRST_EXCEPTION)
-            for f in done:
-                on_result(f.result())  # re-raises the worker's RenderError
-    except BrokenProcessPool:
-        codes = _exit_codes(executor)
-        how = f" (exit code {', '.join(map(str, codes))})" if codes else ""
-        _stop(executor)
-        raise RenderError(f"{Path(scene).name}: a render worker process died{how}") from None
+        pool = _Workers(min(workers, len(todo)))
+        busy = {}  # pipe index -> its chunk
+        for k, conn in enumerate(pool.conns):
+            if todo:
+                conn.send((variant, scene, params, *todo.pop(0)))
+                busy[k] = True
+        while busy:
+            ready = wait_any([pool.conns[k] for k in busy])
+            for conn in ready:
+                k = pool.conns.index(conn)
+                try:
+                    kind, value = conn.recv()
+                except (EOFError, OSError):  # the worker died (mid-message or idle): its pipe closed
+                    code = pool.exit_code(k)
+                    how = f" (exit code {code})" if code not in (None, 0) else ""
+                    raise RenderError(f"{Path(scene).name}: a render worker process died{how}") from None
+                if kind == "error":
+                    raise RenderError(value)
+                on_result(value)
+                if todo:
+                    conn.send((variant, scene, params, *todo.pop(0)))
+                else:
+                    del busy[k]
     except BaseException:
-        _stop(executor)
+        if pool is not None:
+            pool.close(kill=True)
         raise
-    executor.shutdown(wait=True)
+    pool.close(kill=False)
 
 
 def render_scene(scene: str, *, variant: str = DEFAULT_VARIANT, spp: int | None = None, params: dict | None = None,
@@ -247,11 +463,18 @@ def render_scene(scene: str, *, variant: str = DEFAULT_VARIANT, spp: int | None 
 
     scene = resolve_scene(scene)
     params = with_assets(scene, {k: str(v) for k, v in (params or {}).items()})
+    used, defaults = scene_parameters(scene, params)
     if spp is None:
-        spp = int(params.get("spp", 16))
+        text = params.get("spp", defaults.get("spp", "16"))
+        try:
+            spp = int(text)
+        except ValueError:
+            raise RenderError(f"spp must be an integer ≥ 1 (got -D spp={text})" if "spp" in params else
+                              f"{Path(scene).name}: its default spp is not an integer ({text!r}); pass --spp") from None
     if spp < 1:
         raise RenderError(f"spp must be ≥ 1 (got {spp})")
-    params["spp"] = str(spp)
+    if "spp" in used:  # the scene's own sample count (mi.render is also given spp); a scene without $spp
+        params["spp"] = str(spp)  # would reject it as an unused parameter
     counts = _chunks(spp, chunks or max(workers, 4))
     tasks = [(seed * 1000 + k, c) for k, c in enumerate(counts)]
     results = []
@@ -310,14 +533,39 @@ def resolve_scene(scene) -> str:
     hint = ""
     if os.path.dirname(str(scene)) == "":  # a bare name: look among the shipped scenes
         try:
-            shipped = scenes_dir()
+            return str(shipped_scene(scene))
         except RenderError:
-            shipped = None
-        if shipped is not None:
-            if (shipped / str(scene)).exists():
-                return str(shipped / str(scene))
-            hint = "; shipped scenes: " + ", ".join(sorted(p.name for p in shipped.glob("*.xml")))
+            names = shipped_scenes()
+            hint = "; shipped scenes: " + ", ".join(names) if names else ""
     raise RenderError(f"scene file not found: {scene}{hint}")
+
+
+def shipped_scenes() -> list:
+    """File names of the shipped scenes (none if the scene files are missing)."""
+    try:
+        return sorted(p.name for p in scenes_dir().glob("*.xml"))
+    except RenderError:
+        return []
+
+
+def shipped_scene(name) -> Path:
+    """The shipped scene `name` (a file name; ``.xml`` may be left out), or a RenderError naming the shipped
+    scenes."""
+    name = str(name)
+    if os.path.dirname(name) == "" and name not in ("", ".", ".."):
+        folder = scenes_dir()
+        for candidate in (name, name + ".xml"):
+            if (folder / candidate).is_file():
+                return folder / candidate
+    raise RenderError(f"no shipped scene {name!r}; shipped scenes: {', '.join(shipped_scenes())}")
+
+
+def cache_root() -> Path:
+    """msx's cache folder: $MSX_CACHE_DIR, else $XDG_CACHE_HOME/msx, else ~/.cache/msx."""
+    base = os.environ.get("MSX_CACHE_DIR")
+    if base:
+        return Path(base)
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "msx"
 
 
 def scenes_dir() -> Path:

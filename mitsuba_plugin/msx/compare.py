@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._render import RenderError, scenes_dir
+from ._render import RenderError, cache_root, output_folder, scenes_dir
 from .evaluation import atlas as atlas_mod
 from .evaluation import charts, common
 from .evaluation import energy as energy_mod
@@ -61,16 +61,24 @@ SIDE_SCENES = [
 
 def run(args):
     t_start = time.perf_counter()
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    if args.variant:
+        import mitsuba as mi
+
+        if args.variant not in mi.variants():
+            raise RenderError(f"--variant {args.variant}: not a Mitsuba variant of this install; available: "
+                              f"{', '.join(mi.variants())}")
+    out = output_folder(args.out, f"--out {args.out}")
     variant, route = (args.variant, f"variant {args.variant} (chosen with --variant)") if args.variant else \
         common.default_variant()
     st = common.settings(args.quick, variant)
     sdir = Path(args.scenes) if args.scenes else scenes_dir()
+    if not sdir.is_dir():
+        raise RenderError(f"--scenes {args.scenes}: not a folder")
     for s in SWEEP_SCENES:
         if not (sdir / f"{s.name}.xml").exists():
             raise RenderError(f"scene not found: {sdir / (s.name + '.xml')}")
-    cache = Path(args.cache) if args.cache else Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "msx"
+    cache = Path(args.cache) if args.cache else cache_root()
+    output_folder(cache, f"--cache {cache}" if args.cache else f"the cache folder {cache} (--cache to choose one)")
     stages = [f"sweep {s.name}" for s in SWEEP_SCENES] + ["side-by-side scenes", "stability atlas", "lobes",
                                                           "energy curves"]
     stages += ([] if st.quick else ["microgeometry"]) + ["report"]

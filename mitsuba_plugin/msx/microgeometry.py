@@ -764,10 +764,21 @@ def add_simulate_parser(sub, parents=()):
 
 
 def cmd_simulate(args):
-    res = simulate(args.surface, args.alpha, args.alpha_v, args.theta_i, args.rays, phi_i=args.phi_i, eta=args.eta,
-                   k=args.k, ior=args.ior, albedo=args.albedo, grid=args.grid, corr_cells=args.corr_cells,
-                   surfaces=args.surfaces, theta_bins=args.theta_bins, phi_bins=args.phi_bins, seed=args.seed,
-                   threads=args.threads)
+    from ._render import RenderError, output_folder
+
+    for option, value, low in (("--rays", args.rays, 1), ("--surfaces", args.surfaces, 1),
+                               ("--theta-bins", args.theta_bins, 1), ("--phi-bins", args.phi_bins, 1),
+                               ("--threads", args.threads, 0), ("--seed", args.seed, 0)):
+        if value < low:
+            raise RenderError(f"{option} must be an integer ≥ {low} (got {value})")
+    output_folder(args.out, f"--out {args.out}")  # before the simulation, not after it
+    try:
+        res = simulate(args.surface, args.alpha, args.alpha_v, args.theta_i, args.rays, phi_i=args.phi_i,
+                       eta=args.eta, k=args.k, ior=args.ior, albedo=args.albedo, grid=args.grid,
+                       corr_cells=args.corr_cells, surfaces=args.surfaces, theta_bins=args.theta_bins,
+                       phi_bins=args.phi_bins, seed=args.seed, threads=args.threads)
+    except ValueError as e:  # the core's parameter check: one line naming the parameter
+        raise RenderError(str(e)) from None
     res.write(args.out)
     c = res.counts.sum(axis=0)
     print(f"{res.rays:,} rays in {res.seconds:.1f} s ({res.rays / max(res.seconds, 1e-9):,.0f} rays/s); "

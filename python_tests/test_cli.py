@@ -377,3 +377,24 @@ def test_an_ignored_hangup_stays_ignored(tmp_path):
             "cli.cmd_assets = hang_up\nsys.exit(cli.main(['assets', sys.argv[1]]))\n")
     r = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=HUNG)
     assert (r.returncode, r.stdout.strip()) == (0, "survived"), r.stderr
+
+
+def test_variant_auto_takes_the_fastest_route_and_says_which(tmp_path):
+    """`--variant auto`: llvm_ad_rgb with the Dr.Jit engine where Mitsuba's LLVM variant works here (said on
+    stderr), and scalar_rgb with the native back end for a configuration the engine does not run."""
+    from msx._variants import llvm_problem
+
+    problem = llvm_problem()
+    r = msx("render", "fig09_copper_sphere.xml", "--variant", "auto", "--spp", "4", "-o", str(tmp_path / "a.exr"),
+            timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert (tmp_path / "a.exr").exists()
+    expected = "scalar_rgb (the native back end; " if problem else "llvm_ad_rgb (the Dr.Jit engine)"
+    assert f"msx: rendering with {expected}" in r.stderr, r.stderr[-2000:]
+    if problem:
+        return
+    r = msx("render", "fig08_diffuse.xml", "--variant", "auto", "-D", "model=invariance", "--spp", "1",
+            "-o", str(tmp_path / "b.exr"), timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "rendering with scalar_rgb (the native back end) instead" in r.stderr, r.stderr[-2000:]
+    assert (tmp_path / "b.exr").exists()

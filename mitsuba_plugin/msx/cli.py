@@ -200,8 +200,25 @@ def cmd_render(args):
     params = _parse_defines(args.define)
     out = Path(args.output or Path(args.scene).with_suffix("").name + ".exr")
     output_folder(out.parent, f"-o {out}")  # before the render, not after it
-    img, _, wall = render_scene(args.scene, variant=args.variant, spp=args.spp, params=params,
-                                workers=args.workers, seed=args.seed)
+    workers = args.workers
+    if args.variant == "auto":
+        from ._variants import fastest_variant
+
+        args.variant, why = fastest_variant()
+        print(f"msx: rendering with {args.variant} ({why})", file=sys.stderr)
+        if not args.variant.startswith("scalar"):
+            workers = 1  # drjit uses every core of this process
+    try:
+        img, _, wall = render_scene(args.scene, variant=args.variant, spp=args.spp, params=params,
+                                    workers=workers, seed=args.seed)
+    except RenderError as e:
+        if not (args.variant.startswith("llvm") and "msx.register(backend='batched')" in str(e)):
+            raise
+        # A configuration the Dr.Jit engine does not run: the native back end runs everything.
+        print(f"msx: {e}; rendering with scalar_rgb (the native back end) instead", file=sys.stderr)
+        args.variant = "scalar_rgb"
+        img, _, wall = render_scene(args.scene, variant=args.variant, spp=args.spp, params=params,
+                                    workers=args.workers, seed=args.seed)
     try:
         write_image(out, img, args.variant)
     except (OSError, RuntimeError) as e:
@@ -246,7 +263,10 @@ def build_parser():
     r.add_argument("scene")
     r.add_argument("-o", "--output", help="output path (.exr; a .png is written beside it)")
     r.add_argument("--spp", type=_positive("--spp"), default=None, help="samples per pixel (default: the scene's)")
-    r.add_argument("--variant", default=DEFAULT_VARIANT)
+    r.add_argument("--variant", default=DEFAULT_VARIANT,
+                   help=f"Mitsuba variant (default {DEFAULT_VARIANT}, the native back end); 'auto': the fastest "
+                        "route here, llvm_ad_rgb with the Dr.Jit engine where Mitsuba's LLVM variant works (one "
+                        "process, every core), falling back to scalar_rgb for what the engine does not run")
     r.add_argument("--workers", type=_positive("--workers"), default=workers, help="worker processes")
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("-D", "--define", action="append", help="scene parameter key=value (XML <default>)")

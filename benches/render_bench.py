@@ -5,8 +5,12 @@ built-in roughconductor and by msx_posfree through every route:
 - scalar_rgb, native back end (C++ plugin on the Rust core) and Python back
   end, each with 1 render thread and with all threads;
 - llvm_ad_rgb with the Dr.Jit engine (msx/jit/, traced into Mitsuba's kernels; drjit's default symbolic
-  mode), against the built-in in the same process and mode, and against the built-in in a process
-  without msx (what registering msx costs other scenes);
+  mode): every model and the built-in in one process with msx registered, **one scene alive at a time**,
+  interleaved over the repeats; and the built-in in a process without msx (what registering msx costs
+  other scenes). One scene at a time because a symbolic BSDF call compiles every live BSDF instance into
+  the kernel: with all the models alive at once each kernel holds all their walks, which slowed even the
+  built-in ≈ 1.8×; and one process because across processes this shared machine's timings moved ±40 %;
+
 - llvm_ad_rgb with the batched route (batched native calls in drjit's evaluated mode), against the
   built-in in drjit's default (symbolic) mode and in evaluated mode.
 
@@ -27,6 +31,16 @@ import time
 
 MODELS = ["single", "correlated", "invariance", "heitz"]
 LLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
+
+
+def _render(mi, dr, scene, spp):
+    """One render, waited for: drjit launches LLVM kernels asynchronously, so without a sync a timing
+    measures the launch (and the wait for the previous render)."""
+    img = mi.render(scene, spp=spp)
+    if not mi.variant().startswith("scalar"):
+        dr.eval(img)
+        dr.sync_thread()
+    return img
 
 
 def worker(route, res, spp, repeats):
@@ -53,13 +67,11 @@ def worker(route, res, spp, repeats):
         msx.register(backend=None if backend == "auto" else backend)
         if variant.startswith("scalar"):
             dr.set_thread_count(os.cpu_count() if threads == "all" else 1)
-        label = "roughconductor" + (" (evaluated)" if backend == "batched" else "")
-        configs[label] = mi.load_file(path, bsdf="roughconductor", **size)
         if backend == "jit":
-            from msx.jit.bsdf import ENGINE_MODELS
-
-            models = ENGINE_MODELS["conductor"]
+            return _one_scene_at_a_time(mi, dr, path, size, spp, repeats)
         else:
+            label = "roughconductor" + (" (evaluated)" if backend == "batched" else "")
+            configs[label] = mi.load_file(path, bsdf="roughconductor", **size)
             models = MODELS if backend != "python" else MODELS[:2]
         for m in models:
             try:
@@ -67,14 +79,42 @@ def worker(route, res, spp, repeats):
             except Exception as e:  # a model this route refuses (it says why)
                 print(f"{route}: msx {m} skipped: {str(e).strip().splitlines()[-1]}", file=sys.stderr)
     for s in configs.values():
-        mi.render(s, spp=1)  # warm-up (kernel compilation in LLVM)
+        _render(mi, dr, s, 1)  # warm-up (kernel compilation in LLVM)
     times = {k: [] for k in configs}
     for _ in range(repeats):
         for k, s in configs.items():
             t0 = time.perf_counter()
-            mi.render(s, spp=spp)
+            _render(mi, dr, s, spp)
             times[k].append(time.perf_counter() - t0)
     return {k: statistics.median(v) for k, v in times.items()}
+
+
+def _one_scene_at_a_time(mi, dr, path, size, spp, repeats):
+    """The engine's route: each configuration loaded, rendered and dropped in turn, so that no other BSDF
+    instance is alive while it renders (module docstring); {label: median seconds}."""
+    import gc
+
+    from msx.jit.bsdf import ENGINE_MODELS
+
+    configs = {"roughconductor": dict(bsdf="roughconductor")}
+    configs.update({f"msx {m}": dict(bsdf="msx_posfree", model=m) for m in ENGINE_MODELS["conductor"]})
+    times = {k: [] for k in configs}
+    for r in range(repeats):
+        for k, extra in configs.items():
+            try:
+                scene = mi.load_file(path, **extra, **size)
+            except Exception as e:  # a model this route refuses (it says why)
+                if r == 0:
+                    print(f"jit: {k} skipped: {str(e).strip().splitlines()[-1]}", file=sys.stderr)
+                times.pop(k, None)
+                continue
+            _render(mi, dr, scene, 1)  # compiles on the first repeat, a kernel-cache hit after
+            t0 = time.perf_counter()
+            _render(mi, dr, scene, spp)
+            times[k].append(time.perf_counter() - t0)
+            del scene
+            gc.collect()
+    return {k: statistics.median(v) for k, v in times.items() if v}
 
 
 def main():
@@ -107,7 +147,7 @@ def main():
         results[r] = json.loads(p.stdout.strip().splitlines()[-1])
     cores = os.cpu_count()
     print(f"Fig. 9 scene, {args.res}x{args.res}, {args.spp} spp, median of {args.repeats}; {cores} cores\n")
-    print(f"| route | threads | BSDF | seconds | × built-in (same route) |")
+    print("| route | threads | BSDF | seconds | × built-in (same route) |")
     print("|---|---|---|---|---|")
     for r, res in results.items():
         variant, backend, threads = r.split(":")

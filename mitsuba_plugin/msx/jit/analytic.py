@@ -54,9 +54,12 @@ _GL_W = (0.1894506104550685, 0.1826034150449236, 0.1691565193950025, 0.149595988
 
 
 def fresnel_average(fresnel):
-    """F_avg = 2∫F(μ)μ dμ per channel (16-point Gauss-Legendre in μ)."""
+    """F_avg = 2∫F(μ)μ dμ per channel (16-point Gauss-Legendre in μ): 16 Fresnel evaluations, so a constant
+    material's is computed once by the BSDF (``ConductorFresnel.average``)."""
     if fresnel.mirror:
         return mi.Spectrum(1.0)
+    if fresnel.average is not None:
+        return fresnel.average
     avg = 0.0
     for s in (-1.0, 1.0):
         for x, w in zip(_GL_X, _GL_W):

@@ -251,12 +251,17 @@ def make_bsdf_factory(variant):
 
             def _refresh(self):
                 self._set_flags()
-                # The perfect mirror (Mitsuba's material='none' with its default η = 0, k = 1) has F = 1.
-                self._mirror = False
+                # The perfect mirror (Mitsuba's material='none' with its default η = 0, k = 1) has F = 1; a
+                # constant material's average Fresnel term (compensation) is computed once, here.
+                self._mirror, self._fresnel_average = False, None
                 if kind == "conductor" and not (self._eta.is_spatially_varying() or self._k.is_spatially_varying()):
                     si = dr.zeros(mi.SurfaceInteraction3f)
                     eta, k = self._eta.eval(si), self._k.eval(si)
                     self._mirror = bool(dr.all(dr.ravel(eta) == 0.0)) and bool(dr.all(dr.ravel(k) == 1.0))
+                    if self._cfg.model == "compensated" and not self._mirror:
+                        clip = (lambda v: dr.clip(v, 0.0, MATERIAL_VALUE_MAX))
+                        self._fresnel_average = analytic.fresnel_average(ConductorFresnel(clip(eta), clip(k)))
+                        dr.eval(self._fresnel_average)
 
             # ----------------------------------------------------- the call
 
@@ -279,7 +284,7 @@ def make_bsdf_factory(variant):
                     else:
                         (eta, ok_e), (k, ok_k) = self._spectrum(self._eta, si, active), self._spectrum(self._k, si, active)
                         usable &= ok_e & ok_k
-                        call.fresnel = ConductorFresnel(eta, k)
+                        call.fresnel = ConductorFresnel(eta, k, average=self._fresnel_average)
                 elif dielectric:
                     call.tint_r, ok_r = self._spectrum(self._specular_reflectance, si, active)
                     call.tint_t, ok_t = self._spectrum(self._specular_transmittance, si, active)

@@ -165,10 +165,12 @@ def fresnel_conductor(cos_i, eta, k):
 
 class ConductorFresnel:
     """Per-channel conductor Fresnel term; the perfect mirror (η = 0, k = 1, Mitsuba's
-    ``material="none"``) is F = 1 without arithmetic (decided at construction: a constant material)."""
+    ``material="none"``) is F = 1 without arithmetic (decided at construction: a constant material).
+    ``average``: the hemispherical average F_avg when the caller computed it once (a constant material),
+    else None (``analytic.fresnel_average`` then computes it per lane)."""
 
-    def __init__(self, eta, k, mirror=False):
-        self.eta, self.k, self.mirror = eta, k, mirror
+    def __init__(self, eta, k, mirror=False, average=None):
+        self.eta, self.k, self.mirror, self.average = eta, k, mirror, average
 
     def eval(self, cos_i):
         if self.mirror:

@@ -59,3 +59,27 @@ def llvm_unusable_reason():
                     mi.set_variant(previous)
     _REASON.append(reason)
     return reason
+
+
+def drjit_default_mode():
+    """Context manager for the Dr.Jit engine's test modules: drjit's default symbolic loops and calls (the
+    mode users render in) while the module runs, the previous flags afterwards. The batched route's tests
+    turn both flags off for the rest of the process (that route's documented side effect), so a module that
+    runs after them would otherwise test the engine in evaluated mode."""
+    import contextlib
+
+    import drjit as dr
+
+    @contextlib.contextmanager
+    def mode():
+        flags = (dr.JitFlag.SymbolicLoops, dr.JitFlag.SymbolicCalls)
+        saved = [dr.flag(f) for f in flags]
+        for f in flags:
+            dr.set_flag(f, True)
+        try:
+            yield
+        finally:
+            for f, v in zip(flags, saved):
+                dr.set_flag(f, v)
+
+    return mode()

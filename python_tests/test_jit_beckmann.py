@@ -32,7 +32,7 @@
 import math
 import time
 
-import llvm_support  # noqa: F401  (points DRJIT_LIBLLVM_PATH at libLLVM 19 before drjit loads LLVM)
+import llvm_support  # noqa: E402  (points DRJIT_LIBLLVM_PATH at libLLVM 19 before drjit loads LLVM)
 import numpy as np
 import pytest
 
@@ -58,7 +58,8 @@ PHI_W = 0.7
 @pytest.fixture(scope="module", autouse=True)
 def llvm_variant():
     mi.set_variant("llvm_ad_rgb")
-    yield
+    with llvm_support.drjit_default_mode():
+        yield
 
 
 # ------------------------------------------------------------ float64 references

@@ -75,7 +75,7 @@ Z_MAX = statistics.NormalDist().inv_cdf(1 - (1 - (1 - FAMILY_RATE) ** (1 / COMPA
 @pytest.fixture(scope="module", autouse=True)
 def llvm():
     mi.set_variant("llvm_ad_rgb")
-    msx.register()
+    msx.register(backend="jit")  # not whatever route an earlier module registered (auto keeps it)
     with drjit_default_mode():
         yield
 

@@ -38,6 +38,8 @@ if _REASON:
     pytest.skip(_REASON, allow_module_level=True)
 
 import msx  # noqa: E402
+import jit_support  # noqa: E402
+from jit_support import lanes_si  # noqa: E402
 from msx.core import CoreBsdf  # noqa: E402
 
 SEED_OFFSET = int(os.environ.get("MSX_TEST_SEED_OFFSET", "0"))
@@ -109,38 +111,17 @@ def vec(a):
     return mi.Vector3f(*[mi.Float(np.ascontiguousarray(a[..., c], np.float32)) for c in range(3)])
 
 
-def lanes_si(wi, n, seed):
-    """n lanes at incidence ``wi``, each at its own hit position (the lanes' streams differ)."""
-    rng = np.random.default_rng(seed)
-    si = dr.zeros(mi.SurfaceInteraction3f, n)
-    si.wi = vec(np.tile(np.asarray(wi, np.float64), (n, 1)))
-    si.p = mi.Point3f(*[mi.Float(rng.random(n).astype(np.float32)) for _ in range(3)])
-    si.uv = mi.Point2f(*[mi.Float(rng.random(n).astype(np.float32)) for _ in range(2)])
-    return si
-
-
 def channel0(v):
     """Channel 0 of a Mitsuba spectrum over lanes (drjit gives (3, n))."""
     return np.asarray(v, np.float64)[0]
 
 
 def stats(x):
-    """(mean, σ of the mean) of per-lane values: σ the larger of the plain standard error and the
-    replicate one."""
-    x = np.asarray(x, np.float64)
-    n = x.shape[-1]
-    plain = x.std(ddof=1) / math.sqrt(n)
-    reps = x[: n - n % REPLICATES].reshape(REPLICATES, -1).mean(axis=-1)
-    rep = reps.std(ddof=1) / math.sqrt(REPLICATES)
-    return x.mean(), max(plain, rep)
+    return jit_support.stats(x, REPLICATES)
 
 
 def z_check(label, a, b):
-    (ma, sa), (mb, sb) = a, b
-    z = (ma - mb) / math.sqrt(sa ** 2 + sb ** 2) if sa > 0 or sb > 0 else 0.0 if ma == mb else math.inf
-    print("%s: engine %.5f ± %.5f core %.5f ± %.5f z %+.2f" % (label, ma, sa, mb, sb, z))
-    assert math.isfinite(ma), label
-    assert abs(z) <= Z_MAX, "%s: |z| %.2f > %.2f" % (label, abs(z), Z_MAX)
+    jit_support.z_check(label, a, b, Z_MAX)
 
 
 @pytest.mark.parametrize("radiance", RADIANCE, ids=("radiance", "importance"))

@@ -34,6 +34,8 @@ if _REASON:
     pytest.skip(_REASON, allow_module_level=True)
 
 import msx  # noqa: E402
+import jit_support  # noqa: E402
+from jit_support import lanes_si  # noqa: E402
 from msx.core import CoreBsdf  # noqa: E402
 
 SEED_OFFSET = int(os.environ.get("MSX_TEST_SEED_OFFSET", "0"))
@@ -68,33 +70,12 @@ def cu_rgb():
     return [float(x) for x in np.array(p["eta.value"]).ravel()], [float(x) for x in np.array(p["k.value"]).ravel()]
 
 
-def lanes_si(wi, n, seed):
-    """n lanes at incidence ``wi``, each at its own hit position (the lanes' streams differ)."""
-    rng = np.random.default_rng(seed)
-    si = dr.zeros(mi.SurfaceInteraction3f, n)
-    si.wi = mi.Vector3f(*[mi.Float(np.full(n, c, np.float32)) for c in wi])
-    si.p = mi.Point3f(*[mi.Float(rng.random(n).astype(np.float32)) for _ in range(3)])
-    si.uv = mi.Point2f(*[mi.Float(rng.random(n).astype(np.float32)) for _ in range(2)])
-    return si
-
-
 def stats(x):
-    """(mean, σ of the mean) of per-lane values (channels, n): σ the larger of the plain standard error and
-    the replicate one."""
-    x = np.asarray(x, np.float64)
-    n = x.shape[-1]
-    plain = x.std(axis=-1, ddof=1) / math.sqrt(n)
-    reps = x[..., : n - n % REPLICATES].reshape(x.shape[:-1] + (REPLICATES, -1)).mean(axis=-1)
-    rep = reps.std(axis=-1, ddof=1) / math.sqrt(REPLICATES)
-    return x.mean(axis=-1), np.maximum(plain, rep)
+    return jit_support.stats(x, REPLICATES)
 
 
 def z_check(label, a, b):
-    (ma, sa), (mb, sb) = a, b
-    z = (ma - mb) / np.sqrt(sa ** 2 + sb ** 2)
-    print("%s: engine %s core %s z %s" % (label, np.round(ma, 5), np.round(mb, 5), np.round(z, 2)))
-    assert np.all(np.isfinite(ma)), label
-    assert np.all(np.abs(z) <= Z_MAX), "%s: |z| %s > %.2f" % (label, np.abs(z).max(), Z_MAX)
+    jit_support.z_check(label, a, b, Z_MAX)
 
 
 def engine_bsdf(model, alpha, **extra):

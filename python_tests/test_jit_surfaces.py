@@ -41,6 +41,8 @@ if _REASON:
     pytest.skip(_REASON, allow_module_level=True)
 
 import msx  # noqa: E402
+import jit_support  # noqa: E402
+from jit_support import lanes_si  # noqa: E402
 import msx.jit.bsdf  # noqa: E402
 
 # The Lambertian invariance walk keeps its table in dr.alloc_local, which a render cannot compile (drjit 1.5,
@@ -125,39 +127,17 @@ def tile(w, n):
     return np.tile(np.asarray(w, np.float32), (n, 1))
 
 
-def lanes_si(wi, n, seed):
-    """n lanes at incidence ``wi``, each at its own hit position (the lanes' streams differ)."""
-    rng = np.random.default_rng(seed)
-    si = dr.zeros(mi.SurfaceInteraction3f, n)
-    si.wi = vec(tile(wi, n))
-    si.p = mi.Point3f(*[mi.Float(rng.random(n).astype(np.float32)) for _ in range(3)])
-    si.uv = mi.Point2f(*[mi.Float(rng.random(n).astype(np.float32)) for _ in range(2)])
-    return si
-
-
 def channels(v):
     """(channels, n) float64 of a Mitsuba spectrum over lanes."""
     return np.asarray(v, np.float64).reshape(CHANNELS, -1)
 
 
 def stats(x):
-    """(mean, σ of the mean): σ the larger of the plain standard error and the replicate one."""
-    x = np.asarray(x, np.float64)
-    n = x.shape[-1]
-    plain = x.std(ddof=1) / math.sqrt(n)
-    reps = x[: n - n % REPLICATES].reshape(REPLICATES, -1).mean(axis=-1)
-    rep = reps.std(ddof=1) / math.sqrt(REPLICATES)
-    return x.mean(), max(plain, rep)
+    return jit_support.stats(x, REPLICATES)
 
 
 def z_check(label, a, b):
-    """Asserts |z| ≤ Z_MAX for two (mean, σ)."""
-    (ma, sa), (mb, sb) = a, b
-    s = math.hypot(sa, sb)
-    z = (ma - mb) / s if s > 0 else (0.0 if ma == mb else math.inf)
-    print("%-52s engine %.6g ± %.2g   other %.6g ± %.2g   z = %+.2f" % (label, ma, sa, mb, sb, z))
-    assert math.isfinite(ma), label
-    assert abs(z) <= Z_MAX, "%s: |z| = %.2f > %.2f" % (label, abs(z), Z_MAX)
+    jit_support.z_check(label, a, b, Z_MAX)
 
 
 def sample_uniforms(seed, n=LANES):

@@ -1,0 +1,43 @@
+"""What the Dr.Jit engine's test modules share (python_tests/test_jit_*.py): lanes that call a BSDF's methods
+directly, and the z-test of two means with their noise (docs/testing.md, "The Dr.Jit engine against the core").
+Import after ``mi.set_variant('llvm_ad_rgb')`` has been possible (the modules skip themselves otherwise)."""
+
+import math
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+
+def lanes_si(wi, n, seed):
+    """n lanes at incidence ``wi``, each at its own hit position and uv (the lanes' random streams differ)."""
+    rng = np.random.default_rng(seed)
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.wi = mi.Vector3f(*[mi.Float(np.full(n, c, np.float32)) for c in np.asarray(wi, np.float32)])
+    si.p = mi.Point3f(*[mi.Float(rng.random(n).astype(np.float32)) for _ in range(3)])
+    si.uv = mi.Point2f(*[mi.Float(rng.random(n).astype(np.float32)) for _ in range(2)])
+    return si
+
+
+def stats(x, replicates):
+    """(mean, σ of the mean) of per-lane values along the last axis: σ the larger of the plain standard error
+    and the one of ``replicates`` independent consecutive blocks (a heavy-tailed estimate that missed its
+    tail gets no small σ)."""
+    x = np.asarray(x, np.float64)
+    n = x.shape[-1]
+    plain = x.std(axis=-1, ddof=1) / math.sqrt(n)
+    reps = x[..., : n - n % replicates].reshape(x.shape[:-1] + (replicates, -1)).mean(axis=-1)
+    rep = reps.std(axis=-1, ddof=1) / math.sqrt(replicates)
+    return x.mean(axis=-1), np.maximum(plain, rep)
+
+
+def z_check(label, a, b, z_max):
+    """Asserts |z| ≤ ``z_max`` for two (mean, σ) pairs (scalars or per channel), z = Δ/√(σ₁² + σ₂²); equal
+    means without noise (deterministic estimates) give z = 0."""
+    (ma, sa), (mb, sb) = (np.asarray(v, np.float64) for v in a), (np.asarray(v, np.float64) for v in b)
+    s, d = np.hypot(sa, sb), ma - mb
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(s > 0, d / np.where(s > 0, s, 1.0), np.where(d == 0, 0.0, np.inf))
+    print("%s: engine %s core %s z %s" % (label, np.round(ma, 5), np.round(mb, 5), np.round(z, 2)))
+    assert np.all(np.isfinite(ma)) and np.all(np.isfinite(mb)), label
+    assert np.all(np.abs(z) <= z_max), "%s: |z| %s > %.2f" % (label, np.abs(z).max(), z_max)

@@ -282,8 +282,9 @@ def build_parser():
     c.add_argument("--scenes", default=None, help="folder with the scene XMLs (default: the installed scenes)")
     c.add_argument("--out", default="out", help="report folder (index.html, CSVs, PNGs)")
     c.add_argument("--variant", default=None,
-                   help="Mitsuba variant (default: the fastest route here: scalar_rgb with the native back end; "
-                        "if that cannot be built, llvm_ad_rgb if usable, else scalar_rgb with the Python back end)")
+                   help="Mitsuba variant (default: the fastest route here: llvm_ad_rgb with the Dr.Jit engine where "
+                        "Mitsuba's LLVM variant works, rendering what the engine does not run in scalar_rgb with the "
+                        "native back end; else scalar_rgb native, else scalar_rgb with the Python back end)")
     c.add_argument("--cache", default=None, help="folder of cached reference renders (default $MSX_CACHE_DIR, else "
                                                  "$XDG_CACHE_HOME/msx, else ~/.cache/msx)")
     c.set_defaults(func=cmd_compare)

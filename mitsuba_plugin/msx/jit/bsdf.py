@@ -16,7 +16,7 @@ import mitsuba as mi
 from .._params import PLUGIN, MsxParameterError
 from .._plugin_base import make_base_class, make_factory, native_channels
 from .._vectorized_config import vectorized_config
-from . import analytic, auto, heitz, invariance, mis, posfree, posfree_dielectric
+from . import analytic, auto, gradients, heitz, invariance, mis, posfree, posfree_dielectric
 from .microfacet import ConductorFresnel, Microfacet
 from .rng import hash_words
 
@@ -39,6 +39,9 @@ ENGINE_MODELS = {
     "dielectric": _with_auto(tuple(DIELECTRIC_ANALYTIC) + tuple(DIELECTRIC_WALKS)),
     "diffuse": _with_auto(tuple(DIFFUSE_WALKS)),
 }
+
+# While a walk is differentiated, the eval key sees ω_o on this grid (``_eval_key``).
+WO_KEY_GRID = 1024.0
 
 # Largest material value the core accepts (src/bsdf.rs, MATERIAL_VALUE_MAX).
 MATERIAL_VALUE_MAX = 1e4
@@ -104,12 +107,22 @@ DIFFERENTIABLE_MODELS = {"conductor": tuple(CONDUCTOR_ANALYTIC), "dielectric": t
                          "diffuse": ()}
 
 
+def differentiable_walk(cfg):
+    """The conductor walk whose PT estimate the engine differentiates (jit/gradients.py), or None."""
+    walk = CONDUCTOR_WALKS.get(cfg.model) if cfg.surface == "conductor" and cfg.estimator == "pt" else None
+    return walk if walk is not None and walk.differentiable else None
+
+
+DIFFERENTIABLE_MODELS["conductor"] += tuple(name for name, w in CONDUCTOR_WALKS.items() if w.differentiable)
+
+
 def gradient_problem(cfg):
     """None when the engine differentiates this configuration, else the one-line message of the refusal."""
     models = DIFFERENTIABLE_MODELS.get(cfg.surface, ())
-    if cfg.model in models:
+    if cfg.model in models and (cfg.model not in CONDUCTOR_WALKS or differentiable_walk(cfg) is not None):
         return None
     where = ", ".join("%s (%s)" % (", ".join(m), surface) for surface, m in DIFFERENTIABLE_MODELS.items() if m)
+    where += " — the walks with estimator 'pt'"
     return ("%s: model='%s' on surface '%s' is not differentiable: gradients of its random walk are not "
             "implemented (docs/gradients.md); the differentiable models are %s — or keep this BSDF's parameters "
             "out of the gradient (dr.disable_grad)" % (PLUGIN, cfg.model, cfg.surface, where))
@@ -128,6 +141,9 @@ class Call:
     def __init__(self, mf, usable, fresnel=None, eta=None, radiance=True, albedo=None, tint_r=None, tint_t=None):
         self.mf, self.usable, self.fresnel, self.eta, self.radiance = mf, usable, fresnel, eta, radiance
         self.albedo, self.tint_r, self.tint_t = albedo, tint_r, tint_t
+        # While a differentiable walk's parameters carry gradients (jit/gradients.py): the α values as
+        # the textures gave them (one for an isotropic surface) and the sampling mode that goes with them.
+        self.alphas, self.traced = None, False
 
 
 class ConductorModel:
@@ -153,10 +169,37 @@ class ConductorModel:
         walk, mf = self.walk, call.mf
         if walk is None:
             value, pdf = self.analytic.eval_pdf(mf, call.fresnel, wi, wo)
+        elif call.traced:
+            value = self.differentiable_estimate(call, wi, wo, key) if want_value else None
+            pdf = gradients.proposal_pdf(walk.exit, mf, wi, wo) if want_pdf else None
         else:
             value = self.estimate(mf, call.fresnel, wi, wo, self.bounces(call, wi), key) if want_value else None
             pdf = mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo) if want_pdf else None
         return (value * call.tint_r if want_value else None), pdf
+
+    def differentiable_estimate(self, call, wi, wo, key):
+        """The walk's PT estimate with its derivative in α, η and k (jit/gradients.py)."""
+        mf, fresnel, n_alpha = call.mf, call.fresnel, len(call.alphas)
+        bounces = self.bounces(call, wi)
+
+        def estimate(*values):
+            alphas = values[:n_alpha]
+            au, av = (alphas[0], alphas[0]) if n_alpha == 1 else alphas
+            m = Microfacet(mf.dist, au, av)
+            f = fresnel if fresnel.mirror else ConductorFresnel(values[n_alpha], values[n_alpha + 1])
+            return self.walk.eval_pt(m, f, wi, wo, bounces, key, mf_sample=gradients.detached(m))
+
+        params = list(call.alphas) + ([] if fresnel.mirror else [fresnel.eta, fresnel.k])
+        return gradients.attach(estimate, params)
+
+    def sample_traced(self, call, wi, s1, u1, u2, eval_key):
+        """``sample`` while differentiated: ω_o from the proposal, weighed by the walk's estimate there (the
+        one ``eval`` gives, lane key ``eval_key(ω_o)``) over the proposal's density."""
+        walk, mf = self.walk, call.mf
+        wo, pdf, valid = gradients.proposal_sample(walk.exit, mf, wi, s1, u1, u2)
+        value = self.estimate(mf, call.fresnel, wi, wo, self.bounces(call, wi), eval_key(wo))
+        weight = dr.select(valid & (pdf > 0.0), value / pdf, 0.0)
+        return wo, pdf, weight * call.tint_r, valid
 
     def sample(self, call, wi, s1, u1, u2, key):
         """(ω_o, pdf, weight, valid)."""
@@ -264,6 +307,7 @@ def make_bsdf_factory(variant):
                     raise MsxParameterError(problem)
                 self._model = MODELS_BY_SURFACE[kind](self._cfg)
                 self._gradient_problem = gradient_problem(self._cfg)
+                self._differentiable_walk = differentiable_walk(self._cfg)
                 self._refresh()
 
             def _config(self, props):
@@ -271,6 +315,10 @@ def make_bsdf_factory(variant):
 
             def _refresh(self):
                 self._set_flags()
+                # A differentiable walk samples its proposal while any parameter carries gradients (set
+                # here, by the parameter update, so that prb's primal and adjoint passes sample alike).
+                self._traced = self._differentiable_walk is not None and any(
+                    dr.grad_enabled(params[k]) for params in map(mi.traverse, self._textures) for k in params.keys())
                 # The perfect mirror (Mitsuba's material='none' with its default η = 0, k = 1) has F = 1; a
                 # constant material's average Fresnel term (compensation) is computed once, here.
                 self._mirror, self._fresnel_average = False, None
@@ -300,6 +348,7 @@ def make_bsdf_factory(variant):
                 av = au if self._cfg.isotropic else self._alpha_v.eval_1(si, active)
                 usable = dr.isfinite(au) & dr.isfinite(av)
                 call = Call(Microfacet(self._cfg.distribution, au, av), usable)
+                call.alphas, call.traced = ((au,) if self._cfg.isotropic else (au, av)), self._traced
                 if kind == "conductor":
                     call.tint_r, ok = self._spectrum(self._specular_reflectance, si, active)
                     usable &= ok
@@ -328,6 +377,10 @@ def make_bsdf_factory(variant):
 
             def _eval_key(self, si, wo):
                 p, uv, wi = si.p, si.uv, si.wi
+                if self._traced:
+                    # prb re-evaluates a sampled ω_o after a round trip through world space, a few ulps off:
+                    # the key must not see that, or eval's estimate is not the one the sample weighed.
+                    wo = dr.round(wo * WO_KEY_GRID) / WO_KEY_GRID
                 return hash_words(self._cfg.seed, (p[0], p[1], p[2], uv[0], uv[1],
                                                    wi[0], wi[1], wi[2], wo[0], wo[1], wo[2]))
 
@@ -370,7 +423,11 @@ def make_bsdf_factory(variant):
                 call = self._call(ctx, si, active)
                 wi = si.wi
                 key = hash_words(self._cfg.seed, (sample1, sample2[0], sample2[1], wi[0], wi[2]))
-                wo, pdf, weight, valid = self._model.sample(call, wi, sample1, sample2[0], sample2[1], key)
+                if call.traced:
+                    wo, pdf, weight, valid = self._model.sample_traced(call, wi, sample1, sample2[0], sample2[1],
+                                                                       lambda wo: self._eval_key(si, wo))
+                else:
+                    wo, pdf, weight, valid = self._model.sample(call, wi, sample1, sample2[0], sample2[1], key)
                 ok = active & call.usable & valid & dr.all(dr.isfinite(wi)) & dr.isfinite(pdf) & (pdf > 0.0)
                 ok &= dr.all(dr.isfinite(weight))
                 bs = dr.zeros(mi.BSDFSample3f)

@@ -15,12 +15,15 @@ class ConductorWalk:
     - ``exit``: the order-1 exit of its MIS density (``mis.SEPARABLE`` or ``mis.HEIGHT_CORRELATED``);
     - ``below``: whether the walk also starts below the macro surface (normal mapping);
     - ``eval_bdpt`` (optional, same signature as ``eval_pt``): the bidirectional estimator, None where the
-      engine has none (the scene is then refused with a message).
+      engine has none (the scene is then refused with a message);
+    - ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md).
     """
 
-    def __init__(self, eval_pt, sample_walk, exit, below, eval_bdpt=None):
+    def __init__(self, eval_pt, sample_walk, exit, below, eval_bdpt=None, differentiable=False):
         self.eval_pt, self.sample_walk, self.exit, self.below = eval_pt, sample_walk, exit, below
         self.eval_bdpt = eval_bdpt
+        # Whether ``eval_pt`` takes ``mf_sample`` (jit/gradients.py): its PT estimate then differentiates.
+        self.differentiable = differentiable
 
 
 class ConductorAnalytic:

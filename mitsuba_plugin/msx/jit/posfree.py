@@ -22,7 +22,7 @@ import mitsuba as mi
 
 from . import bdpt, mis, walk
 from .model import ConductorWalk, DiffuseWalk
-from .microfacet import INV_PI, dot, max_channel, reflect
+from .microfacet import INV_PI, ConductorFresnel, Microfacet, dot, max_channel, reflect
 from .rng import Stream
 
 UNCORRELATED = "uncorrelated"
@@ -64,56 +64,79 @@ def nee_term(mf, w, wo, last_factor):
     return cos_wh, dr.select(valid, value, 0.0), valid
 
 
-def eval_pt(segments, mf, fresnel, wi, wo, max_bounces, key):
+def eval_pt(segments, mf, fresnel, wi, wo, max_bounces, key, mf_sample=None):
     """One PT estimate of f(ω_i, ω_o)·cos θ_o (Wang eqs. 24–26), all orders 1..max_bounces: the walk
     closes the path towards ω_o at every vertex and samples the next direction from the visible normals.
-    ω_i may lie below the macro surface (normal mapping); ω_o must point up."""
+    ω_i may lie below the macro surface (normal mapping); ω_o must point up. ``mf_sample``: see
+    ``pt_walk``."""
     lambda_o = mf.lambda_(wo)
     start = (wi[2] != 0.0) & (wo[2] > 0.0)
     width = dr.width(wi)
     # Vertex 0: light arrives from ω_i, L_0 = |Λ(d_0)| = |Λ(−ω_i)| (1 + Λ(ω_i) for ω_i above).
     return pt_walk(segments, mf, fresnel, wo, lambda_o, mi.Vector3f(wi), mf.abs_lambda(-wi),
-                   dr.full(mi.Spectrum, 1.0, width), start, 0, max_bounces, RR_START, key, mi.UInt32(0))
+                   dr.full(mi.Spectrum, 1.0, width), start, 0, max_bounces, RR_START, key, mi.UInt32(0),
+                   mf_sample=mf_sample)
 
 
 def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex, max_bounces, rr_start, key,
-            counter, label="msx_posfree_conductor_pt"):
+            counter, label="msx_posfree_conductor_pt", mf_sample=None):
     """The PT-with-NEE walk (twin of ``pt_walk`` in conductor.rs) from vertex ``first_vertex`` (0-based;
     a Python int or a UInt32 per lane) on, arriving there with the state (w = −d_j, l = L_j, ``thr`` the
     prefix throughput) on the lanes ``active``: at each vertex ≥ ``rr_start`` play Russian roulette on the
     vertex's importance (its next-event value included), close the path towards ω_o, then sample the next
     direction from the visible normals and multiply the Fresnel term and the continue factor; orders up to
     ``max_bounces``. The lane's stream is (``key``, ``counter``). Shared by ``eval_pt`` and the PT tail of
-    the bidirectional estimator. Returns the estimate (mi.Spectrum)."""
+    the bidirectional estimator. Returns the estimate (mi.Spectrum).
 
-    def body(j, w, l, thr, result, active, counter):
+    ``mf_sample`` (docs/gradients.md): the microfacet statistics the directions are drawn from, when they
+    are not ``mf`` — the parameters with their derivatives detached. Each step's throughput then carries the
+    ratio of its density under ``mf`` to its density under ``mf_sample``, D(m)/L_j over the same with
+    ``mf_sample`` (value 1 where the two are equal, the score as derivative), and the roulette's survival
+    probability is detached: the estimate's derivative is then an unbiased estimate of the derivative of f."""
+    traced = mf_sample is not None
+
+    def body(j, w, l, thr, result, active, counter, *piped):
+        mfa, fr, lo, mfs = mf, fresnel, lambda_o, (mf if not traced else mf_sample)
+        if traced:  # the differentiated values come through the state (drjit rejects implicit wide reads)
+            au, av, lo = piped[:3]
+            mfa = Microfacet(mf.dist, au, av)
+            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
+            if not fresnel.mirror:
+                fr = ConductorFresnel(piped[3], piped[4])
         rng = Stream(key, counter)
         active &= (l > 0.0) & dr.isfinite(l) & (max_channel(thr) > 0.0)
-        last_factor = last(segments, l, lambda_o)
-        cos_wh, nee, nee_ok = nee_term(mf, w, wo, last_factor)
+        last_factor = last(segments, l, lo)
+        cos_wh, nee, nee_ok = nee_term(mfa, w, wo, last_factor)
         u_rr, _ = rng.next2()
+        importance = roulette_importance(nee, last_factor, RR_NEE_GAIN)
         kept_thr, survived = walk.russian_roulette_keep(
-            thr, u_rr, 1.0 / roulette_importance(nee, last_factor, RR_NEE_GAIN))
+            thr, u_rr, 1.0 / (importance if not traced else dr.detach(importance)))
         play = j >= rr_start
         thr = dr.select(play, kept_thr, thr)
         active &= ~play | survived
-        result = dr.select(active & nee_ok, result + thr * fresnel.eval(cos_wh) * nee, result)
+        result = dr.select(active & nee_ok, result + thr * fr.eval(cos_wh) * nee, result)
         active &= j + 1 < max_bounces
         # The next direction, from the visible normals of w.
         u1, u2 = rng.next2()
-        m, valid = mf.sample_visible(w, u1, u2)
+        m, valid = mfs.sample_visible(w, u1, u2)
         cos_wm = dot(w, m)
         d_next = reflect(w, m)
-        thr = thr * fresnel.eval(cos_wm)
+        thr = thr * fr.eval(cos_wm)
+        if traced:
+            thr = thr * ((mfa.d(m) * dr.detach(l)) / (mfs.d(m) * l))
         up = d_next[2] > 0.0
-        lam = mf.abs_lambda(d_next)
+        lam = mfa.abs_lambda(d_next)
         thr = dr.select(up, thr * continue_up(segments, l, lam), thr)
         active &= valid & (cos_wm > 0.0)
-        return j + 1, -d_next, lam, thr, result, active, rng.counter
+        return (j + 1, -d_next, lam, thr, result, active, rng.counter) + piped
 
     width = dr.width(thr)
     state = (mi.UInt32(first_vertex), mi.Vector3f(w), mi.Float(l), mi.Spectrum(thr),
              dr.zeros(mi.Spectrum, width), mi.Bool(active), mi.UInt32(counter))
+    if traced:
+        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o))
+        if not fresnel.mirror:
+            state += (mi.Spectrum(fresnel.eta), mi.Spectrum(fresnel.k))
     state = dr.while_loop(state, lambda *s: s[5], body, label=label)
     return state[4]
 
@@ -424,7 +447,7 @@ def diffuse_sample_walk(segments, mf, albedo, wi, sample1, u1, u2, max_bounces, 
 # The conductor walks this module provides, by model name (jit/bsdf.py collects them).
 CONDUCTOR_WALKS = {
     name: ConductorWalk(partial(eval_pt, name), partial(sample_walk, name), exit, below=True,
-                        eval_bdpt=partial(conductor_eval_bdpt, name))
+                        eval_bdpt=partial(conductor_eval_bdpt, name), differentiable=True)
     for name, exit in ((UNCORRELATED, mis.SEPARABLE), (CORRELATED, mis.HEIGHT_CORRELATED))
 }
 DIFFUSE_WALKS = {name: DiffuseWalk(partial(diffuse_eval_pt, name), partial(diffuse_sample_walk, name))

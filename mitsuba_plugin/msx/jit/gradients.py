@@ -1,0 +1,78 @@
+"""Gradients of the random walks in the Dr.Jit engine (docs/gradients.md, "The position-free walks").
+
+A walk's estimate is differentiable without bias when its directions are drawn with the parameters
+detached and each step carries the ratio of its density to the detached one (``posfree.pt_walk``'s
+``mf_sample``). drjit differentiates that walk in forward mode through its ``dr.while_loop``; reverse mode
+through the loop is not available, so :func:`attach` computes each differentiated parameter's tangent by
+forward mode inside the call and returns f̄ + Σ (p − p̄)·∂f/∂p, f̄ and ∂f/∂p detached: the derivative
+enters Mitsuba's graph through the parameters alone (and through the textures they come from).
+
+Mitsuba's ``prb`` divides the re-evaluated BSDF by the sample weight × pdf of the path it replays; that is
+the BSDF only if ``sample`` draws ω_o from the density it reports. So while a walk model is differentiated,
+``sample`` draws ω_o from :func:`proposal_pdf` — visible-normal reflection mixed with a cosine lobe —
+and weighs it by the walk's ``eval`` estimate over that density (the same estimate ``eval`` gives there),
+and ``pdf`` reports the same density.
+"""
+
+import drjit as dr
+import mitsuba as mi
+
+from . import mis
+from .microfacet import INV_PI, Microfacet, reflect
+
+# Share of the cosine lobe in the proposal, the walk's multiple-scattering mass 1 − E_1(ω_i), clamped so
+# that neither lobe vanishes.
+COSINE_SHARE_MIN, COSINE_SHARE_MAX = 0.05, 0.95
+
+
+def detached(mf):
+    return Microfacet(mf.dist, dr.detach(mf.alpha_u), dr.detach(mf.alpha_v))
+
+
+def attach(estimate, params):
+    """``estimate(*values)`` (a Spectrum) with the derivative with respect to each of ``params`` (Floats or
+    Spectra; a Spectrum parameter acts on its own channel only, as η and k do) that has gradients enabled,
+    taken by forward mode inside the call; the others pass through detached."""
+    values = [dr.detach(p) for p in params]
+    value = None
+    tangents = []
+    for i, p in enumerate(params):
+        if not dr.grad_enabled(p):
+            continue
+        with dr.isolate_grad():
+            t = type(values[i])(values[i])
+            dr.enable_grad(t)
+            y = estimate(*[t if k == i else v for k, v in enumerate(values)])
+            dr.forward_from(t, flags=dr.ADFlag.Default | dr.ADFlag.AllowNoGrad)
+            g = dr.grad(y)
+        value = dr.detach(y)
+        tangents.append((p - values[i]) * dr.detach(g))
+    if value is None:
+        return estimate(*values)
+    for t in tangents:
+        value = value + t
+    return value
+
+
+def cosine_share(exit, mf, wi):
+    e1 = mis._e1_table(exit, mf.dist).at(dr.sqrt(mf.alpha_u * mf.alpha_v), dr.abs(wi[2]))
+    return dr.detach(dr.clip(1.0 - e1, COSINE_SHARE_MIN, COSINE_SHARE_MAX))
+
+
+def proposal_pdf(exit, mf, wi, wo):
+    """The density ``sample`` draws ω_o from while differentiated: (1 − c)·D_ωi reflection + c·cos/π."""
+    mf = detached(mf)
+    c = cosine_share(exit, mf, wi)
+    pdf = (1.0 - c) * mf.reflect_pdf(wi, wo) + c * dr.maximum(wo[2], 0.0) * INV_PI
+    return dr.select((wo[2] > 0.0) & (wi[2] > 0.0), pdf, 0.0)
+
+
+def proposal_sample(exit, mf, wi, sample1, u1, u2):
+    """(ω_o, pdf, valid) from :func:`proposal_pdf`."""
+    mf = detached(mf)
+    c = cosine_share(exit, mf, wi)
+    cosine = sample1 < c
+    m, valid_m = mf.sample_visible(wi, u1, u2)
+    wo = dr.select(cosine, mi.warp.square_to_cosine_hemisphere(mi.Point2f(u1, u2)), reflect(wi, m))
+    valid = (cosine | valid_m) & (wo[2] > 0.0) & (wi[2] > 0.0)
+    return wo, proposal_pdf(exit, mf, wi, wo), valid

@@ -39,7 +39,18 @@ _loaded = None  # the ctypes library once loaded and registered in this process
 
 
 class NativeUnavailable(RuntimeError):
-    """The native back end cannot be built or failed its check; the message says why."""
+    """The native back end cannot be built or failed its check; the message says why (a compile failure adds
+    the compiler's last lines), :meth:`summary` in one line."""
+
+    def summary(self) -> str:
+        lines = [ln.strip() for ln in str(self).splitlines() if ln.strip()]
+        if not lines:
+            return "unknown reason"
+        first = lines[0].rstrip(":")
+        detail = next((ln for ln in lines[1:] if "error" in ln.lower()), lines[1] if len(lines) > 1 else "")
+        if len(detail) > 160:
+            detail = detail[:157] + "..."
+        return f"{first}: {detail}" if detail else first
 
 
 def _sources():
@@ -113,8 +124,13 @@ def build(verbose=False) -> Path:
         import fcntl  # POSIX only: imported here, so that elsewhere the fallback can say why
     except ImportError:
         raise NativeUnavailable(f"the native back end needs a POSIX system (Linux); this is {sys.platform}") from None
-    out_dir.mkdir(parents=True, exist_ok=True)
-    with open(out_dir / ".lock", "w") as lock:
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        lock = open(out_dir / ".lock", "w")
+    except OSError as e:
+        raise NativeUnavailable(f"cannot write the native build into {out_dir} ({e.strerror or e}); set MSX_CACHE_DIR "
+                                "to a writable folder") from None
+    with lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # several processes may ask at once: one builds
         # Under the lock, so that a damaged build is reported (and rebuilt) by one process only.
         if _cache.check_file(target):
@@ -166,7 +182,10 @@ def load():
     global _loaded
     if _loaded is None:
         path = build()
-        lib = ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
+        try:
+            lib = ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
+        except OSError as e:
+            raise NativeUnavailable(f"the native build {path} does not load ({e}); delete it to rebuild") from None
         lib.msx_native_register.argtypes = [ctypes.c_char_p]
         lib.msx_native_register(NATIVE_PLUGIN.encode())
         _loaded = lib
@@ -279,7 +298,13 @@ def make_factory(mi):
     from ._params import Config
 
     load()
-    self_check(mi)
+    try:
+        self_check(mi)
+    except NativeUnavailable:
+        raise
+    except Exception as e:  # noqa: BLE001 - a build that cannot even run the check is not used
+        lines = str(e).strip().splitlines() or [type(e).__name__]
+        raise NativeUnavailable(f"the native build fails its self-check: {lines[-1].strip()}") from None
 
     def factory(props):
         cfg = Config(mi, props)  # the same parsing, validation and messages as the Python back end

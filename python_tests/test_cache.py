@@ -104,7 +104,7 @@ def test_an_entry_from_other_inputs_is_stale(cache, capsys):
 # ---------------------------------------------------------------- every kind
 
 
-def test_reference_render(cache, capsys):
+def test_reference_render(cache, capsys, monkeypatch):
     """The reference of msx compare (a tiny one): cached, then truncated -> rendered again, with the line."""
     from msx import _references
     from msx._render import scenes_dir
@@ -123,6 +123,10 @@ def test_reference_render(cache, capsys):
     assert not cached and np.array_equal(h1b, h1) and np.array_equal(h2b, h2)  # the same seeds
     assert len(damaged_lines(capsys.readouterr().err, entry)) == 1
     assert _cache.valid_file(entry) and sorted(p.name for p in folder.iterdir()) == [f".{entry.name}.msx", entry.name]
+    # Another core (a rebuilt Rust library) renders its own reference.
+    monkeypatch.setattr(_cache, "core_digest", lambda: "another core")
+    assert not _references.reference(renderer, scene, (8, 8), row, 4, folder)[3]
+    assert len(list(folder.glob("reference-*.npz"))) == 2 and not damaged_lines(capsys.readouterr().err, entry)
     renderer.release()
 
 
@@ -148,7 +152,7 @@ def test_native_build(cache, capfd):
     assert r.stdout.strip() == "native" and "compiling" not in r.stderr, r.stderr
 
 
-def test_simulation(cache, capsys):
+def test_simulation(cache, capsys, monkeypatch):
     from msx import microgeometry as mg
 
     params = dict(surface="conductor", alpha=0.5, alpha_v=0.5, theta_i=0.3, rays=4000, grid=64, corr_cells=8.0,
@@ -164,6 +168,8 @@ def test_simulation(cache, capsys):
         assert fresh and np.array_equal(res3.lobes, res.lobes)
         assert len(damaged_lines(capsys.readouterr().err, path)) == 1
     assert _cache.valid_file(path)
+    monkeypatch.setattr(_cache, "core_digest", lambda: "another core")  # another simulator: another entry
+    assert mg.simulation_path(params) != path and mg.cached_simulation(params, progress=False)[1]
 
 
 @pytest.fixture

@@ -79,14 +79,8 @@ def _write_json(path: Path, data: dict):
         raise
 
 
-_REPORTED = set()
-
-
 def report(path, reason: str, action: str = "recomputing it"):
-    """The one line on stderr for an entry that cannot be used (once per entry and process)."""
-    if (str(path), reason) in _REPORTED:
-        return
-    _REPORTED.add((str(path), reason))
+    """The one line on stderr for an entry that cannot be used."""
     try:
         sys.stderr.write(f"msx: {path} is {reason}; {action}\n")
         sys.stderr.flush()
@@ -242,6 +236,32 @@ def key_of(*parts) -> str:
     return h.hexdigest()[:20]
 
 
+_DIGESTS = {}
+
+
+def digest_files(*paths) -> str:
+    """SHA-256 of files' bytes (once per process and file set): what a cached result computed by that code
+    depends on."""
+    key = tuple(str(p) for p in paths)
+    if key not in _DIGESTS:
+        h = hashlib.sha256()
+        for p in paths:
+            h.update(Path(p).name.encode() + b"\0")
+            with open(p, "rb") as f:
+                for block in iter(lambda: f.read(1 << 20), b""):
+                    h.update(block)
+        _DIGESTS[key] = h.hexdigest()
+    return _DIGESTS[key]
+
+
+def core_digest() -> str:
+    """The digest of the compiled Rust core (the ``msx._native`` extension): any change of the core's code
+    changes it."""
+    from . import _native
+
+    return digest_files(_native.__file__)
+
+
 # ---------------------------------------------------------------- msx cache
 
 
@@ -281,7 +301,9 @@ def usage():
 
 def describe() -> str:
     base = root()
-    lines = [f"msx cache: {base}" + ("" if base.is_dir() else " (empty: not created yet)")]
+    state = "" if base.is_dir() else " (not a folder: set MSX_CACHE_DIR to one)" if base.exists() else \
+        " (empty: not created yet)"
+    lines = [f"msx cache: {base}{state}"]
     rows = usage()
     for kind, f, n, size in rows:
         what = KINDS.get(kind, "not msx's: left alone by --clear" if not _ours(f) else "from an older msx")

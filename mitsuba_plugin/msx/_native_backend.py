@@ -29,6 +29,7 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import os
+import platform
 import shutil
 import subprocess
 import sys
@@ -71,8 +72,6 @@ def _platform_flags():
     Windows (MSVC, ``.dll``) would each need their own build, which nobody has run. Mitsuba's x86-64 wheels are
     compiled with AVX, and the struct layouts must match theirs (``-mavx``); other Linux machines are tried
     without it — the self-check decides."""
-    import platform
-
     if not sys.platform.startswith("linux"):
         raise NativeUnavailable(f"the native back end is built on Linux only (tested on x86-64); this is "
                                 f"{sys.platform}")
@@ -113,7 +112,8 @@ def build(verbose=False) -> Path:
     cxx, inc, mi_dir, dr_dir, ext, versions = _toolchain()
     h = hashlib.sha256()
     for part in (src.read_bytes(), hdr.read_bytes(), repr(versions).encode(), str(ext).encode(), cxx.encode(),
-                 sys.version.encode(), Path(__file__).read_bytes()):  # this file: the compile command
+                 sys.version.encode(), Path(__file__).read_bytes(),  # this file: the compile command
+                 repr((sys.platform, platform.machine(), arch)).encode()):
         h.update(part)
     out_dir = _cache.folder("native") / h.hexdigest()[:20]
     target = out_dir / "msx_native.so"

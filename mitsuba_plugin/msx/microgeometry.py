@@ -22,7 +22,6 @@ ray sampling error.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import os
@@ -355,30 +354,13 @@ def model_lobes(res: SimResult, model, *, samples=2_000_000, groups=8, seed=1, m
 # ---------------------------------------------------------------- comparison
 
 
-_CORE_DIGEST = None
-
-
-def _simulator_digest() -> str:
-    """SHA-256 of the compiled core that traces the rays (the ``msx._native`` extension): a cached simulation
-    is reused only by the same simulator."""
-    global _CORE_DIGEST
-    if _CORE_DIGEST is None:
-        from . import _native
-
-        h = hashlib.sha256()
-        with open(_native.__file__, "rb") as f:
-            for block in iter(lambda: f.read(1 << 20), b""):
-                h.update(block)
-        _CORE_DIGEST = h.hexdigest()
-    return _CORE_DIGEST
-
-
 def simulation_path(params) -> Path:
     """The cache entry of one simulation (msx/_cache.py, ``simulations/``): its parameters, msx's version and
     the simulator's digest in the name."""
     from . import __version__, _cache
 
-    return _cache.folder("simulations") / (_cache.key_of(params, __version__, _simulator_digest()) + ".npz")
+    # The simulator is part of the compiled core.
+    return _cache.folder("simulations") / (_cache.key_of(params, __version__, _cache.core_digest()) + ".npz")
 
 
 def cached_simulation(params, *, cache=True, progress=True, label=None):

@@ -142,7 +142,7 @@ def build(verbose=False) -> Path:
                f"-L{mi_dir}", "-lmitsuba", f"-L{dr_dir}", "-ldrjit-core", "-ldrjit-extra", "-lnanothread",
                f"-Wl,-rpath,{mi_dir}", f"-Wl,-rpath,{dr_dir}"]
         # A one-time cost (several seconds): say so, or the first scene load looks hung.
-        print(f"msx: compiling the native plugin for mitsuba {versions[0]} (first use; cached in {out_dir})",
+        print(f"msx: compiling the native plugin for mitsuba {versions[0]} (once per install; cached in {out_dir})",
               file=sys.stderr, flush=True)
         if verbose:
             print(" ".join(cmd), file=sys.stderr)

@@ -326,7 +326,10 @@ def clear():
     deleted, kept = [], []
     for kind, f, n, size in usage():
         if kind in KINDS or _ours(f):
-            remove(f) if f.is_dir() else f.unlink(missing_ok=True)
+            if f.is_dir():
+                shutil.rmtree(f)  # an error (a file that cannot be deleted) is the caller's to report
+            else:
+                f.unlink(missing_ok=True)
             deleted.append((f, n, size))
         else:
             kept.append(f)

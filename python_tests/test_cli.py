@@ -28,6 +28,10 @@ def native_plugin_built():
 
 
 def msx(*args, timeout=HUNG, **kw):
+    """`python -m msx ARGS`; `render` in scalar_rgb unless ARGS name a variant: these tests are about the
+    worker processes of the scalar route (the default, `auto`, may pick llvm_ad_rgb: one process)."""
+    if args[0] == "render" and "--variant" not in args:
+        args = (*args, "--variant", "scalar_rgb")
     try:
         return subprocess.run([sys.executable, "-m", "msx", *args], capture_output=True, text=True, timeout=timeout,
                               **kw)
@@ -185,7 +189,7 @@ def test_bad_inputs_give_one_line(tmp_path, capsys):
         assert e.value.code == 2 and len(err) == 1, (args, err)
         assert all(f in err[0] for f in fragments) and err[0].endswith("--help)"), (args, err)
     for args, fragments in cases:
-        code = cli.main([*args, "--workers", "1"] if args[0] == "render" else list(args))
+        code = cli.main([*args, "--workers", "1", "--variant", "scalar_rgb"] if args[0] == "render" else list(args))
         r = SimpleNamespace(returncode=code, stderr=capsys.readouterr().err)
         _one_error_line(r, *fragments)
         assert "chunks" not in r.stderr and "%" not in r.stderr, f"{args}: the error came after the work"
@@ -217,7 +221,7 @@ def _start_long_render(tmp_path, workers=2, env=None):
     """A render that would run for many minutes; returns the process once its workers exist (or, with one
     worker, once it had time to start rendering in-process)."""
     p = subprocess.Popen([sys.executable, "-m", "msx", "render", SCENE, "--workers", str(workers), "--spp", "100000",
-                          "-o", str(tmp_path / "x.exr")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                          "--variant", "scalar_rgb", "-o", str(tmp_path / "x.exr")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          start_new_session=True, preexec_fn=_like_a_terminal_job,
                          env=None if env is None else {**os.environ, **env})
     if workers == 1:
@@ -347,7 +351,8 @@ def test_ctrl_c_inside_a_native_callback_is_an_interrupt(tmp_path, capsys, monke
     monkeypatch.setattr(_render, "load_scene", load_scene)
     before = signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a terminal (pytest may run in the
     try:  # background, SIGINT ignored)
-        code = cli.main(["render", SCENE, "--workers", "1", "--spp", "1", "-o", str(tmp_path / "x.exr")])
+        code = cli.main(["render", SCENE, "--workers", "1", "--variant", "scalar_rgb", "--spp", "1", "-o",
+                         str(tmp_path / "x.exr")])
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # main() restored it
     finally:
         signal.signal(signal.SIGINT, before)
@@ -398,3 +403,21 @@ def test_variant_auto_takes_the_fastest_route_and_says_which(tmp_path):
     assert r.returncode == 0, r.stderr[-2000:]
     assert "rendering with scalar_rgb (the native back end) instead" in r.stderr, r.stderr[-2000:]
     assert (tmp_path / "b.exr").exists()
+
+
+@pytest.mark.parametrize("define", ["model=invariant", "alpha=-1", "alhpa=0.5"])
+def test_a_bad_parameter_reads_the_same_in_both_engines(tmp_path, define):
+    """The Dr.Jit engine (llvm_ad_rgb) and the native back end (scalar_rgb) name a bad parameter in the same
+    one line."""
+    from msx._variants import llvm_problem
+
+    if llvm_problem():
+        pytest.skip(llvm_problem())
+    lines = {}
+    for variant in ("scalar_rgb", "llvm_ad_rgb"):
+        r = msx("render", SCENE, "-D", define, "--variant", variant, "--workers", "1", "--spp", "1",
+                "-o", str(tmp_path / "x.exr"), timeout=600)
+        assert r.returncode == 1, (variant, r.stderr[-2000:])
+        lines[variant] = [ln for ln in r.stderr.splitlines() if ln.strip()]
+        assert len(lines[variant]) == 1 and lines[variant][0].startswith("msx: error: "), (variant, r.stderr)
+    assert lines["scalar_rgb"] == lines["llvm_ad_rgb"]

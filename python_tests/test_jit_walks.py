@@ -356,3 +356,39 @@ def test_invariance_walks_compile_in_symbolic_calls():
     assert r.returncode == 0, r.stderr[-3000:]
     mean, finite = r.stdout.split()[-2:]
     assert finite == "True" and float(mean) > 0.0, r.stdout
+
+
+def test_the_run_tail_branch_changes_no_bit(monkeypatch):
+    """The invariance walks visit a run's slots from ``RUN_SLOTS_ALWAYS`` on only inside a branch that lanes
+    with shorter runs skip: eval and sample must give the same bits as the same walk with every slot
+    visited, on runs long enough to take the branch (GGX α = 4 at normal incidence: conductor, and the
+    dielectric from below, where total internal reflection lengthens the run) — which the walk with only
+    ``RUN_SLOTS_ALWAYS`` slots shows: it differs."""
+    from msx.jit import invariance
+
+    n = 1 << 16
+    u = uniforms(77, n)
+    slots = (invariance.CONDUCTOR_RUN_SLOTS, invariance.DIELECTRIC_RUN_SLOTS)
+    cases = [("conductor", {}, direction(0.0)),
+             ("dielectric", {"surface": "dielectric", "int_ior": 1.5}, -direction(0.0))]
+    for label, params, wi in cases:
+        si = interaction(wi, n)
+        wo = vec3(direction(0.6, 1.0) * (1.0 if label == "conductor" else -1.0), n)
+
+        def run(always, conductor_slots=slots[0], dielectric_slots=slots[1]):
+            monkeypatch.setattr(invariance, "RUN_SLOTS_ALWAYS", always)
+            monkeypatch.setattr(invariance, "CONDUCTOR_RUN_SLOTS", conductor_slots)
+            monkeypatch.setattr(invariance, "DIELECTRIC_RUN_SLOTS", dielectric_slots)
+            b = mi.load_dict({"type": "msx_posfree", "distribution": "ggx", "alpha": 4.0, "model": "invariance",
+                              **(params or {"material": "Cu"})})
+            f = np_of(b.eval(mi.BSDFContext(), si, wo))
+            bs, w = b.sample(mi.BSDFContext(), si, mi.Float(u[0]), mi.Point2f(mi.Float(u[1]), mi.Float(u[2])))
+            return np.concatenate([f, np_of(bs.wo), np_of(w)])
+
+        always = invariance.RUN_SLOTS_ALWAYS
+        branched, unrolled = run(always), run(10 ** 6)
+        short = run(always, always, always)
+        differ = np.any(short != branched, axis=0).mean()
+        print(f"{label}: lanes whose result {always} slots would change: {differ:.4f}")
+        assert np.array_equal(branched, unrolled, equal_nan=True), label
+        assert differ > 0.0, f"{label}: no run reached the branch: the test shows nothing"

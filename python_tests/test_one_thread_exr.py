@@ -20,7 +20,7 @@ def test_render_writes_its_exr_with_one_thread(tmp_path):
     """The Python back end with one worker renders in-process with one Dr.Jit thread."""
     out = tmp_path / "fig07"
     r = run(["-m", "msx", "render", str(SCENES / "fig07_normalmap.xml"), "--spp", "1", "--workers", "1",
-             "-D", "width=16", "-D", "height=16", "-D", f"assets={tmp_path / 'assets'}", "-o", str(out)],
+             "--variant", "scalar_rgb", "-D", "width=16", "-D", "height=16", "-D", f"assets={tmp_path / 'assets'}", "-o", str(out)],
             env={"MSX_BACKEND": "python"})
     assert r.returncode == 0, r.stderr[-2000:]
     assert out.with_suffix(".exr").stat().st_size > 0 and out.with_suffix(".png").stat().st_size > 0

@@ -25,7 +25,8 @@ import time
 import traceback
 from pathlib import Path
 
-from ._render import DEFAULT_VARIANT, RenderError, one_line, output_folder, render_scene, write_image
+from ._render import (DEFAULT_VARIANT, RenderError, one_line, output_folder, render_scene, resolve_scene,
+                      write_image)
 
 __all__ = ["main", "render_scene", "write_image"]
 
@@ -200,14 +201,15 @@ def cmd_render(args):
     params = _parse_defines(args.define)
     out = Path(args.output or Path(args.scene).with_suffix("").name + ".exr")
     output_folder(out.parent, f"-o {out}")  # before the render, not after it
-    workers = args.workers
     if args.variant == "auto":
         from ._variants import fastest_variant
 
+        resolve_scene(args.scene)  # a missing scene is named before the route is probed
+
         args.variant, why = fastest_variant()
         print(f"msx: rendering with {args.variant} ({why})", file=sys.stderr)
-        if not args.variant.startswith("scalar"):
-            workers = 1  # drjit uses every core of this process
+    # Worker processes serve the scalar variants; a vectorized one uses every core in this process.
+    workers = args.workers if args.variant.startswith("scalar") else 1
     try:
         img, _, wall = render_scene(args.scene, variant=args.variant, spp=args.spp, params=params,
                                     workers=workers, seed=args.seed)
@@ -282,11 +284,13 @@ def build_parser():
     r.add_argument("scene")
     r.add_argument("-o", "--output", help="output path (.exr; a .png is written beside it)")
     r.add_argument("--spp", type=_positive("--spp"), default=None, help="samples per pixel (default: the scene's)")
-    r.add_argument("--variant", default=DEFAULT_VARIANT,
-                   help=f"Mitsuba variant (default {DEFAULT_VARIANT}, the native back end); 'auto': the fastest "
-                        "route here, llvm_ad_rgb with the Dr.Jit engine where Mitsuba's LLVM variant works (one "
-                        "process, every core), falling back to scalar_rgb for what the engine does not run")
-    r.add_argument("--workers", type=_positive("--workers"), default=workers, help="worker processes")
+    r.add_argument("--variant", default="auto",
+                   help="Mitsuba variant (default 'auto': the fastest route here, said on stderr — llvm_ad_rgb "
+                        "with the Dr.Jit engine where Mitsuba's LLVM variant works (one process, every core), "
+                        f"else {DEFAULT_VARIANT} with the native back end, which also renders what the engine "
+                        "does not run)")
+    r.add_argument("--workers", type=_positive("--workers"), default=workers,
+                   help="worker processes of the scalar variants (default: one per core)")
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("-D", "--define", action="append", help="scene parameter key=value (XML <default>)")
     r.set_defaults(func=cmd_render)
@@ -297,8 +301,9 @@ def build_parser():
     c.add_argument("--scenes", default=None, help="folder with the scene XMLs (default: the installed scenes)")
     c.add_argument("--out", default="out", help="report folder (index.html, CSVs, PNGs)")
     c.add_argument("--variant", default=None,
-                   help="Mitsuba variant (default: the fastest route here: scalar_rgb with the native back end; "
-                        "if that cannot be built, llvm_ad_rgb if usable, else scalar_rgb with the Python back end)")
+                   help="Mitsuba variant (default: the fastest route here: llvm_ad_rgb with the Dr.Jit engine where "
+                        "Mitsuba's LLVM variant works, rendering what the engine does not run in scalar_rgb with the "
+                        "native back end; else scalar_rgb native, else scalar_rgb with the Python back end)")
     c.add_argument("--cache", default=None, help="folder of cached reference renders (default: references/ in msx's "
                                                  "cache folder, see msx cache)")
     c.set_defaults(func=cmd_compare)

@@ -98,6 +98,9 @@ def run(args):
     side_reports = [_side_scene(renderer, key, name, title, builtin, models, extra, st, out, prog)
                     for key, name, title, builtin, models, extra in SIDE_SCENES]
     renderer.release()
+    if renderer.routes:
+        route += ("; rendered in scalar_rgb with the native back end instead, which the Dr.Jit engine does not "
+                  "run: " + "; ".join(f"{name}: {row_label((model, est))}" for name, model, est in sorted(renderer.routes)))
 
     prog.stage("stability atlas")
     atlas_rows = atlas_mod.compute(st, progress=prog.update)
@@ -132,7 +135,7 @@ def run(args):
 
     prog.stage("report")
     _write_csv(out / "results.csv", results, ["scene", "model", "estimator", "spp", "seconds", "rel_mse", "bias2",
-                                              "variance", "rel_mse_se", "unbiased"])
+                                              "variance", "rel_mse_se", "unbiased", "route"])
     from .evaluation import report
 
     checks = _physics_checks(scene_reports)
@@ -183,6 +186,8 @@ def _sweep_scene(renderer, scene, st, cache, out, prog, results):
         if noise <= smallest / 10 or ref_spp >= st.ref_max_factor * top:
             break
         ref_spp *= 2
+    for r in stats:  # the variant each row was rendered in (the engine's refusals: scalar_rgb)
+        r["route"] = renderer.routes.get((scene.name, r["model"], r["estimator"]), renderer.variant)
     results.extend(stats)
 
     # Time to reach 1 % and 0.1 % relative MSE: rel_mse(t) = bias² + c/t, c from the measured variances.

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import os
-import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
@@ -65,44 +64,24 @@ def settings(quick: bool, variant: str) -> Settings:
                     [0.5, 1.0], list(np.geomspace(0.02, 2.0, 12)), 20000, 64, 1.0, variant)
 
 
-LLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
-
-
-def llvm_usable() -> str | None:
-    """None if llvm_ad_rgb renders here, else the reason (probed in a subprocess: a bad libLLVM can crash)."""
-    probe = ("import mitsuba as mi, drjit as dr\nmi.set_variant('llvm_ad_rgb')\n"
-             "x = dr.maximum(mi.Float([1.0, 2.0]), mi.Float([2.0, 1.0])) * 2\n"
-             "assert x.numpy().tolist() == [4.0, 4.0]\nprint('ok')\n")
-    try:
-        import mitsuba as mi
-
-        if "llvm_ad_rgb" not in mi.variants():
-            return "this Mitsuba build has no llvm_ad_rgb variant"
-        r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
-    except Exception as e:  # pragma: no cover
-        return f"LLVM probe failed: {e}"
-    if r.returncode != 0 or "ok" not in r.stdout:
-        return "llvm_ad_rgb unusable (needs libLLVM >= 19 and DRJIT_LIBLLVM_PATH)"
-    return None
-
-
 def default_variant() -> tuple[str, str]:
-    """The fastest route available here and why: the native back end in scalar_rgb (all render threads),
-    else the LLVM variant (batched calls in evaluated mode), else the scalar Python back end."""
+    """The fastest route here and why: llvm_ad_rgb with the Dr.Jit engine where Mitsuba's LLVM variant works
+    (what the engine does not run falls back to scalar_rgb, row by row), else scalar_rgb with the native back
+    end (every render thread), else scalar_rgb with the Python back end (one thread)."""
     from .._native_backend import NativeUnavailable, build
+    from .._variants import llvm_problem
 
+    llvm_why = llvm_problem()
+    if llvm_why is None:
+        return "llvm_ad_rgb", (f"llvm_ad_rgb with the Dr.Jit engine (traced into Mitsuba's kernels, "
+                               f"{os.cpu_count()} threads)")
     try:
         build()
         return "scalar_rgb", (f"scalar_rgb with the native back end (C++ plugin on the Rust core, "
-                              f"{os.cpu_count()} render threads)")
+                              f"{os.cpu_count()} render threads; {llvm_why})")
     except NativeUnavailable as e:
         native_why = str(e).splitlines()[0]
-    if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(LLVM19):
-        os.environ["DRJIT_LIBLLVM_PATH"] = LLVM19  # read when drjit first starts its LLVM backend
-    why = llvm_usable()
-    if why is None:
-        return "llvm_ad_rgb", f"LLVM variant, batched native calls (native back end unavailable: {native_why})"
-    return "scalar_rgb", f"scalar variant, Python back end, one thread (native: {native_why}; LLVM: {why})"
+    return "scalar_rgb", f"scalar variant, Python back end, one thread (native: {native_why}; {llvm_why})"
 
 
 class Progress:

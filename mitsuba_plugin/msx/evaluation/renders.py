@@ -1,12 +1,14 @@
 """Renders of the evaluation: the sweep scenes, their Smith reference, the spp
 sweep of every model × estimator, object masks and the side-by-side scenes.
 
-All renders of a run happen in this process with one variant (the route the
-report names). Built-in BSDFs render in drjit's default mode; msx_posfree in
-LLVM variants inside ``msx.evaluated_mode()`` (native code cannot run in
-symbolic kernels), scalar variants on one render thread (the GIL). Seconds
-are the wall time of ``mi.render`` (scene loading and the first, compiling
-render excluded).
+All renders of a run happen in this process, in the variant of the route the
+report names: in ``llvm_*`` msx_posfree is the Dr.Jit engine (drjit's default
+symbolic mode, as the built-ins), and a configuration the engine does not run
+(BDPT on dielectrics, ``invariance`` on the diffuse surface) is rendered in
+``scalar_rgb`` with the native back end instead — ``Renderer.routes`` lists
+them and the report says so; in scalar variants the native back end uses every
+render thread, the Python back end one (the GIL). Seconds are the wall time of
+``mi.render`` (scene loading and the first, compiling render excluded).
 """
 
 from __future__ import annotations
@@ -23,6 +25,10 @@ from pathlib import Path
 import numpy as np
 
 from .common import UNBIASED, rel_mse, row_label
+
+
+# What the Dr.Jit engine's refusals end with (msx/jit/bsdf.py ``ALTERNATIVES``).
+ENGINE_REFUSAL = "msx.register(backend='batched')"
 
 
 @dataclass
@@ -55,7 +61,7 @@ class Renderer:
         import msx
 
         mi.set_variant(variant)
-        msx.register()
+        msx.register(backend="jit" if not variant.startswith("scalar") else None)
         if variant.startswith("scalar"):
             # Native back end: every core; the Python back end serialises on the GIL (one thread).
             dr.set_thread_count((os.cpu_count() or 1) if msx.backend() == "native" else 1)
@@ -63,6 +69,13 @@ class Renderer:
         self.variant = variant
         self.scenes_dir = Path(scenes_dir)
         self._loaded = None  # (key, scene)
+        self._fallback = None  # the scalar_rgb renderer of what the Dr.Jit engine does not run
+        self.routes = {}  # (scene, model, estimator) → the variant it was rendered in, where not `variant`
+
+    def _use(self):
+        """This renderer's variant (the fallback renderer may have switched it)."""
+        if self.mi.variant() != self.variant:
+            self.mi.set_variant(self.variant)
 
     def scene_path(self, name):
         return self.scenes_dir / f"{name}.xml"
@@ -81,19 +94,34 @@ class Renderer:
     def _scene(self, name, params):
         from .._render import load_scene, with_assets
 
+        self._use()
         params = with_assets(str(self.scene_path(name)), params)
         key = (name, tuple(sorted(params.items())))
         if self._loaded is None or self._loaded[0] != key:
             self._loaded = None
             gc.collect()  # no live msx instance may remain when a built-in renders symbolically
-            self._loaded = (key, load_scene(self.mi, str(self.scene_path(name)), **params))
+            try:
+                self._loaded = (key, load_scene(self.mi, str(self.scene_path(name)), **params))
+            except Exception as e:  # Mitsuba's error, the plugin's message inside
+                if self.variant.startswith("scalar") or ENGINE_REFUSAL not in str(e):
+                    raise
+                return None  # the Dr.Jit engine does not run it: the fallback renders it
         return self._loaded[1]
+
+    def _fallback_for(self, name, params):
+        """The scalar_rgb renderer (native back end) of a row the engine does not run, noted in ``routes``."""
+        if self._fallback is None:
+            self._fallback = Renderer("scalar_rgb", self.scenes_dir)
+        self.routes[(name, params.get("model"), params.get("estimator", "pt"))] = self._fallback.variant
+        return self._fallback
 
     def render(self, name, params, spp, seed):
         """(image as float64 [H, W, 3], seconds of mi.render)."""
         scene = self._scene(name, params)
+        if scene is None:
+            return self._fallback_for(name, params).render(name, params, spp, seed)
         msx_row = params.get("bsdf") == "msx_posfree"
-        ctx = self.msx.evaluated_mode() if (msx_row and self.variant.startswith("llvm")) else _Null()
+        ctx = self.msx.evaluated_mode() if (msx_row and self.msx.backend() == "batched") else _Null()
         with ctx:
             t0 = time.perf_counter()
             img = self.mi.render(scene, seed=seed, spp=spp)
@@ -109,6 +137,8 @@ class Renderer:
 
     def release(self):
         self._loaded = None
+        if self._fallback is not None:
+            self._fallback.release()
         gc.collect()
 
     def object_mask(self, name, params, sub=3):

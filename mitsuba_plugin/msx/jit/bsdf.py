@@ -96,6 +96,25 @@ def engine_support(cfg):
                ", and %s with 'bdpt'" % ", ".join(bdpt) if bdpt else "", ALTERNATIVES))
 
 
+# The models whose gradients the engine computes: closed forms, differentiated by drjit's AD as they are.
+# A random walk's value is an estimate whose derivative drjit's AD does not give without bias (its random
+# decisions depend on the parameters), and Mitsuba's prb divides by weight·pdf, which for a walk is not the
+# BSDF (docs/gradients.md); such a model refuses to be differentiated rather than return a wrong gradient.
+DIFFERENTIABLE_MODELS = {"conductor": tuple(CONDUCTOR_ANALYTIC), "dielectric": tuple(DIELECTRIC_ANALYTIC),
+                         "diffuse": ()}
+
+
+def gradient_problem(cfg):
+    """None when the engine differentiates this configuration, else the one-line message of the refusal."""
+    models = DIFFERENTIABLE_MODELS.get(cfg.surface, ())
+    if cfg.model in models:
+        return None
+    where = ", ".join("%s (%s)" % (", ".join(m), surface) for surface, m in DIFFERENTIABLE_MODELS.items() if m)
+    return ("%s: model='%s' on surface '%s' is not differentiable: gradients of its random walk are not "
+            "implemented (docs/gradients.md); the differentiable models are %s — or keep this BSDF's parameters "
+            "out of the gradient (dr.disable_grad)" % (PLUGIN, cfg.model, cfg.surface, where))
+
+
 def walk_name(cfg):
     """The walk a model runs: ``auto`` is ``correlated`` with a per-lane bounce cap."""
     return "correlated" if cfg.model == "auto" else cfg.model
@@ -244,6 +263,7 @@ def make_bsdf_factory(variant):
                 if problem is not None:
                     raise MsxParameterError(problem)
                 self._model = MODELS_BY_SURFACE[kind](self._cfg)
+                self._gradient_problem = gradient_problem(self._cfg)
                 self._refresh()
 
             def _config(self, props):
@@ -258,7 +278,11 @@ def make_bsdf_factory(variant):
                     si = dr.zeros(mi.SurfaceInteraction3f)
                     eta, k = self._eta.eval(si), self._k.eval(si)
                     self._mirror = bool(dr.all(dr.ravel(eta) == 0.0)) and bool(dr.all(dr.ravel(k) == 1.0))
-                    if self._cfg.model == "compensated" and not self._mirror:
+                    # Not when η or k is differentiated: an average computed here would tie the kernel to a
+                    # derivative taken outside the render (Mitsuba's render isolates its own); the call then
+                    # computes it, differentiably.
+                    traced = dr.grad_enabled(eta) or dr.grad_enabled(k)
+                    if self._cfg.model == "compensated" and not self._mirror and not traced:
                         clip = (lambda v: dr.clip(v, 0.0, MATERIAL_VALUE_MAX))
                         self._fresnel_average = analytic.fresnel_average(ConductorFresnel(clip(eta), clip(k)))
                         dr.eval(self._fresnel_average)
@@ -295,6 +319,11 @@ def make_bsdf_factory(variant):
                     call.albedo, ok = self._spectrum(self._reflectance, si, active)
                     usable &= ok
                 call.usable = usable
+                if self._gradient_problem is not None:
+                    values = (au, av, call.fresnel and call.fresnel.eta, call.fresnel and call.fresnel.k, call.tint_r,
+                              call.tint_t, call.albedo)
+                    if any(v is not None and dr.grad_enabled(v) for v in values):
+                        raise MsxParameterError(self._gradient_problem)
                 return call
 
             def _eval_key(self, si, wo):

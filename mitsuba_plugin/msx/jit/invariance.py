@@ -32,7 +32,9 @@ drjit 1.5's LLVM backend, and Mitsuba calls every BSDF through one; so the run l
 registers, Python lists of mi.Float carried through the walk's ``dr.while_loop`` (``MonotoneExit``:
 K = ``CONDUCTOR_RUN_SLOTS`` = 20 slots of |Λ| and of g; ``PieceChain``: K = ``DIELECTRIC_RUN_SLOTS`` = 18
 slots of L_i and π), plus the run length a. An indexed write is a select over the K slots, the O(a) passes
-over the run are unrolled over the K slots and masked by i < a. Up to K the state is the core's, exactly;
+over the run are unrolled over the K slots and masked by i < a; the slots from ``RUN_SLOTS_ALWAYS`` = 4 on
+sit in a ``dr.if_stmt`` that a packet of lanes whose runs are all shorter skips (``over_run``; the same bits
+as without it, a test). Up to K the state is the core's, exactly;
 a path whose downward run would be longer than K (or than the bounce cap, when that is smaller) **ends
 there**: the push of its (K+1)-th downward direction fails, the walk stops, and what it would still have
 added (its higher orders, or a sampled direction: the sample is invalid) is lost — a bias of at most the
@@ -90,11 +92,42 @@ LOCAL_CAPACITY = 64
 # measurement (the module docstring): a path whose run would be longer ends there.
 CONDUCTOR_RUN_SLOTS = 20
 DIELECTRIC_RUN_SLOTS = 18
+# Slots every pass visits; the others only under ``dr.if_stmt(a > RUN_SLOTS_ALWAYS)``, which the LLVM backend
+# compiles to a branch that a packet of lanes skips when none of them has a run that long (most runs are
+# 1–3 directions: the passes over all the slots cost 30 % of the invariance walk's render time, measured).
+RUN_SLOTS_ALWAYS = 4
 
 ONE_MINUS = 0.99999994  # largest float32 below 1
 
 
 # ------------------------------------------------------------------ the exit table (recursion.rs)
+
+
+def over_run(n, a, step, carry, reverse=True):
+    """``carry = step(i, carry)`` for the slots i of a run held in ``n`` registers, n−1 … 0 (``reverse``) or
+    0 … n−1; the slots from ``RUN_SLOTS_ALWAYS`` on inside ``dr.if_stmt(a > RUN_SLOTS_ALWAYS)``, a branch that
+    lanes with shorter runs skip. ``step`` must leave the carry unchanged for the slots i ≥ ``a`` (``a``: the
+    slots in use, a UInt32 per lane)."""
+    lo = min(RUN_SLOTS_ALWAYS, n)
+    head, tail_slots = list(range(lo)), list(range(lo, n))
+    if reverse:
+        head.reverse()
+        tail_slots.reverse()
+
+    def tail(*c):
+        for i in tail_slots:
+            c = step(i, c)
+        return c
+
+    if not reverse:
+        for i in head:
+            carry = step(i, carry)
+    if tail_slots:
+        carry = dr.if_stmt(args=tuple(carry), cond=a > lo, true_fn=tail, false_fn=lambda *c: c, label="msx_run_tail")
+    if reverse:
+        for i in head:
+            carry = step(i, carry)
+    return carry
 
 
 class MonotoneExit:
@@ -127,8 +160,14 @@ class MonotoneExit:
         """Appends a downward direction of |Λ| = ``l`` where ``active``; False on a non-monotone path or a
         full run (a = n), which ends the walk."""
         ok = active & ~self.has_up & (self.a < self.n)
-        for i in range(1, self.n):
-            self.down[i] = dr.select(ok & (self.a == i), l, self.down[i])
+        a = self.a
+
+        def step(i, down):
+            if i == 0:
+                return down
+            return down[:i] + (dr.select(ok & (a == i), l, down[i]),) + down[i + 1:]
+
+        self.down = list(over_run(self.n, a + 1, step, tuple(self.down)))
         self.a = dr.select(ok, self.a + 1, self.a)
         return ok
 
@@ -136,36 +175,44 @@ class MonotoneExit:
         """One pass over the downward run: (column(Λ_x), exit_via_up(Λ_y, Λ_x)), i.e. p_exit(d_0..d_m, x)/H_m
         and p_exit(d_0..d_m, y, x)/H_m for virtual upward x, y (``exit_given_hits``, ``exit_via_up``)."""
         has_up = self.has_up
-        c = c_y = dr.select(has_up, 0.0, 1.0)
-        c_x = mi.Float(0.0)
-        for i in reversed(range(self.n)):
+        c0 = dr.select(has_up, 0.0, 1.0)
+
+        def step(i, carry):
+            c, c_x, c_y = carry
             run = self.a > i
             li = self.down[i]
             gi = dr.select(has_up, self.g[i], 0.0)
             r_x = 1.0 / (li + lambda_x)
             c_y_new = (li * c_y + gi) / (li + lambda_y)
-            c_x = dr.select(run, (li * c_x + lambda_y * c_y_new) * r_x, c_x)
-            c = dr.select(run, (li * c + gi) * r_x, c)
-            c_y = dr.select(run, c_y_new, c_y)
+            return (dr.select(run, (li * c + gi) * r_x, c), dr.select(run, (li * c_x + lambda_y * c_y_new) * r_x, c_x),
+                    dr.select(run, c_y_new, c_y))
+
+        c, c_x, _ = over_run(self.n, self.a, step, (c0, mi.Float(0.0), c0))
         return c, c_x
 
     def push_up(self, lam, active):
         """Appends an upward direction with Λ = ``lam`` where ``active``; returns H_{m+1}/H_m, the
         probability that it hits the surface again (0 where not active)."""
         was_up = self.has_up
-        c, cont = dr.select(was_up, 0.0, 1.0), mi.Float(0.0)
-        g_new = list(self.g)
-        for i in reversed(range(self.n)):
+
+        def step(i, carry):
+            c, cont, g = carry[0], carry[1], carry[2:]
             run = self.a > i
             li = self.down[i]
             gi = dr.select(was_up, self.g[i], 0.0)
             c = dr.select(run, (li * c + gi) / (li + lam), c)
-            g_new[i] = lam * c
-            cont = dr.select(run, cont + g_new[i] / li, cont)
+            g_i = lam * c
+            return (c, dr.select(run, cont + g_i / li, cont)) + g[:i] + (g_i,) + g[i + 1:]
+
+        out = over_run(self.n, self.a, step, (dr.select(was_up, 0.0, 1.0), mi.Float(0.0)) + tuple(self.g))
+        cont, g_new = out[1], out[2:]
         good = (cont > 0.0) & dr.isfinite(cont)
         inv = dr.select(good, 1.0 / cont, 0.0)
-        for i in range(self.n):
-            self.g[i] = dr.select(active, g_new[i] * inv, self.g[i])
+
+        def scale(i, g):  # the slots i ≥ a are never read
+            return g[:i] + (dr.select(active, g_new[i] * inv, g[i]),) + g[i + 1:]
+
+        self.g = list(over_run(self.n, self.a, scale, tuple(self.g)))
         self.hit = dr.select(active, self.hit * dr.select(good, cont, 0.0), self.hit)
         self.has_up = self.has_up | active
         return dr.select(active, cont, 0.0)
@@ -654,8 +701,14 @@ class PieceChain:
         """Appends a downward direction (|Λ| = ``l``) where ``active``; False on a non-monotone run or a
         full run (a = n): the walk ends there."""
         ok = active & ~self.has_up & (self.a < self.n)
-        for i in range(1, self.n):
-            self.rates[i] = dr.select(ok & (self.a == i), l, self.rates[i])
+        a = self.a
+
+        def step(i, rates):
+            if i == 0:
+                return rates
+            return rates[:i] + (dr.select(ok & (a == i), l, rates[i]),) + rates[i + 1:]
+
+        self.rates = list(over_run(self.n, a + 1, step, tuple(self.rates)))
         self.a = dr.select(ok, self.a + 1, self.a)
         return ok
 
@@ -665,18 +718,19 @@ class PieceChain:
         piece c; a fraction Λ/(L_c+Λ) lands there (Λ = ∞: everything lands where it is)."""
         inf = dr.isinf(lam)
         run = active & (lam > 0.0)
-        carry, cont = mi.Float(0.0), mi.Float(0.0)
-        pi_new = list(self.pi)
-        for c in reversed(range(self.n)):
+
+        def step(c, state):
+            carry, cont, pi = state[0], state[1], state[2:]
             on = run & (self.a > c)
             if c + 1 < self.n:
                 ln = self.rates[c + 1]
                 carry = dr.select(on & (self.a > c + 1), carry * dr.select(inf, 0.0, ln / (ln + lam)), carry)
             carry = carry + self.pi_at(c, on)
             land = carry * dr.select(inf, 1.0, lam / (self.rates[c] + lam))
-            pi_new[c] = dr.select(on, land, self.pi[c])
-            cont = cont + dr.select(on, land, 0.0)
-        self.pi = pi_new
+            return (carry, cont + dr.select(on, land, 0.0)) + pi[:c] + (dr.select(on, land, pi[c]),) + pi[c + 1:]
+
+        out = over_run(self.n, self.a, step, (mi.Float(0.0), mi.Float(0.0)) + tuple(self.pi))
+        cont, self.pi = out[1], list(out[2:])
         good = run & (cont > 0.0) & dr.isfinite(cont)
         self.scale = dr.select(good, 1.0 / cont, self.scale)
         self.has_up = self.has_up | active
@@ -688,12 +742,15 @@ class PieceChain:
         """E[e^{−Λ τ}] given the hits: the probability of leaving along an upward direction with
         Λ = ``lam`` from the current vertex (0 where not active, Λ < 0 or ∞)."""
         run = active & (lam >= 0.0) & ~dr.isinf(lam)
-        prod, total = mi.Float(1.0), mi.Float(0.0)
-        for c in range(self.n):
+
+        def step(c, carry):
+            prod, total = carry
             on = run & (self.a > c)
             l = self.rates[c]
             prod = dr.select(on, prod * (l / (l + lam)), prod)
-            total = total + self.pi_at(c, on) * prod
+            return prod, total + self.pi_at(c, on) * prod
+
+        _, total = over_run(self.n, self.a, step, (mi.Float(1.0), mi.Float(0.0)), reverse=False)
         return dr.select(run, total, 0.0)
 
 
@@ -701,13 +758,16 @@ def draw_depth(chain, c_min, key, counter, active):
     """τ of ``PieceChain.sample_depth``: the piece c ≥ c_min from π (one number), then τ = X_0 + … + X_c
     with fresh X_i ~ Exp(L_i) (one number each; L = ∞ adds no depth). Returns (τ, mass Σ_{c ≥ c_min} π(c),
     counter)."""
-    total = mi.Float(0.0)
-    for c in range(c_min, chain.n):
-        total = total + chain.pi_at(c, active & (chain.a > c))
+
+    def add_mass(c, carry):
+        return (carry[0] + chain.pi_at(c, active & (chain.a > c)),) if c >= c_min else carry
+
+    total, = over_run(chain.n, chain.a, add_mass, (mi.Float(0.0),), reverse=False)
     rng = Stream(key, counter)
     u_pick, _ = rng.next2()
-    rest, tau, picking, counter = u_pick * total, mi.Float(0.0), mi.Bool(active), mi.UInt32(rng.counter)
-    for c in range(chain.n):
+
+    def pick(c, carry):
+        rest, tau, picking, counter = carry
         on = picking & (chain.a > c)
         rng = Stream(key, counter)
         u, _ = rng.next2()
@@ -715,7 +775,10 @@ def draw_depth(chain, c_min, key, counter, active):
         if c >= c_min:
             rest = dr.select(on, rest - chain.pi_at(c, on), rest)
             picking &= ~(on & (rest < 0.0))
-        counter = dr.select(on, rng.counter, counter)
+        return rest, tau, picking, dr.select(on, rng.counter, counter)
+
+    carry = (u_pick * total, mi.Float(0.0), mi.Bool(active), mi.UInt32(rng.counter))
+    _, tau, _, counter = over_run(chain.n, chain.a, pick, carry, reverse=False)
     return tau, total, counter
 
 

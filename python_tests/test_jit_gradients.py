@@ -1,0 +1,336 @@
+"""Gradients of the Dr.Jit engine in ``llvm_ad_rgb`` (docs/gradients.md).
+
+- The closed-form models (``single``, ``fastmsx``, ``compensated``; conductor and dielectric): drjit's
+  forward- and reverse-mode derivatives of ``eval``, ``pdf`` and the ``sample`` weight, with respect to
+  every parameter ``mi.traverse`` exposes, equal central finite differences of the same calls at fixed
+  directions and sample numbers. These are deterministic: the tolerance is float32 rounding of the two
+  evaluations divided by the step, plus the step's truncation error (both below), so a wrong sign or a
+  factor 2 fails by orders of magnitude.
+- Rendered with Mitsuba's ``prb``: the derivative of the image mean by forward and by reverse mode equals
+  the central difference of renders at the same seeds, within the noise of the paired per-seed differences
+  (a z-test; the Šidák threshold of a family-wise false-alarm rate of 1e-3 over this file's render checks).
+- The random walks refuse to be differentiated (one line naming the differentiable models) instead of
+  returning a gradient that is wrong: forward mode through the ``correlated`` walk gave the opposite sign
+  of the finite difference.
+"""
+
+import math
+from statistics import NormalDist
+
+import pytest
+
+from llvm_support import drjit_default_mode, llvm_unusable_reason  # noqa: E402  (sets DRJIT_LIBLLVM_PATH first)
+
+np = pytest.importorskip("numpy")
+mi = pytest.importorskip("mitsuba")
+import drjit as dr  # noqa: E402
+
+_REASON = llvm_unusable_reason()
+if _REASON:
+    pytest.skip(_REASON, allow_module_level=True)
+
+import msx  # noqa: E402
+
+LANES = 512
+# float32 evaluations of f carry a relative rounding error of a few hundred ulps at most through these
+# formulas (tables, Fresnel, visible normals); the differences below divide it by h (the bound sums the four
+# evaluations' errors with Richardson's weights, 4/3 · 1/(2h) and 1/3 · 1/(4h), rounded up to 1/h).
+ULPS = 256
+EPS32 = 2.0 ** -24
+# Truncation of the extrapolated central difference (below): O(h⁴) with h = 5e-3 of the parameter's scale,
+# far below 1e-3 of the derivative for smooth f; allowed 1e-3 (a factor 2 or a sign is 1 or 2).
+TRUNCATION = 1e-3
+SEEDS = 12  # render checks: paired per-seed differences
+RENDER_CHECKS = 2 * 2 * 4  # forward and reverse × two losses × the rendered cases below
+Z_MAX = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / RENDER_CHECKS)) / 2.0)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def llvm():
+    mi.set_variant("llvm_ad_rgb")
+    msx.register(backend="jit")
+    with drjit_default_mode():
+        yield
+
+
+# (label, plugin dictionary): every closed-form model of the engine, GGX and Beckmann, isotropic and not.
+CASES = [
+    ("conductor single ggx", {"material": "Cu", "model": "single", "distribution": "ggx", "alpha": 0.437}),
+    ("conductor single beckmann aniso", {"material": "Au", "model": "single", "distribution": "beckmann",
+                                         "alpha_u": 0.263, "alpha_v": 0.581}),
+    ("conductor fastmsx", {"material": "Cu", "model": "fastmsx", "distribution": "ggx", "alpha": 0.613}),
+    ("conductor compensated", {"material": "Cu", "model": "compensated", "distribution": "ggx", "alpha": 0.737}),
+    ("conductor compensated aniso", {"material": "Al", "model": "compensated", "alpha_u": 0.347,
+                                     "alpha_v": 0.853}),
+    ("dielectric single", {"surface": "dielectric", "model": "single", "int_ior": 1.5, "alpha": 0.419,
+                           "specular_transmittance": 0.9}),
+    ("dielectric compensated", {"surface": "dielectric", "model": "compensated", "int_ior": 1.33,
+                                "alpha": 0.671, "specular_reflectance": 0.8}),
+]
+
+
+def load(params):
+    return mi.load_dict({"type": "msx_posfree", **params})
+
+
+def directions(n, seed, lower):
+    """n (ω_i, ω_o) pairs: ω_i above, ω_o above or (``lower``: half of them) below, none near grazing."""
+    rng = np.random.default_rng(seed)
+    ti, to = rng.uniform(0.05, 1.35, n), rng.uniform(0.05, 1.35, n)
+    pi, po = rng.uniform(0, 2 * math.pi, (2, n))
+    wi = np.stack([np.sin(ti) * np.cos(pi), np.sin(ti) * np.sin(pi), np.cos(ti)])
+    wo = np.stack([np.sin(to) * np.cos(po), np.sin(to) * np.sin(po), np.cos(to)])
+    if lower:
+        wo[2, n // 2:] *= -1.0
+    return wi.astype(np.float32), wo.astype(np.float32)
+
+
+def interaction(wi):
+    n = wi.shape[1]
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.wi = mi.Vector3f(*[mi.Float(c) for c in wi])
+    si.p = mi.Point3f(mi.Float(np.arange(n, dtype=np.float32)), mi.Float(0.0), mi.Float(0.0))
+    return si
+
+
+def outputs(b, si, wo, u):
+    """eval, pdf, sample weight and the sampled ω_o, flattened (channels × lanes); drjit values."""
+    ctx = mi.BSDFContext()
+    f = b.eval(ctx, si, wo)
+    p = b.pdf(ctx, si, wo)
+    bs, w = b.sample(ctx, si, mi.Float(u[0]), mi.Point2f(mi.Float(u[1]), mi.Float(u[2])))
+    return f, p, w, bs.wo
+
+
+def as_np(values):
+    out = []
+    for v in values:
+        dr.eval(v)
+        out.append(np.array(v, dtype=np.float64).reshape(-1, dr.width(v)) if dr.depth_v(v) > 1 else
+                   np.array(v, dtype=np.float64)[None, :])
+    return out
+
+
+def parameters(b):
+    """The differentiable parameters of a BSDF: {key: (value, direction of the derivative)}."""
+    p = mi.traverse(b)
+    keys = [k for k in p.keys() if p.flags(k) & int(mi.ParamFlags.NonDifferentiable) == 0]
+    out = {}
+    for k in keys:
+        v = p[k]
+        if dr.depth_v(v) > 1:  # a colour: one direction through its channels
+            direction = type(v)(1.0, 0.5, -0.7)
+        else:
+            direction = type(v)(1.0)
+        out[k] = (type(v)(v), direction)
+    return p, out
+
+
+@pytest.mark.parametrize("label, params", CASES, ids=[c[0] for c in CASES])
+def test_closed_form_models_differentiate_like_finite_differences(label, params):
+    b = load(params)
+    dielectric = params.get("surface") == "dielectric"
+    wi, wo_np = directions(LANES, 3, lower=dielectric)
+    si = interaction(wi)
+    wo = mi.Vector3f(*[mi.Float(c) for c in wo_np])
+    u = np.random.default_rng(5).uniform(0.0, 1.0, (3, LANES)).astype(np.float32)
+    p, params_ = parameters(b)
+    assert params_, f"{label}: mi.traverse lists no differentiable parameter"
+    names = ("eval", "pdf", "sample weight")
+    for key, (x0, v) in params_.items():
+        scale = max(float(dr.max(dr.abs(dr.ravel(x0)))[0] if dr.depth_v(x0) > 1 else dr.abs(x0)[0]), 0.1)
+        h = 5e-3 * scale
+
+        def at(t):
+            p[key] = type(x0)(x0 + t * v)
+            p.update()
+            return as_np(outputs(b, si, wo, u))
+
+        base, plus, minus, plus2, minus2 = at(0.0), at(h), at(-h), at(2 * h), at(-2 * h)
+        # Forward mode.
+        p[key] = type(x0)(x0)
+        dr.enable_grad(p[key])
+        p.update()
+        x = p[key]
+        out = outputs(b, si, wo, u)
+        dr.set_grad(x, v)
+        dr.forward_to(*out[:3])
+        fwd = as_np([dr.grad(o) for o in out[:3]])
+        # Reverse mode: random weights on every output, against the forward derivatives.
+        p[key] = type(x0)(x0)
+        dr.enable_grad(p[key])
+        p.update()
+        x = p[key]
+        out = outputs(b, si, wo, u)
+        rng = np.random.default_rng(7)
+        weights = [rng.normal(size=a.shape) for a in fwd]
+        loss = 0.0
+        for o, wgt in zip(out[:3], weights):
+            arr = o if dr.depth_v(o) > 1 else [o]
+            for c in range(len(weights[0]) if dr.depth_v(o) > 1 else 1):
+                loss = loss + dr.sum(arr[c] * mi.Float(wgt[c].astype(np.float32)))
+        dr.backward(loss)
+        g = dr.grad(x)
+        rev = float(dr.sum(g * v)[0]) if dr.depth_v(g) > 1 else float((g * v)[0])
+        expected_rev = sum(float((a * wgt).sum()) for a, wgt in zip(fwd, weights))
+        p[key] = type(x0)(x0)
+        p.update()
+        # The sample weight is compared where the sampled direction moved smoothly: over [x − 2h, x + 2h]
+        # twice as far as over [x − h, x + h] (a lane whose lobe choice flips has no derivative there, and
+        # its jump breaks that ratio), and stayed valid, or invalid, throughout (crossing the horizon).
+        moved1 = np.abs(plus[3] - minus[3]).max(axis=0)
+        moved2 = np.abs(plus2[3] - minus2[3]).max(axis=0)
+        valid = np.stack([np.any(o[2] != 0.0, axis=0) for o in (plus, minus, plus2, minus2)])
+        smooth = (np.abs(moved2 - 2.0 * moved1) <= 0.25 * moved2 + 1e-5) & (valid.any(axis=0) == valid.all(axis=0))
+        assert smooth.mean() > 0.9, f"{label} {key}: the sampled directions jump on {1 - smooth.mean():.2%} of lanes"
+        for name, f0, f_plus, f_minus, f_plus2, f_minus2, d in zip(names, base, plus, minus, plus2, minus2, fwd):
+            # Richardson's extrapolation of central differences at h and 2h: the h² error term cancels.
+            d1, d2 = (f_plus - f_minus) / (2.0 * h), (f_plus2 - f_minus2) / (4.0 * h)
+            fd = (4.0 * d1 - d2) / 3.0
+            rounding = ULPS * EPS32 * (np.abs(f_plus) + np.abs(f_minus) + np.abs(f_plus2) + np.abs(f_minus2)) / h
+            # Where f curves fast (a lobe near the horizon), the h⁴ term is not small: bounded by the h² term
+            # that the extrapolation removed, |d1 − d2|. Where f has a kink at x (a min or max in a formula)
+            # the derivative is one-sided: anything between the slopes on either side, |(f₊ − f₀) − (f₀ − f₋)|/h
+            # apart (h·|f''| where f is smooth), is right.
+            kink = np.abs((f_plus - f0) - (f0 - f_minus)) / h
+            tol = rounding + np.abs(d1 - d2) + kink + TRUNCATION * (np.abs(fd) + np.abs(fd).max())
+            ok = np.abs(d - fd) <= tol
+            if name == "sample weight":
+                ok |= ~smooth[None, :]
+            bad = ~ok
+            compared = np.broadcast_to(smooth[None, :] if name == "sample weight" else True, d.shape)
+            print(f"{label} {key} {name}: |d| max {np.abs(d).max():.4g}, worst |AD − FD|/tol "
+                  f"{(np.abs(d - fd) / np.maximum(tol, 1e-30))[compared].max():.3g}")
+            assert np.all(np.isfinite(d)), f"{label} {key} {name}: non-finite derivative"
+            assert not bad.any(), (f"{label} {key} {name}: AD {d[bad][:4]} vs finite difference {fd[bad][:4]} "
+                                   f"on {bad.mean():.2%} of lanes")
+        assert abs(rev - expected_rev) <= 1e-3 * (abs(expected_rev) + 1e-6 * LANES), (
+            f"{label} {key}: reverse mode {rev} vs forward mode {expected_rev}")
+
+
+# ------------------------------------------------------------------ renders
+
+def scene(bsdf):
+    look = mi.ScalarTransform4f().look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0])
+    return mi.load_dict({
+        "type": "scene", "integrator": {"type": "prb", "max_depth": 4},
+        "sensor": {"type": "perspective", "fov": 32, "to_world": look,
+                   "film": {"type": "hdrfilm", "width": 24, "height": 24, "rfilter": {"type": "box"}}},
+        "sky": {"type": "constant", "radiance": 0.5},
+        "sun": {"type": "directional", "direction": [0.4, -0.3, -1.0], "irradiance": 3.0},
+        "ball": {"type": "sphere", "radius": 1.0, "bsdf": bsdf}})
+
+
+RENDERED = [
+    ("single", {"type": "msx_posfree", "material": "Cu", "model": "single", "alpha": 0.5}, "ball.bsdf.alpha.value"),
+    ("compensated", {"type": "msx_posfree", "material": "Cu", "model": "compensated", "alpha": 0.8},
+     "ball.bsdf.alpha.value"),
+    ("compensated eta", {"type": "msx_posfree", "material": "Cu", "model": "compensated", "alpha": 0.8},
+     "ball.bsdf.eta.value"),
+    ("dielectric compensated", {"type": "msx_posfree", "surface": "dielectric", "model": "compensated",
+                                "int_ior": 1.5, "alpha": 0.3}, "ball.bsdf.alpha.value"),
+]
+
+
+@pytest.mark.parametrize("label, bsdf, key", RENDERED, ids=[r[0] for r in RENDERED])
+def test_rendered_gradients_equal_finite_differences_within_noise(label, bsdf, key):
+    """prb's derivative of two linear losses — the image mean and a per-pixel weighted sum (a ramp across
+    the image, weighted per channel) — forward and reverse, against central differences at the same seeds
+    (the same paths up to the parameter's effect): paired per seed, z-test of the mean difference."""
+    sc = scene(bsdf)
+    p = mi.traverse(sc)
+    x0 = type(p[key])(p[key])
+    v = type(x0)(1.0, 0.5, -0.7) if dr.depth_v(x0) > 1 else type(x0)(1.0)
+    h = 1e-2 * (0.8 if dr.depth_v(x0) > 1 else float(x0[0]))
+    spp = 32
+    # Per-pixel weights: a ramp across the image times a colour (a gradient put on the wrong pixels or
+    # channels changes this loss's derivative, not the mean's).
+    ramp = np.linspace(0.0, 2.0, 24)[None, :, None] * np.array([1.0, 0.3, 1.7])[None, None, :]
+    weights = mi.TensorXf(np.broadcast_to(ramp, (24, 24, 3)).astype(np.float32))
+
+    def losses(img):
+        return dr.mean(img, axis=None), dr.mean(img * weights, axis=None)
+
+    def mean(img):
+        return np.array([float(x.array[0]) for x in losses(img)])
+
+    def primal(t, seed):
+        p[key] = type(x0)(x0 + t * v)
+        p.update()
+        with dr.suspend_grad():
+            return mean(mi.render(sc, spp=spp, seed=seed))
+
+    fd, fwd, rev = [], [], []
+    for seed in range(SEEDS):
+        fd.append((primal(h, seed) - primal(-h, seed)) / (2 * h))
+        p[key] = type(x0)(x0)
+        dr.enable_grad(p[key])
+        p.update()
+        img = mi.render(sc, params=p, spp=spp, seed=seed)
+        dr.set_grad(p[key], v)
+        dr.forward_to(img)
+        fwd.append(mean(dr.grad(img)))
+        r = []
+        for which in range(2):  # one render per loss: a backward pass consumes the render's graph
+            p[key] = type(x0)(x0)
+            dr.enable_grad(p[key])
+            p.update()
+            img = mi.render(sc, params=p, spp=spp, seed=seed)
+            dr.backward(losses(img)[which])
+            g = dr.grad(p[key])
+            r.append(float(dr.sum(g * v)[0]) if dr.depth_v(g) > 1 else float((g * v)[0]))
+        rev.append(r)
+    p[key] = type(x0)(x0)
+    p.update()
+    fd = np.array(fd)
+    for mode, ad in (("forward", np.array(fwd)), ("reverse", np.array(rev))):
+        for which, loss in enumerate(("image mean", "weighted pixels")):
+            d = ad[:, which] - fd[:, which]
+            se = d.std(ddof=1) / math.sqrt(SEEDS)
+            z = d.mean() / se if se > 0 else (0.0 if d.mean() == 0 else math.inf)
+            print(f"{label} {mode} {loss}: AD {ad[:, which].mean():.5f} ± {ad[:, which].std(ddof=1) / SEEDS ** 0.5:.5f}, "
+                  f"FD {fd[:, which].mean():.5f}, paired z {z:+.2f}")
+            assert np.all(np.isfinite(ad)), f"{label} {mode}: non-finite gradient"
+            assert abs(z) <= Z_MAX, f"{label} {mode} {loss}: AD {ad[:, which].mean():.5f} vs FD {fd[:, which].mean():.5f}, z = {z:.2f}"
+    se_fd = fd.std(axis=0, ddof=1) / math.sqrt(SEEDS)
+    assert np.all(np.abs(fd.mean(axis=0)) > 3 * se_fd), f"{label}: a derivative is lost in noise ({fd.mean(axis=0)} ± {se_fd})"
+
+
+def test_single_renders_the_gradient_of_roughconductor():
+    """``single`` is Mitsuba's ``roughconductor``: the same prb gradient at the same seeds, to float32."""
+    grads = []
+    for bsdf in ({"type": "roughconductor", "material": "Cu", "alpha": 0.5},
+                 {"type": "msx_posfree", "material": "Cu", "model": "single", "alpha": 0.5}):
+        sc = scene(bsdf)
+        p = mi.traverse(sc)
+        key = "ball.bsdf.alpha.value"
+        dr.enable_grad(p[key])
+        p.update()
+        img = mi.render(sc, params=p, spp=16, seed=3)
+        dr.backward(dr.mean(img, axis=None))
+        grads.append(float(dr.grad(p[key])[0]))
+    print("roughconductor %.6f, single %.6f" % tuple(grads))
+    assert grads[0] != 0.0 and abs(grads[1] - grads[0]) <= 1e-3 * abs(grads[0])
+
+
+@pytest.mark.parametrize("model", ["correlated", "invariance", "heitz", "auto"])
+def test_walks_refuse_gradients_in_one_line(model):
+    sc = scene({"type": "msx_posfree", "material": "Cu", "model": model, "alpha": 0.5})
+    p = mi.traverse(sc)
+    dr.enable_grad(p["ball.bsdf.alpha.value"])
+    p.update()
+    with pytest.raises(Exception) as e:
+        img = mi.render(sc, params=p, spp=4, seed=0)
+        dr.backward(dr.mean(img, axis=None))
+    chain, err = [], e.value
+    while err is not None:
+        chain.append(str(err))
+        err = err.__cause__ or err.__context__
+    text = "\n".join(chain)
+    assert f"model='{model}' on surface 'conductor' is not differentiable" in text, text[-2000:]
+    assert "single, fastmsx, compensated (conductor)" in text
+    # Without gradients the same scene renders.
+    dr.disable_grad(p["ball.bsdf.alpha.value"])
+    p.update()
+    img = mi.render(sc, spp=4, seed=0)
+    assert np.all(np.isfinite(np.array(img)))

@@ -29,12 +29,51 @@ NAMESPACE_BEGIN(mitsuba)
 
 namespace {
 
-uint32_t choice(const std::string &value, std::initializer_list<std::pair<const char *, uint32_t>> options) {
-    for (auto &[name, code] : options)
+// The configuration, parsed once in the constructor (the per-call code compares these, never strings).
+// The values are the core's codes (msx.h), so that they go to msx_bsdf_new as they are.
+enum class Surface : uint32_t {
+    Conductor = MSX_SURFACE_CONDUCTOR,
+    Dielectric = MSX_SURFACE_DIELECTRIC,
+    Diffuse = MSX_SURFACE_DIFFUSE,
+};
+enum class Distribution : uint32_t { Beckmann = MSX_DISTRIBUTION_BECKMANN, GGX = MSX_DISTRIBUTION_GGX };
+enum class Model : uint32_t {
+    Single = MSX_MODEL_SINGLE,
+    Uncorrelated = MSX_MODEL_UNCORRELATED,
+    Correlated = MSX_MODEL_CORRELATED,
+    Heitz = MSX_MODEL_HEITZ,
+    Invariance = MSX_MODEL_INVARIANCE,
+    FastMsx = MSX_MODEL_FASTMSX,
+    Compensated = MSX_MODEL_COMPENSATED,
+    Auto = MSX_MODEL_AUTO,
+};
+enum class Estimator : uint32_t { PT = MSX_ESTIMATOR_PT, BDPT = MSX_ESTIMATOR_BDPT };
+
+template <typename E> using Names = std::initializer_list<std::pair<const char *, E>>;
+
+const Names<Surface> SURFACES = { { "conductor", Surface::Conductor },
+                                  { "dielectric", Surface::Dielectric },
+                                  { "diffuse", Surface::Diffuse } };
+const Names<Distribution> DISTRIBUTIONS = { { "beckmann", Distribution::Beckmann }, { "ggx", Distribution::GGX } };
+const Names<Model> MODELS = { { "single", Model::Single },         { "uncorrelated", Model::Uncorrelated },
+                              { "correlated", Model::Correlated }, { "heitz", Model::Heitz },
+                              { "invariance", Model::Invariance }, { "fastmsx", Model::FastMsx },
+                              { "compensated", Model::Compensated }, { "auto", Model::Auto } };
+const Names<Estimator> ESTIMATORS = { { "pt", Estimator::PT }, { "bdpt", Estimator::BDPT } };
+
+template <typename E> E parse(const std::string &value, Names<E> names) {
+    for (auto &[name, code] : names)
         if (value == name)
             return code;
     // The Python front end validated the value: reaching this is a programming error.
     throw std::runtime_error("msx_posfree_native: unexpected value '" + value + "'");
+}
+
+template <typename E> const char *name_of(E value, Names<E> names) {
+    for (auto &[name, code] : names)
+        if (value == code)
+            return name;
+    return "?";
 }
 
 } // namespace
@@ -49,21 +88,15 @@ public:
     static_assert(Channels >= 1 && Channels <= MSX_MAX_CHANNELS, "unsupported spectrum size");
 
     explicit MsxNativeBSDF(const Properties &props) : Base(props) {
-        m_surface = props.get<std::string>("surface");
+        m_surface = parse(props.get<std::string>("surface"), SURFACES);
+        m_distribution = parse(props.get<std::string>("distribution"), DISTRIBUTIONS);
+        m_model = parse(props.get<std::string>("model"), MODELS);
+        m_estimator = parse(props.get<std::string>("estimator"), ESTIMATORS);
         MsxParams p{};
-        p.surface = choice(m_surface, { { "conductor", MSX_SURFACE_CONDUCTOR },
-                                        { "dielectric", MSX_SURFACE_DIELECTRIC },
-                                        { "diffuse", MSX_SURFACE_DIFFUSE } });
-        m_distribution = props.get<std::string>("distribution");
-        p.distribution = choice(m_distribution, { { "beckmann", MSX_DISTRIBUTION_BECKMANN },
-                                                  { "ggx", MSX_DISTRIBUTION_GGX } });
-        m_model = props.get<std::string>("model");
-        p.model = choice(m_model, { { "single", MSX_MODEL_SINGLE }, { "uncorrelated", MSX_MODEL_UNCORRELATED },
-                                    { "correlated", MSX_MODEL_CORRELATED }, { "heitz", MSX_MODEL_HEITZ },
-                                    { "invariance", MSX_MODEL_INVARIANCE }, { "fastmsx", MSX_MODEL_FASTMSX },
-                                    { "compensated", MSX_MODEL_COMPENSATED }, { "auto", MSX_MODEL_AUTO } });
-        m_estimator = props.get<std::string>("estimator");
-        p.estimator = choice(m_estimator, { { "pt", MSX_ESTIMATOR_PT }, { "bdpt", MSX_ESTIMATOR_BDPT } });
+        p.surface = (uint32_t) m_surface;
+        p.distribution = (uint32_t) m_distribution;
+        p.model = (uint32_t) m_model;
+        p.estimator = (uint32_t) m_estimator;
         p.max_bounces = (uint32_t) props.get<int64_t>("max_bounces");
         p.channels = (uint32_t) Channels;
         p.seed = std::stoull(props.get<std::string>("seed"));
@@ -80,11 +113,11 @@ public:
         m_alpha_v = m_isotropic ? m_alpha_u : props.get_texture<Texture>("alpha_v");
         if (props.has_property("specular_reflectance")) // conductors and dielectrics only
             m_specular_reflectance = props.get_texture<Texture>("specular_reflectance");
-        if (m_surface == "conductor") {
+        if (m_surface == Surface::Conductor) {
             m_eta = props.get_unbounded_texture<Texture>("eta");
             m_k = props.get_unbounded_texture<Texture>("k");
             m_lobe = +BSDFFlags::GlossyReflection;
-        } else if (m_surface == "dielectric") {
+        } else if (m_surface == Surface::Dielectric) {
             m_ior = (float) props.get<double>("ior");
             m_specular_transmittance = props.get_texture<Texture>("specular_transmittance");
             m_lobe = BSDFFlags::GlossyReflection | BSDFFlags::GlossyTransmission;
@@ -134,7 +167,7 @@ public:
             m_material = evaluate(dr::zeros<SurfaceInteraction3f>(), true);
 
         m_flags = m_lobe | BSDFFlags::FrontSide;
-        if (m_surface == "dielectric")
+        if (m_surface == Surface::Dielectric)
             m_flags = m_flags | BSDFFlags::BackSide | BSDFFlags::NonSymmetric;
         // Anisotropic when the two roughnesses can differ (as the Python back end decides).
         bool alpha_const = !m_alpha_u->is_spatially_varying() && !m_alpha_v->is_spatially_varying();
@@ -147,7 +180,7 @@ public:
         if (varying)
             m_flags = m_flags | BSDFFlags::SpatiallyVarying;
         m_components.clear();
-        if (m_surface == "dielectric") {
+        if (m_surface == Surface::Dielectric) {
             uint32_t extra = m_flags & ~m_lobe;
             m_components.push_back((uint32_t) BSDFFlags::GlossyReflection | extra);
             m_components.push_back((uint32_t) BSDFFlags::GlossyTransmission | extra);
@@ -171,7 +204,7 @@ public:
         if (!r.valid)
             return { bs, 0.f };
         // Only a dielectric transmits; a conductor's ω_i may lie below a tilted shading normal.
-        bool transmit = m_surface == "dielectric" && r.wo.z * si.wi.z() < 0.f;
+        bool transmit = m_surface == Surface::Dielectric && r.wo.z * si.wi.z() < 0.f;
         if (!(transmit ? t_on : r_on))
             return { bs, 0.f };
         bs.wo = Vector3f(r.wo.x, r.wo.y, r.wo.z);
@@ -212,10 +245,10 @@ public:
     std::string to_string() const override {
         std::ostringstream oss;
         oss << "MsxPosfree[native," << std::endl
-            << "  surface = \"" << m_surface << "\"," << std::endl
-            << "  distribution = \"" << m_distribution << "\"," << std::endl
-            << "  model = \"" << m_model << "\"," << std::endl
-            << "  estimator = \"" << m_estimator << "\"," << std::endl
+            << "  surface = \"" << name_of(m_surface, SURFACES) << "\"," << std::endl
+            << "  distribution = \"" << name_of(m_distribution, DISTRIBUTIONS) << "\"," << std::endl
+            << "  model = \"" << name_of(m_model, MODELS) << "\"," << std::endl
+            << "  estimator = \"" << name_of(m_estimator, ESTIMATORS) << "\"," << std::endl
             << "  alpha_u = " << string::indent(m_alpha_u) << "," << std::endl
             << "  alpha_v = " << string::indent(m_alpha_v) << std::endl
             << "]";
@@ -234,17 +267,17 @@ private:
     }
 
     BSDFFlags first_lobe() const {
-        return m_surface == "diffuse" ? BSDFFlags::DiffuseReflection : BSDFFlags::GlossyReflection;
+        return m_surface == Surface::Diffuse ? BSDFFlags::DiffuseReflection : BSDFFlags::GlossyReflection;
     }
 
     bool reflection_enabled(const BSDFContext &ctx) const { return ctx.is_enabled(first_lobe(), 0); }
 
     bool transmission_enabled(const BSDFContext &ctx) const {
-        return m_surface == "dielectric" && ctx.is_enabled(BSDFFlags::GlossyTransmission, 1);
+        return m_surface == Surface::Dielectric && ctx.is_enabled(BSDFFlags::GlossyTransmission, 1);
     }
 
     bool lobe_enabled(const BSDFContext &ctx, const SurfaceInteraction3f &si, const Vector3f &wo) const {
-        if (m_surface != "dielectric")
+        if (m_surface != Surface::Dielectric)
             return reflection_enabled(ctx);
         return si.wi.z() * wo.z() > 0.f ? reflection_enabled(ctx) : transmission_enabled(ctx);
     }
@@ -301,7 +334,10 @@ private:
     }
 
     MsxBsdf *m_handle = nullptr;
-    std::string m_surface, m_distribution, m_model, m_estimator;
+    Surface m_surface = Surface::Conductor;
+    Distribution m_distribution = Distribution::Beckmann;
+    Model m_model = Model::Correlated;
+    Estimator m_estimator = Estimator::PT;
     uint32_t m_lobe = +BSDFFlags::GlossyReflection;
     bool m_isotropic = true, m_constant = false;
     float m_ior = (float) MSX_DEFAULT_IOR;

@@ -96,7 +96,8 @@ def test_model_lobes_cover_the_simulated_bins():
         assert mg.bin_index(res, w)[0] == it * 36 + ip
 
 
-def test_comparison_writes_tables_and_charts(tmp_path):
+def test_comparison_writes_tables_and_charts(tmp_path, monkeypatch):
+    monkeypatch.setenv("MSX_CACHE_DIR", str(tmp_path / "cache"))
     r = mg.compare(tmp_path, rays=16000, thetas=(0.5,), alphas=((0.5, 0.5), (0.6, 0.2)),
                    surfaces=("conductor", "dielectric"), model_samples=16000, grid=128, n_surfaces=4, progress=False)
     rows = read_csv(tmp_path / "errors.csv")

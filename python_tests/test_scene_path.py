@@ -41,7 +41,9 @@ def test_scene_path_writes_the_assets_and_the_scene_loads(fresh_scenes):
     assert "scene_path" in msx.__all__
     path = msx.scene_path("fig01_metals.xml")
     assert Path(path) == fresh_scenes / "fig01_metals.xml"
-    assert sorted(p.name for p in (fresh_scenes / "assets").iterdir()) == ["blob.ply", "normalmap.exr", "sky.exr"]
+    written = sorted(p.name for p in (fresh_scenes / "assets").iterdir())
+    # Each asset with its checksum record (msx/_cache.py).
+    assert written == [".blob.ply.msx", ".normalmap.exr.msx", ".sky.exr.msx", "blob.ply", "normalmap.exr", "sky.exr"]
     scene = _load(path)
     assert len(scene.shapes()) > 3 and scene.environment() is not None
     assert msx.scene_path("fig09_copper_sphere") == str(fresh_scenes / "fig09_copper_sphere.xml")  # .xml optional

@@ -71,31 +71,45 @@ def register(backend=None):
     import mitsuba as mi
 
     variant = mi.variant()
+    usable = [v for v in mi.variants() if "polarized" not in v]
     if variant is None:
-        raise RuntimeError("msx.register(): set a Mitsuba variant first, e.g. mi.set_variant('scalar_rgb')")
-    backend = backend or os.environ.get("MSX_BACKEND") or "auto"
-    if backend not in BACKENDS:
-        raise ValueError(f"msx.register(): unknown backend '{backend}'; use one of {', '.join(BACKENDS)}")
+        raise RuntimeError("msx.register(): no Mitsuba variant is set; call mi.set_variant(...) first with one of "
+                           f"{', '.join(usable)}")
+    typed = "msx.register()" if backend is None else f"msx.register(backend={backend!r})"
+    if backend is None and os.environ.get("MSX_BACKEND"):
+        backend = os.environ["MSX_BACKEND"]
+        typed = f"msx.register() with MSX_BACKEND={backend!r}"
+    backend = backend or "auto"
+    if not isinstance(backend, str) or backend not in BACKENDS:
+        import difflib
+
+        close = difflib.get_close_matches(str(backend).lower(), BACKENDS, n=1) if isinstance(backend, str) else []
+        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        raise ValueError(f"{typed}: unknown back end {backend!r}{hint}; back ends: {', '.join(BACKENDS)}")
+    if "polarized" in variant:
+        raise NotImplementedError(f"{typed}: Mitsuba variant '{variant}' is polarized, which msx_posfree does not "
+                                  f"support; set one of {', '.join(usable)}")
     known = _REGISTERED.get(variant)
     if known is not None and backend in ("auto", known[0]):
         return known[1]
     scalar = variant.startswith("scalar_")
     if scalar and backend in ("jit", "batched"):
-        raise RuntimeError(f"msx.register(backend='{backend}'): the '{backend}' back end serves Mitsuba's "
-                           f"vectorized variants (llvm_*, cuda_*); in {variant} use 'native' or 'python'")
+        raise RuntimeError(f"{typed}: the '{backend}' back end serves Mitsuba's vectorized variants (llvm_*, "
+                           f"cuda_*); in {variant} use 'native' or 'python'")
     if not scalar and backend in ("native", "python"):
-        raise RuntimeError(f"msx.register(backend='{backend}'): the '{backend}' back end serves Mitsuba's scalar "
-                           f"variants; in {variant} use 'jit' (the default) or 'batched'")
+        raise RuntimeError(f"{typed}: the '{backend}' back end serves Mitsuba's scalar variants; in {variant} use "
+                           "'jit' (the default) or 'batched'")
     factory, chosen = None, "python"
-    if scalar and backend in ("auto", "native") and "polarized" not in variant:
+    if scalar and backend in ("auto", "native"):
         from ._native_backend import NativeUnavailable, make_factory
 
         try:
             factory, chosen = make_factory(mi), "native"
         except NativeUnavailable as e:
             if backend == "native":
-                raise RuntimeError(f"msx.register(backend='native'): {e}") from None
-            _warn_once(f"msx: the native back end is unavailable ({e}); using the Python back end "
+                raise RuntimeError(f"{typed}: the native back end is unavailable here ({e.summary()}); use "
+                                   "backend='python', or leave backend unset to fall back to it") from None
+            _warn_once(f"msx: the native back end is unavailable ({e.summary()}); using the Python back end "
                        "(one Python call per BSDF call, one render thread)")
     if factory is None:
         if not scalar and backend == "batched":

@@ -396,7 +396,9 @@ def with_assets(scene: str, params: dict) -> dict:
         assets.ensure(path.parent / "assets")
         return params
     except OSError:
-        cache = cache_root() / "assets"
+        from . import _cache
+
+        cache = _cache.folder("assets")
         assets.ensure(cache)
         return dict(params, assets=str(cache))
 
@@ -558,14 +560,6 @@ def shipped_scene(name) -> Path:
             if (folder / candidate).is_file():
                 return folder / candidate
     raise RenderError(f"no shipped scene {name!r}; shipped scenes: {', '.join(shipped_scenes())}")
-
-
-def cache_root() -> Path:
-    """msx's cache folder: $MSX_CACHE_DIR, else $XDG_CACHE_HOME/msx, else ~/.cache/msx."""
-    base = os.environ.get("MSX_CACHE_DIR")
-    if base:
-        return Path(base)
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "msx"
 
 
 def scenes_dir() -> Path:

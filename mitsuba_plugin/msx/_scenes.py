@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import hashlib
-import os
 import shutil
+from pathlib import Path
 
 
 def scene_path(name: str) -> str:
@@ -14,14 +13,15 @@ def scene_path(name: str) -> str:
     right after install, from any directory.
 
     Where the installed scenes' folder is not writable, the scenes are copied once into the cache
-    (``$MSX_CACHE_DIR``, else ``$XDG_CACHE_HOME/msx``, default ``~/.cache/msx``; ``scenes/<hash of the scene
-    files>``), the assets written there, and that copy's path is returned. The variant must allow writing
+    (msx/_cache.py: ``scenes/<hash of the scene files and the assets' generator>``), with the assets, as one
+    entry whose files are checked against their manifest on each use (a damaged copy is made again, saying
+    so), and that copy's path is returned. The variant must allow writing
     images (any variant does; if none is set, ``scalar_rgb`` is set to write the assets).
 
     Raises FileNotFoundError, naming the shipped scenes, for an unknown name; OSError, saying what to do, if
     no folder can take the assets."""
-    from . import assets
-    from ._render import RenderError, cache_root, read_scene, shipped_scene
+    from . import _cache, assets
+    from ._render import RenderError, read_scene, shipped_scene
 
     try:
         path = shipped_scene(name)
@@ -37,18 +37,18 @@ def scene_path(name: str) -> str:
         beside = e
     folder = path.parent
     files = sorted(folder.rglob("*.xml"))
-    key = hashlib.sha256(b"".join(p.relative_to(folder).as_posix().encode() + p.read_bytes() for p in files))
-    copy = cache_root() / "scenes" / key.hexdigest()[:16]
+    # What the copy depends on: the scene files and the assets' generator.
+    key = _cache.key_of(*(p.relative_to(folder).as_posix().encode() + p.read_bytes() for p in files),
+                        Path(assets.__file__).read_bytes())
+    copy = _cache.folder("scenes") / key[:16]
+
+    def make(tmp):
+        shutil.copytree(folder, tmp, ignore=shutil.ignore_patterns("assets", ".*"), dirs_exist_ok=True)
+        assets.ensure(tmp / "assets")
+
     try:
-        if not (copy / path.name).is_file():
-            tmp = copy.with_name(f"{copy.name}.{os.getpid()}.tmp")
-            shutil.rmtree(tmp, ignore_errors=True)
-            shutil.copytree(folder, tmp, ignore=shutil.ignore_patterns("assets", "*.tmp*"))
-            try:
-                tmp.rename(copy)  # atomic: a copy is complete or absent
-            except OSError:  # another process made it first
-                shutil.rmtree(tmp, ignore_errors=True)
-        assets.ensure(copy / "assets")
+        if not _cache.check_folder(copy):  # complete and intact, or made again (atomically)
+            _cache.make_folder(copy, make)
     except OSError as e:
         raise OSError(f"msx.scene_path({name!r}): cannot write the scene's assets beside it ({beside}) nor into "
                       f"the cache {copy} ({e}); set MSX_CACHE_DIR to a writable folder") from None

@@ -107,14 +107,25 @@ def normalmap(path: Path, size=512, bumps=8, max_tilt_deg=60.0):
 MAKERS = {"sky.exr": sky, "blob.ply": blob, "normalmap.exr": normalmap}
 
 
+def _key(name) -> str:
+    """What an asset depends on: this file (its generator) and its name."""
+    from . import _cache
+
+    return _cache.key_of(Path(__file__).read_bytes(), name)
+
+
 def ensure(folder) -> Path:
-    """Writes the missing assets into `folder` (created if needed) and returns it.
+    """Writes the assets of `folder` (created if needed) that are missing, damaged or made by another version of
+    this file, and returns it. Each is written atomically with a checksum record beside it (msx/_cache.py), so
+    a truncated or corrupted asset is found, reported in one line and written again.
 
     Mitsuba 3.9 deadlocks *writing* an EXR, like reading one, when Dr.Jit's pool has a single thread (the
     scalar Python back end renders with one): the writes run with at least 2 threads."""
+    from . import _cache
+
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    missing = [name for name in FILES if not (folder / name).exists()]
+    missing = [name for name in FILES if not _cache.check_file(folder / name, key=_key(name))]
     if not missing:
         return folder
     import drjit as dr
@@ -125,10 +136,7 @@ def ensure(folder) -> Path:
         dr.set_thread_count(2)
     try:
         for name in missing:
-            target = folder / name
-            tmp = folder / f".{name}.tmp{target.suffix}"
-            MAKERS[name](tmp)
-            tmp.replace(target)
+            _cache.write_file(folder / name, MAKERS[name], key=_key(name))
     finally:
         if threads < 2:
             dr.set_thread_count(threads)

@@ -1,5 +1,5 @@
-"""Command line: ``msx render SCENE.xml``, ``msx compare`` and ``msx simulate``
-(ray tracing on generated microgeometry, msx/microgeometry.py).
+"""Command line: ``msx render SCENE.xml``, ``msx compare``, ``msx simulate``
+(ray tracing on generated microgeometry, msx/microgeometry.py), ``msx assets`` and ``msx cache [--clear]``.
 
 Errors end the run with one line on stderr naming the problem (exit code 1;
 ``--verbose`` adds the traceback). Ctrl-C (SIGINT), SIGTERM and a closed terminal (SIGHUP) stop every
@@ -244,6 +244,25 @@ def cmd_assets(args):
     print(f"assets in {folder}: {', '.join(assets.FILES)}")
 
 
+def cmd_cache(args):
+    from . import _cache
+
+    if not args.clear:
+        print(_cache.describe())
+        return
+    try:
+        deleted, kept = _cache.clear()
+    except OSError as e:
+        raise RenderError(f"msx cache --clear: cannot delete {e.filename or _cache.root()} "
+                          f"({e.strerror or e})") from None
+    if not deleted:
+        print(f"msx cache: nothing to delete in {_cache.root()}")
+    for path, n, size in deleted:
+        print(f"deleted {path} ({n} entr{'y' if n == 1 else 'ies'}, {_cache._human(size)})")
+    for path in kept:
+        print(f"left {path} (not made by msx)")
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse with a one-line error (argparse prints its usage first, several lines for msx simulate)."""
 
@@ -285,8 +304,8 @@ def build_parser():
                    help="Mitsuba variant (default: the fastest route here: llvm_ad_rgb with the Dr.Jit engine where "
                         "Mitsuba's LLVM variant works, rendering what the engine does not run in scalar_rgb with the "
                         "native back end; else scalar_rgb native, else scalar_rgb with the Python back end)")
-    c.add_argument("--cache", default=None, help="folder of cached reference renders (default $MSX_CACHE_DIR, else "
-                                                 "$XDG_CACHE_HOME/msx, else ~/.cache/msx)")
+    c.add_argument("--cache", default=None, help="folder of cached reference renders (default: references/ in msx's "
+                                                 "cache folder, see msx cache)")
     c.set_defaults(func=cmd_compare)
 
     a = sub.add_parser("assets", help="write the generated scene assets (sky, sculpted mesh, normal map)",
@@ -294,6 +313,11 @@ def build_parser():
     a.add_argument("folder", nargs="?", default=None,
                    help="default: the shipped scenes' assets folder (where they look for them)")
     a.set_defaults(func=cmd_assets)
+
+    k = sub.add_parser("cache", help="show msx's cache folder and its size per kind; --clear deletes it",
+                       parents=[common])
+    k.add_argument("--clear", action="store_true", help="delete the cache (everything in it is recomputed on use)")
+    k.set_defaults(func=cmd_cache)
 
     from .microgeometry import add_simulate_parser
 

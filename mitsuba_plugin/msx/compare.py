@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._render import RenderError, cache_root, output_folder, scenes_dir
+from . import _cache, _references
+from ._render import RenderError, output_folder, scenes_dir
 from .evaluation import atlas as atlas_mod
 from .evaluation import charts, common
 from .evaluation import energy as energy_mod
@@ -77,7 +78,7 @@ def run(args):
     for s in SWEEP_SCENES:
         if not (sdir / f"{s.name}.xml").exists():
             raise RenderError(f"scene not found: {sdir / (s.name + '.xml')}")
-    cache = Path(args.cache) if args.cache else cache_root()
+    cache = Path(args.cache) if args.cache else _cache.folder("references")
     output_folder(cache, f"--cache {cache}" if args.cache else f"the cache folder {cache} (--cache to choose one)")
     stages = [f"sweep {s.name}" for s in SWEEP_SCENES] + ["side-by-side scenes", "stability atlas", "lobes",
                                                           "energy curves"]
@@ -176,8 +177,8 @@ def _sweep_scene(renderer, scene, st, cache, out, prog, results):
     ref_spp = st.ref_factor * top
     while True:
         prog.update(0, ref_spp, f"reference ({row_label(ref_row)}, {ref_spp} spp)")
-        h1, h2, ref_seconds, cached = renders.reference(renderer, scene, size, ref_row, ref_spp, cache,
-                                                        progress=lambda d, t: prog.update(d, t, "reference spp"))
+        h1, h2, ref_seconds, cached = _references.reference(renderer, scene, size, ref_row, ref_spp, cache,
+                                                            progress=lambda d, t: prog.update(d, t, "reference spp"))
         ref = 0.5 * (h1 + h2)
         noise = renders.reference_noise(h1, h2, ref, mask)
         stats = renders.statistics(scene, data, ref, noise, mask)

@@ -22,7 +22,6 @@ ray sampling error.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import os
@@ -355,8 +354,31 @@ def model_lobes(res: SimResult, model, *, samples=2_000_000, groups=8, seed=1, m
 # ---------------------------------------------------------------- comparison
 
 
-def _config_key(params):
-    return hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:16]
+def simulation_path(params) -> Path:
+    """The cache entry of one simulation (msx/_cache.py, ``simulations/``): its parameters, msx's version and
+    the simulator's digest in the name."""
+    from . import __version__, _cache
+
+    # The simulator is part of the compiled core.
+    return _cache.folder("simulations") / (_cache.key_of(params, __version__, _cache.core_digest()) + ".npz")
+
+
+def cached_simulation(params, *, cache=True, progress=True, label=None):
+    """(SimResult, computed now?) for `params` (the keywords of :func:`simulate`): from the cache when an intact
+    entry is there, else simulated and written to it atomically. A damaged entry is reported in one line and
+    simulated again."""
+    from . import _cache
+
+    path = simulation_path(params)
+    if cache and _cache.check_file(path):
+        try:
+            return SimResult.load_npz(path), False
+        except Exception as e:  # noqa: BLE001 - intact bytes that still do not load: recompute
+            _cache.report(path, f"unreadable ({type(e).__name__}: {e})")
+            _cache.remove(path)
+    res = simulate(progress=progress, label=label, **params)
+    _cache.write_file(path, res.save_npz)
+    return res, True
 
 
 def _alpha_label(a):
@@ -415,13 +437,13 @@ def compare(out_dir, *, rays=4_000_000, quick=False, thetas=THETAS, alphas=ALPHA
     configuration (``lobes_<surface>_a<α>_t<θ>.png``), an energy chart per
     surface, ``errors.csv`` (every number), ``errors.md`` / ``errors.html``
     (tables) and ``summary.md``. `quick` runs a reduced grid with fewer rays
-    (for smoke tests). Simulations are cached in ``out_dir/sims`` by their
-    parameters. Returns a dict with the Markdown fragment ('markdown'; its links
+    (for smoke tests). Simulations are cached in msx's cache folder
+    (``simulations/``, msx/_cache.py) by their parameters and the simulator. Returns a dict with the Markdown fragment ('markdown'; its links
     are relative to out_dir, prefixed with `link_prefix`, e.g. "microgeometry/"
     when the fragment goes into a report one folder up), the HTML table
     ('html'), the rows and the paths written."""
     out = Path(out_dir)
-    (out / "sims").mkdir(parents=True, exist_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
     if quick:
         rays = min(rays, 200_000)
         model_samples = min(model_samples, 200_000)
@@ -434,13 +456,9 @@ def compare(out_dir, *, rays=4_000_000, quick=False, thetas=THETAS, alphas=ALPHA
         kw = dict(surface=surface, alpha=alpha[0], alpha_v=alpha[1], theta_i=theta, rays=rays, grid=grid,
                   corr_cells=corr_cells, surfaces=n_surfaces, theta_bins=theta_bins, phi_bins=phi_bins, seed=seed,
                   ior=DIELECTRIC_IOR, albedo=1.0)
-        path = out / "sims" / (_config_key(kw) + ".npz")
         label = f"[{i + 1}/{len(configs)}] {surface} α={_alpha_label(alpha)} θi={theta:g}"
-        if cache and path.exists():
-            res = SimResult.load_npz(path)
-        else:
-            res = simulate(progress=progress, label=label, **kw)
-            res.save_npz(path)
+        res, fresh = cached_simulation(kw, cache=cache, progress=progress, label=label)
+        if fresh:
             total_rays += res.rays
             total_seconds += res.seconds
         model_data = {}
@@ -798,7 +816,7 @@ def main(argv=None):
     p.add_argument("--rays", type=int, default=4_000_000, help="rays per configuration")
     p.add_argument("--model-samples", type=int, default=2_000_000, help="samples per model and configuration")
     p.add_argument("--quick", action="store_true", help="reduced grid and rays (smoke test)")
-    p.add_argument("--no-cache", action="store_true", help="rerun simulations even if cached in OUT/sims")
+    p.add_argument("--no-cache", action="store_true", help="rerun simulations even if cached (msx cache shows where)")
     a = p.parse_args(argv)
     r = compare(a.out, rays=a.rays, model_samples=a.model_samples, quick=a.quick, cache=not a.no_cache)
     print(r["markdown"])

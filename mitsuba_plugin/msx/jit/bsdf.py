@@ -190,7 +190,8 @@ class ConductorModel:
             return self.walk.eval_pt(m, f, wi, wo, bounces, key, mf_sample=gradients.detached(m))
 
         params = list(call.alphas) + ([] if fresnel.mirror else [fresnel.eta, fresnel.k])
-        return gradients.attach(estimate, params)
+        with invariance.unrolled():  # its forward derivative and the run's branch do not mix (invariance.py)
+            return gradients.attach(estimate, params)
 
     def sample_traced(self, call, wi, s1, u1, u2, eval_key):
         """``sample`` while differentiated: ω_o from the proposal, weighed by the walk's estimate there (the

@@ -69,11 +69,14 @@ upward direction is at least as steep as ω_o. ``sample``: the same walk leaving
 with probability 1 − H_m/H_{m−1}; the weight is the product of the Fresnel terms.
 """
 
+import contextlib
+import copy
+
 import drjit as dr
 import mitsuba as mi
 
 from . import mis, walk
-from .microfacet import INV_PI, dot, max_channel, reflect
+from .microfacet import INV_PI, ConductorFresnel, Microfacet, dot, max_channel, reflect
 from . import heitz
 from .dielectric import eta_seen, radiance_scale
 from .model import ConductorWalk, DielectricWalk, DiffuseWalk
@@ -103,6 +106,21 @@ ONE_MINUS = 0.99999994  # largest float32 below 1
 # ------------------------------------------------------------------ the exit table (recursion.rs)
 
 
+# True while a differentiated walk is traced and its derivative propagated (``unrolled``): drjit 1.5's
+# forward mode through the loop fails on the branch of ``over_run`` (it tries to evaluate a symbolic
+# variable), so the passes are then unrolled whole.
+_UNROLLED = [False]
+
+
+@contextlib.contextmanager
+def unrolled():
+    _UNROLLED[0] = True
+    try:
+        yield
+    finally:
+        _UNROLLED[0] = False
+
+
 def over_run(n, a, step, carry, reverse=True):
     """``carry = step(i, carry)`` for the slots i of a run held in ``n`` registers, n−1 … 0 (``reverse``) or
     0 … n−1; the slots from ``RUN_SLOTS_ALWAYS`` on inside ``dr.if_stmt(a > RUN_SLOTS_ALWAYS)``, a branch that
@@ -122,7 +140,9 @@ def over_run(n, a, step, carry, reverse=True):
     if not reverse:
         for i in head:
             carry = step(i, carry)
-    if tail_slots:
+    if tail_slots and _UNROLLED[0]:
+        carry = tail(*carry)
+    elif tail_slots:
         carry = dr.if_stmt(args=tuple(carry), cond=a > lo, true_fn=tail, false_fn=lambda *c: c, label="msx_run_tail")
     if reverse:
         for i in head:
@@ -253,8 +273,8 @@ class LightVertex:
     """The connection's one-vertex light subpath: y = −(ω_o reflected about a visible normal of ω_o)
     (twin of ``LightVertex``)."""
 
-    def __init__(self, mf, fresnel, wo, pdf_scale_o, u1, u2):
-        m, valid = mf.sample_visible(wo, u1, u2)
+    def __init__(self, mf, fresnel, wo, pdf_scale_o, u1, u2, mf_sample=None):
+        m, valid = (mf if mf_sample is None else mf_sample).sample_visible(wo, u1, u2)
         cos1 = dot(wo, m)
         y = -reflect(wo, m)
         up = y[2] > 0.0
@@ -268,15 +288,20 @@ class LightVertex:
         self.y, self.l_y, self.up = y, l_y, up
         self.fresnel = fresnel.eval(dr.select(cos1 > 0.0, cos1, 1.0))
 
-    def connect(self, mf, fresnel, has_up, w, pdf_scale, via_up, column_ly_o):
+    def connect(self, mf, fresnel, has_up, w, pdf_scale, via_up, column_ly_o, traced=False):
         """The connection estimate at the vertex (w = −d_m): ``via_up`` = p_exit(.., y, ω_o)/H_m for an
-        upward y, ``column_ly_o`` = column(Λ_o) for the downward case (the caller's one pass)."""
+        upward y, ``column_ly_o`` = column(Λ_o) for the downward case (the caller's one pass). ``traced``
+        (y drawn with the parameters detached, docs/gradients.md): the balance weight detached, the
+        integrand over y's detached density."""
         d_h, cos0 = half_vector_d(mf, w, self.y)
         p_fwd = d_h * pdf_scale
         ok = self.valid & (p_fwd > 0.0) & dr.isfinite(p_fwd)
         via_down = dr.select(has_up, 0.0, self.l_y / (self.l_y + self.lambda_o) * column_ly_o)
         exit = dr.select(self.up, via_up, via_down)
-        value = p_fwd * self.phase * exit / (p_fwd + self.pdf)
+        if traced:
+            value = dr.detach(self.pdf / (p_fwd + self.pdf)) * (p_fwd * self.phase * exit) / dr.detach(self.pdf)
+        else:
+            value = p_fwd * self.phase * exit / (p_fwd + self.pdf)
         ok &= (value > 0.0) & dr.isfinite(value)
         return dr.select(ok, fresnel.eval(cos0) * self.fresnel * value, 0.0)
 
@@ -284,9 +309,10 @@ class LightVertex:
 # ------------------------------------------------------------------ the walks
 
 
-def eval(mf, fresnel, wi, wo, max_bounces, key):
+def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None):
     """One unbiased estimate of f(ω_i, ω_o)·cos θ_o, orders 1..max_bounces (Rust ``eval`` and
-    ``Walk::from``)."""
+    ``Walk::from``). ``mf_sample``: the statistics directions are drawn from when they are not ``mf`` (the
+    parameters detached; the estimate's derivative is then unbiased: docs/gradients.md)."""
     last = max_bounces  # a Python int, or a UInt32 per lane
     slots = run_slots(last)
     lambda_o = mf.lambda_(wo)
@@ -297,24 +323,40 @@ def eval(mf, fresnel, wi, wo, max_bounces, key):
     light = None
     if connects:
         u1, u2 = rng0.next2()
-        light = LightVertex(mf, fresnel, wo, pdf_scale_o, u1, u2)
+        light = LightVertex(mf, fresnel, wo, pdf_scale_o, u1, u2, mf_sample)
         light.lambda_o = lambda_o
     l0 = mf.abs_lambda(-wi)
     dp0 = MonotoneExit.new(l0, slots)
     return walk_from(mf, fresnel, wo, lambda_o, light, CONNECT_MAX_ORDER, mi.Vector3f(wi), 0.25 / (wi[2] * l0),
-                     mi.Spectrum(1.0), dp0, start, 0, last, key, rng0.counter)
+                     mi.Spectrum(1.0), dp0, start, 0, last, key, rng0.counter, mf_sample=mf_sample)
 
 
 def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, dp0, active, first_vertex, last,
-              key, counter, label="msx_invariance_conductor_eval"):
+              key, counter, label="msx_invariance_conductor_eval", mf_sample=None):
     """The walk of ``eval`` from vertex ``first_vertex`` on (twin of ``Walk::from``), arriving there with
     w = −d_m, ``pdf_scale`` = 1/(4 A(w)), the throughput Π F · H_m and the exit table ``dp0`` of d_0..d_m,
     on the lanes ``active``; orders up to ``last``. ``light`` (a ``LightVertex`` with ``lambda_o`` set, or
     None) and ``connect_max``: the connection strategy for orders 2..connect_max (none with None and 0: the
-    BDPT's tail). The lane's stream is (``key``, ``counter``)."""
+    BDPT's tail). The lane's stream is (``key``, ``counter``). ``mf_sample``: as ``eval``'s; the
+    differentiated values (α, η, k, Λ(ω_o), the light vertex's) then travel in the loop's state (drjit 1.5
+    rejects differentiable reads of wide values from outside a loop inside a symbolic call)."""
     connects = light is not None
+    traced = mf_sample is not None
 
-    def body(j, w, pdf_scale, pdf_walk, thr, result, active, counter, dp_state):
+    def body(j, w, pdf_scale, pdf_walk, thr, result, active, counter, dp_state, *piped):
+        mf, fresnel, lambda_o, light, mf_s = outer_mf, outer_fresnel, outer_lambda_o, outer_light, outer_mf
+        if traced:
+            mf = Microfacet(outer_mf.dist, piped[0], piped[1])
+            mf_s = Microfacet(outer_mf.dist, dr.detach(piped[0]), dr.detach(piped[1]))
+            lambda_o = piped[2]
+            rest = piped[3:]
+            if connects:
+                light = copy.copy(outer_light)
+                light.l_y, light.pdf, light.phase, light.fresnel = rest[:4]
+                light.lambda_o = lambda_o
+                rest = rest[4:]
+            if not outer_fresnel.mirror:
+                fresnel = ConductorFresnel(rest[0], rest[1])
         rng = Stream(key, counter)
         dp = MonotoneExit.from_state(dp_state)
         order = j + 1
@@ -327,13 +369,14 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
         if connects:
             mis_w = (j > 0) & (order <= connect_max) & (value > 0.0)
             p_rev = d_h * (0.25 / (wo[2] * (1.0 + lambda_o)))
-            value = dr.select(mis_w, value * (pdf_walk / (pdf_walk + p_rev)), value)
+            balance = pdf_walk / (pdf_walk + p_rev)
+            value = dr.select(mis_w, value * (dr.detach(balance) if traced else balance), value)
         ok = (value > 0.0) & dr.isfinite(value)
         result = dr.select(active & ok, result + thr * fresnel.eval(cos_wh) * (value * col_o), result)
         active &= order < last
         # The connection for order + 1: d_{m+1} = y from the side of ω_o.
         if connects:
-            conn = light.connect(mf, fresnel, dp.has_up, w, pdf_scale, via_up, col_o)
+            conn = light.connect(mf, fresnel, dp.has_up, w, pdf_scale, via_up, col_o, traced)
             conn_on = active & (order < connect_max)
             result = dr.select(conn_on, result + thr * conn, result)
         # Russian roulette on Π F · H_m, after the vertex's estimates.
@@ -344,7 +387,7 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
         active &= ~play | survived
         # The next direction.
         u1, u2 = rng.next2()
-        m, valid = mf.sample_visible(w, u1, u2)
+        m, valid = mf_s.sample_visible(w, u1, u2)
         cos_wm = dot(w, m)
         active &= valid & (cos_wm > 0.0)
         d_next = reflect(w, m)
@@ -352,6 +395,8 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
         # Along the upward run z only grows: once an upward d.z ≥ ω_o.z no later vertex reaches ω_o.
         active &= ~(up & (d_next[2] >= wo[2]))
         thr = thr * fresnel.eval(cos_wm)
+        if traced:  # the step's density D(m)/(4 A(w)) over its detached value
+            thr = thr * ((mf.d(m) * pdf_scale) / (mf_s.d(m) * dr.detach(pdf_scale)))
         if connects:
             pdf_walk = dr.select(order < connect_max, mf.d(m) * pdf_scale, pdf_walk)
         l_up = mf.lambda_(d_next)
@@ -365,11 +410,18 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
         active &= up | pushed
         w = -d_next
         pdf_scale = 0.25 / (dr.abs(d_next[2]) * l_next)
-        return j + 1, w, pdf_scale, pdf_walk, thr, result, active, rng.counter, dp.state()
+        return (j + 1, w, pdf_scale, pdf_walk, thr, result, active, rng.counter, dp.state()) + piped
 
+    outer_mf, outer_fresnel, outer_lambda_o, outer_light = mf, fresnel, lambda_o, light
     width = dr.width(w)
     state = (mi.UInt32(first_vertex), mi.Vector3f(w), mi.Float(pdf_scale), mi.Float(0.0), mi.Spectrum(thr),
              dr.zeros(mi.Spectrum, width), mi.Bool(active), mi.UInt32(counter), dp0.state())
+    if traced:
+        state += (mi.Float(mf.alpha_u), mi.Float(mf.alpha_v), mi.Float(lambda_o))
+        if connects:
+            state += (mi.Float(light.l_y), mi.Float(light.pdf), mi.Float(light.phase), mi.Spectrum(light.fresnel))
+        if not fresnel.mirror:
+            state += (mi.Spectrum(fresnel.eta), mi.Spectrum(fresnel.k))
     state = dr.while_loop(state, lambda *s: s[6], body, label=label)
     return state[5]
 
@@ -959,7 +1011,7 @@ def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
 # The conductor walk this module provides (jit/bsdf.py collects it): height-correlated order-1 exit in
 # the MIS density, and no walk from below the macro surface (the core's eval and sample need ω_i up).
 CONDUCTOR_WALKS = {"invariance": ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, below=False,
-                                              eval_bdpt=eval_bdpt)}
+                                              eval_bdpt=eval_bdpt, differentiable=True)}
 # The walks on the other microsurfaces (MIS densities: ``mis.diffuse_pdf``, ``mis.dielectric_pdf``).
 DIFFUSE_WALKS = {"invariance": DiffuseWalk(diffuse_eval, diffuse_sample)}
 DIELECTRIC_WALKS = {"invariance": DielectricWalk(dielectric_eval, dielectric_sample)}

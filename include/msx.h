@@ -465,7 +465,7 @@ int32_t msx_table(uint32_t kind,
                   size_t err_len);
 
 /*
- The rule of `model="auto"` (src/models/auto.rs) for a surface (MSX_SURFACE_*),
+ The rule of `model="auto"` (src/models/auto/) for a surface (MSX_SURFACE_*),
  distribution, tolerance (0 = MSX_DEFAULT_AUTO_TOLERANCE) and the relative
  IOR seen from ω_i (1 for conductors and diffuse surfaces): writes the μ axis
  of its cells to `*mu_axis` (nodes at the cells' ends; μ below √lo runs the

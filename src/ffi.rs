@@ -5,8 +5,8 @@
 //! values. A BSDF handle is immutable and thread-safe; calls are independent
 //! and deterministic for given inputs, `seed` and `key`.
 
-use crate::bsdf::{Bsdf, Config, Estimator, Material, Model, Surface, DEFAULT_MAX_BOUNCES};
-use crate::microfacet::Distribution;
+use crate::bsdf::{Bsdf, BsdfSample, Material};
+use crate::config::{Config, Distribution, Estimator, Model, Surface, DEFAULT_MAX_BOUNCES};
 use crate::spectrum::{Spectrum, MAX_CHANNELS};
 use glam::DVec3;
 use std::os::raw::c_char;
@@ -56,10 +56,10 @@ pub const MSX_ALPHA_MIN: f64 = 1e-4;
 pub const MSX_ALPHA_MAX: f64 = 1e4;
 
 // The header's literals must agree with the core.
-const _: () = assert!(MSX_DEFAULT_MAX_BOUNCES == crate::bsdf::DEFAULT_MAX_BOUNCES);
-const _: () = assert!(MSX_MAX_BOUNCES_LIMIT == crate::bsdf::MAX_BOUNCES_LIMIT);
+const _: () = assert!(MSX_DEFAULT_MAX_BOUNCES == crate::config::DEFAULT_MAX_BOUNCES);
+const _: () = assert!(MSX_MAX_BOUNCES_LIMIT == crate::config::MAX_BOUNCES_LIMIT);
 const _: () = assert!(MSX_MAX_CHANNELS as usize == MAX_CHANNELS);
-const _: () = assert!(MSX_DEFAULT_AUTO_TOLERANCE == crate::models::auto::DEFAULT_TOLERANCE);
+const _: () = assert!(MSX_DEFAULT_AUTO_TOLERANCE == crate::config::DEFAULT_TOLERANCE);
 const _: () = assert!(MSX_DEFAULT_IOR == crate::microfacet::dielectric::BK7_IOR);
 const _: () = assert!(MSX_ALPHA_MIN == crate::microfacet::ALPHA_MIN && MSX_ALPHA_MAX == crate::microfacet::ALPHA_MAX);
 
@@ -487,7 +487,7 @@ pub extern "C" fn msx_table(kind: u32, distribution: u32, shape: *mut MsxTableSh
             }
         };
         let albedo = || crate::tables::albedo::AlbedoTable::get(dist);
-        let dielectric = || crate::tables::dielectric_albedo::DielectricAlbedoTable::get(dist).grids();
+        let dielectric = || crate::models::analytic::dielectric_albedo::DielectricAlbedoTable::get(dist).grids();
         let (axes, values): (&[crate::tables::Axis], &[f64]) = match kind {
             MSX_TABLE_ALBEDO_SINGLE => (&albedo().grids()[0].axes, &albedo().grids()[0].values),
             MSX_TABLE_E1_UNCORRELATED => (&albedo().grids()[1].axes, &albedo().grids()[1].values),
@@ -519,7 +519,7 @@ pub extern "C" fn msx_table(kind: u32, distribution: u32, shape: *mut MsxTableSh
     })
 }
 
-/// The rule of `model="auto"` (src/models/auto.rs) for a surface (MSX_SURFACE_*),
+/// The rule of `model="auto"` (src/models/auto/) for a surface (MSX_SURFACE_*),
 /// distribution, tolerance (0 = MSX_DEFAULT_AUTO_TOLERANCE) and the relative
 /// IOR seen from ω_i (1 for conductors and diffuse surfaces): writes the μ axis
 /// of its cells to `*mu_axis` (nodes at the cells' ends; μ below √lo runs the
@@ -569,7 +569,7 @@ pub extern "C" fn msx_auto_rule(
             return MSX_ERR_INVALID_PARAMETER;
         }
         let rule = crate::models::auto::OrderOneRule::new(surface, dist, tolerance);
-        let axis = crate::tables::multiple_scattering::MU;
+        let axis = crate::models::auto::table::MU;
         // SAFETY: checked non-null above.
         unsafe { *mu_axis = axis_out(&axis) };
         let values = rule.thresholds(eta);
@@ -688,7 +688,7 @@ fn out_direction(wo: DVec3) -> Option<[f32; 3]> {
 
 /// A sample for the renderer: valid when its pdf is > 0 and its direction
 /// finite; its weight cleaned like every output.
-fn out_sample(s: Option<crate::bsdf::BsdfSample>, channels: usize) -> MsxSample {
+fn out_sample(s: Option<BsdfSample>, channels: usize) -> MsxSample {
     let Some(s) = s else { return MsxSample::default() };
     let pdf = out_f32(s.pdf);
     match out_direction(s.wo) {

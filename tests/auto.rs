@@ -1,4 +1,4 @@
-//! `model="auto"` (models/auto.rs, README.md, model table): it is exactly `correlated`,
+//! `model="auto"` (src/models/auto/, README.md, model table): it is exactly `correlated`,
 //! with one bounce where the table finds order 1 alone within the tolerance;
 //! the energy it omits stays within the tolerance, measured independently
 //! (full random walks, off-grid points, real materials: copper, albedo 0.5,

@@ -18,7 +18,7 @@
 mod common;
 
 use common::*;
-use msx::bsdf::{Config, Material, Model};
+use msx::{Config, Material, Model};
 use msx::rng::Sampler;
 use msx::{Bsdf, Distribution};
 

@@ -124,7 +124,7 @@ pub fn diffuse_fraction(mf: &Microfacet) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::microfacet::Distribution;
+    use crate::config::Distribution;
 
     /// The per-thread memo of `order_one_of` never returns another call's
     /// values: densities asked in an interleaved order equal the direct formula.

@@ -8,7 +8,7 @@
 //! | `heitz/` | Heitz 2016 random walk | ✓ | ✓ | ✓ |
 //! | `invariance/` | Cui 2023 invariance principle, PT and BDPT | ✓ | ✓ | ✓ |
 //! | `analytic/` | Fast-MSX (Rosales 2023), energy compensation (Turquin 2019) | ✓ | compensation | |
-//! | `auto.rs` | `correlated`, reduced to order 1 where a table says it suffices | ✓ | ✓ | ✓ |
+//! | `auto/` | `correlated`, reduced to order 1 where its table (`auto/table.rs`) says it suffices | ✓ | ✓ | ✓ |
 //!
 //! A model sees one call at a time ([`Call`]): the microfacet statistics, the
 //! microsurface's material, the orders to count and a random stream derived
@@ -23,7 +23,7 @@ pub mod mis;
 pub mod posfree;
 pub mod single;
 
-use crate::bsdf::{Estimator, Surface};
+use crate::config::{Estimator, Surface};
 use crate::microfacet::{fresnel, Microfacet};
 use crate::rng::{hash_words, Sampler};
 use crate::spectrum::{ChannelMask, Spectrum};

@@ -4,7 +4,8 @@
 //! albedos of the multiple-scattering models (for the MIS density).
 
 use super::{Axis, Grid, Warp};
-use crate::microfacet::{mitsuba, reflect, Distribution, Microfacet};
+use crate::config::Distribution;
+use crate::microfacet::{mitsuba, reflect, Microfacet};
 use crate::tables;
 use glam::DVec3;
 use std::sync::OnceLock;

@@ -22,7 +22,7 @@ use glam::DVec3;
 use msx::microfacet::fresnel::dielectric_full;
 use msx::microfacet::{reflect, refract};
 use msx::models::analytic::compensated_dielectric as cd;
-use msx::tables::dielectric_albedo::{self as table, DielectricAlbedoTable};
+use msx::models::analytic::dielectric_albedo::{self as table, DielectricAlbedoTable};
 use msx::models::single::dielectric as single_dielectric;
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet};

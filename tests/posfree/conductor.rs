@@ -9,7 +9,7 @@
 
 use crate::common::*;
 use glam::DVec3;
-use msx::bsdf::{Config, Material, Model};
+use msx::{Config, Material, Model};
 use msx::microfacet::{fresnel, mitsuba};
 use msx::rng::Sampler;
 use msx::{Bsdf, Distribution, Microfacet, Spectrum};
@@ -296,7 +296,7 @@ fn per_bounce_energy() {
         }
     }
     // Energy beyond the default bounce cap at α = 1.5.
-    println!("energy above the default cap ({} bounces), GGX α = 1.5, θ_i = 0:", msx::bsdf::DEFAULT_MAX_BOUNCES);
+    println!("energy above the default cap ({} bounces), GGX α = 1.5, θ_i = 0:", msx::config::DEFAULT_MAX_BOUNCES);
     for model in [Model::Uncorrelated, Model::Correlated] {
         let b = Bsdf::new(Config { distribution: Distribution::Ggx, model, max_bounces: 1024, ..Config::default() }).unwrap();
         let b_def = bsdf(Distribution::Ggx, model);
@@ -306,7 +306,7 @@ fn per_bounce_energy() {
         let mut s = Stat::default();
         for i in 0..n {
             let wo = prop.sample(&mut rng);
-            s.push(if wo.z > 0.0 { b.eval_orders(&mat, wi, wo, i as u64, (msx::bsdf::DEFAULT_MAX_BOUNCES + 1, 1024)).0[0] / prop.pdf(wo) } else { 0.0 });
+            s.push(if wo.z > 0.0 { b.eval_orders(&mat, wi, wo, i as u64, (msx::config::DEFAULT_MAX_BOUNCES + 1, 1024)).0[0] / prop.pdf(wo) } else { 0.0 });
         }
         // Random-walk sampler: fraction of walks that hit the cap (weight 1 each for a mirror).
         let mut lost = Stat::default();

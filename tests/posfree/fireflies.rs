@@ -19,7 +19,7 @@
 
 use crate::common::*;
 use glam::DVec3;
-use msx::bsdf::{Config, Estimator, Material, Model, Surface};
+use msx::{Config, Estimator, Material, Model, Surface};
 use msx::{Bsdf, Distribution};
 
 const N: u64 = 100_000;

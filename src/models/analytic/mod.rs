@@ -6,14 +6,16 @@
 //! | `fastmsx.rs` | Fast-MSX (Rosales et al. 2023): an analytic second-bounce lobe for GGX conductors |
 //! | `compensated.rs` | Turquin 2019 / Kulla & Conty 2017 energy compensation of conductors |
 //! | `compensated_dielectric.rs` | the same scaling for rough dielectrics (both sides of the interface) |
+//! | `dielectric_albedo.rs` | its table: E_r + E_t of `single` on a dielectric over (α, η, μ), both sides |
 
 pub mod compensated;
 pub mod compensated_dielectric;
+pub mod dielectric_albedo;
 pub mod fastmsx;
 
 use super::single::{conductor as single, dielectric as single_dielectric};
 use super::{Call, Microsurface, Sampled, ScatteringModel};
-use crate::bsdf::Surface;
+use crate::config::Surface;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 

@@ -553,8 +553,8 @@ pub fn sample_from(
 pub struct Heitz;
 
 impl super::ScatteringModel for Heitz {
-    fn surfaces(&self) -> &'static [crate::bsdf::Surface] {
-        use crate::bsdf::Surface;
+    fn surfaces(&self) -> &'static [crate::config::Surface] {
+        use crate::config::Surface;
         &[Surface::Conductor, Surface::Dielectric, Surface::Diffuse]
     }
 

@@ -19,7 +19,7 @@ pub use recursion::{p_exit, p_exit_error_study, p_exit_with_bound, segment_term,
 use super::mis::{walk_pdf, OrderOneExit};
 use super::posfree::Segments;
 use super::{Call, Microsurface, Sampled, ScatteringModel};
-use crate::bsdf::{Estimator, Surface};
+use crate::config::{Estimator, Surface};
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 

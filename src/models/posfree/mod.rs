@@ -94,7 +94,7 @@ pub(crate) const RR_LAST_WEIGHT: f64 = 0.05;
 
 use super::mis::{walk_pdf, OrderOneExit};
 use super::{Call, Microsurface, Sampled, ScatteringModel};
-use crate::bsdf::{Estimator, Surface};
+use crate::config::{Estimator, Surface};
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 

@@ -7,7 +7,7 @@ pub mod conductor;
 pub mod dielectric;
 
 use super::{Call, Microsurface, Sampled, ScatteringModel};
-use crate::bsdf::Surface;
+use crate::config::Surface;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 

@@ -1,4 +1,4 @@
-//! The committed C header must equal a fresh cbindgen generation from src/ffi.rs.
+//! The committed C header must equal a fresh cbindgen generation from src/ffi/.
 //! Regenerate with `MSX_BLESS=1 cargo test --test header`.
 
 use std::path::PathBuf;

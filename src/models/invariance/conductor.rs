@@ -25,14 +25,11 @@
 use super::recursion::MonotoneExit;
 use crate::models::{ConductorFresnel, WalkOptions};
 use crate::models::posfree::conductor::{self as posfree_conductor, CamVertex, ConductorSegments, LightVertex as WalkLight};
-use crate::walk::{bdpt, russian_roulette_keep, vertex_numbers};
+use crate::walk::{bdpt, russian_roulette_keep, vertex_numbers, RR_START};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
-
-/// First vertex after whose NEE Russian roulette may end a walk.
-const RR_START: u32 = 1;
 
 /// Throughput (largest channel) above which the walk of `eval` surely goes on.
 /// Below it the roulette keeps the walk with probability throughput/RR_KEEP,

@@ -60,16 +60,13 @@
 
 use crate::models::heitz::{self, WalkState};
 use crate::models::{Microsurface, WalkOptions};
-use crate::walk::{russian_roulette, vertex_numbers};
+use crate::walk::{russian_roulette, vertex_numbers, RR_START};
 use crate::microfacet::dielectric::{eta_seen, radiance_scale, refract_unit, valid_ior};
 use crate::microfacet::{fresnel, reflect, Microfacet};
 use crate::models::posfree::dielectric::l_beta;
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
-
-/// First vertex after whose estimates Russian roulette may end a walk.
-const RR_START: u32 = 1;
 
 /// Exact depth law of the current vertex of a monotone one-sided run entered
 /// from above the microsurface (module docs): the rates L_i of the pieces

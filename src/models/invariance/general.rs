@@ -39,15 +39,12 @@
 //! refraction and samples them after it.
 
 use crate::models::{Microsurface, WalkOptions};
-use crate::walk::{cosine_about, russian_roulette, vertex_numbers};
+use crate::walk::{cosine_about, russian_roulette, vertex_numbers, RR_START};
 use crate::microfacet::Microfacet;
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 use std::f64::consts::FRAC_1_PI;
-
-/// First vertex after whose NEE Russian roulette may end a walk.
-const RR_START: u32 = 1;
 
 /// Incremental exit probabilities of an arbitrary direction sequence
 /// d_0..d_m (d_0 downward), the complete invariance recursion in scaled form

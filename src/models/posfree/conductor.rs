@@ -6,20 +6,11 @@
 
 use super::{roulette_importance, Segments};
 use crate::models::{ConductorFresnel, WalkOptions};
-use crate::walk::{bdpt, russian_roulette_keep, vertex_numbers};
+use crate::walk::{bdpt, russian_roulette_keep, vertex_numbers, RR_START};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
-
-/// First vertex at which Russian roulette may end a path (played on arrival,
-/// before the vertex's next event; see [`roulette_importance`]). Roulette from
-/// the first continuation on: the continue factor is small for most directions
-/// at moderate roughness, and killing those walks early cut the GGX α = 0.5
-/// eval time ≈ 3× for ≈ 1.3× the variance per call (measured off-specular), a
-/// net efficiency gain; starting at vertex 3 spent most of the time on walks
-/// that carried almost no weight.
-const RR_START: u32 = 1;
 
 /// PT estimator with next-event estimation towards ω_o at every vertex
 /// (Wang eqs. 24–26). Returns one sample of f(ω_i, ω_o)·cos θ_o: Wang's vertex

@@ -64,7 +64,7 @@
 
 use super::{roulette_importance, Segments};
 use crate::models::WalkOptions;
-use crate::walk::{bdpt, roulette_scalar};
+use crate::walk::{bdpt, roulette_scalar, RR_START};
 use crate::microfacet::dielectric::{eta_seen, radiance_scale, reflect_or_refract, valid_ior};
 use crate::microfacet::fresnel::dielectric_full;
 use crate::microfacet::Microfacet;
@@ -224,9 +224,6 @@ fn scatter(mf: &Microfacet, st: &mut State, u_choice: f64, u1: f64, u2: f64) -> 
     Some((-d, true, f))
 }
 
-
-/// First vertex at which Russian roulette may end a path (as posfree.rs).
-const RR_START: u32 = 1;
 
 /// Gain of the next-event value in `posfree::roulette_importance` for
 /// dielectrics. Larger than the conductors' because the reflection near the

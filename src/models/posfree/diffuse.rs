@@ -51,15 +51,12 @@
 use super::conductor::{cont, smith};
 use super::Segments;
 use crate::models::WalkOptions;
-use crate::walk::{bdpt, cosine_about, russian_roulette, vertex_numbers};
+use crate::walk::{bdpt, cosine_about, russian_roulette, vertex_numbers, RR_START};
 use crate::microfacet::Microfacet;
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 use std::f64::consts::FRAC_1_PI;
-
-/// First vertex after which Russian roulette may end a path (as `posfree`).
-const RR_START: u32 = 1;
 
 /// PT estimator with next-event estimation of f(ω_i, ω_o)·cos θ_o for the
 /// diffuse microsurface of albedo `albedo` (per channel). Orders

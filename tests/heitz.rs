@@ -17,7 +17,6 @@ mod common;
 use common::*;
 use glam::DVec3;
 use msx::microfacet::fresnel;
-use msx::models::posfree::Segments;
 use msx::models::{heitz, ConductorFresnel, Microsurface, WalkOptions};
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet, Spectrum};
@@ -26,7 +25,7 @@ use std::f64::consts::PI;
 const DISTS: [Distribution; 2] = [Distribution::Ggx, Distribution::Beckmann];
 
 fn opts(max_bounces: u32, orders: (u32, u32)) -> WalkOptions {
-    WalkOptions { segments: Segments::Correlated, max_bounces, orders }
+    WalkOptions { max_bounces, orders }
 }
 
 /// All orders, a cap high enough that the truncated energy is negligible at α ≤ 2.

@@ -71,11 +71,10 @@ impl Call {
         Sampler::new(hash_words(&[st.seed, hash_words(&st.words[..st.len])]))
     }
 
-    /// Walk options with the given segment model (ignored by the walks
-    /// that are not position-free).
+    /// The call's bounce cap and orders, as the walks take them.
     #[inline]
-    pub fn walk(&self, segments: posfree::Segments) -> WalkOptions {
-        WalkOptions { segments, max_bounces: self.max_bounces, orders: self.orders }
+    pub fn walk(&self) -> WalkOptions {
+        WalkOptions { max_bounces: self.max_bounces, orders: self.orders }
     }
 
     /// Whether order 1 is counted (the analytic models have no other order).
@@ -121,10 +120,10 @@ pub trait ScatteringModel: Send + Sync + std::fmt::Debug {
     fn sample(&self, call: &Call, wi: DVec3, first: (f64, f64, f64)) -> Option<Sampled>;
 }
 
-/// Options of one evaluation.
+/// The bounds of one walk (every random-walk model; `posfree::Options` adds
+/// the segment terms of the position-free models).
 #[derive(Clone, Copy, Debug)]
 pub struct WalkOptions {
-    pub segments: posfree::Segments,
     /// Maximum number of scattering events (vertices).
     pub max_bounces: u32,
     /// Scattering orders counted, 1-based inclusive (k = 1 is single scattering).

@@ -33,7 +33,7 @@ fn copper() -> ConductorFresnel {
 }
 
 fn opts(max_bounces: u32, orders: (u32, u32)) -> WalkOptions {
-    WalkOptions { segments: Segments::Correlated, max_bounces, orders }
+    WalkOptions { max_bounces, orders }
 }
 
 const MAXB: u32 = 1024;
@@ -558,7 +558,7 @@ fn variance_and_time_per_call() {
             // concurrent work; the time per call is the median block time.
             let fs: [&dyn Fn(&mut Sampler) -> Spectrum; 3] = [
                 &|r| invariance::conductor::eval(&mf, &fr, wi, wo, &o, r),
-                &|r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r),
+                &|r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &posfree::Options { segments: Segments::Correlated, walk: o }, r),
                 &|r| heitz::eval(&mf, &Microsurface::Conductor(fr), wi, wo, &o, r),
             ];
             let mut rngs = [Sampler::new(1), Sampler::new(2), Sampler::new(3)];

@@ -15,7 +15,6 @@ use crate::common::*;
 use glam::DVec3;
 use msx::microfacet::fresnel;
 use msx::models::invariance::dielectric::{self as idl, PieceChain};
-use msx::models::posfree::Segments;
 use msx::models::{heitz, invariance, Microsurface, WalkOptions};
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet};
@@ -25,7 +24,7 @@ const DISTS: [Distribution; 2] = [Distribution::Ggx, Distribution::Beckmann];
 const MAXB: u32 = 1024;
 
 fn opts(max_bounces: u32, orders: (u32, u32)) -> WalkOptions {
-    WalkOptions { segments: Segments::Correlated, max_bounces, orders }
+    WalkOptions { max_bounces, orders }
 }
 
 fn all_orders() -> WalkOptions {

@@ -13,7 +13,7 @@
 
 use crate::common::*;
 use crate::shared::*;
-use msx::models::posfree::{self, Segments};
+use msx::models::posfree::{self, Options, Segments};
 use msx::models::posfree::conductor as posfree_bdpt;
 use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
 use msx::models::{ConductorFresnel, WalkOptions};
@@ -30,8 +30,8 @@ fn mirror() -> ConductorFresnel {
     ConductorFresnel::new(Spectrum::ZERO, Spectrum::ONE, 3)
 }
 
-fn opts(segments: Segments, orders: (u32, u32)) -> WalkOptions {
-    WalkOptions { segments, max_bounces: MAX_BOUNCES, orders }
+fn opts(segments: Segments, orders: (u32, u32)) -> Options {
+    Options { segments, walk: WalkOptions { max_bounces: MAX_BOUNCES, orders } }
 }
 
 // ---------------------------------------------------------------------------

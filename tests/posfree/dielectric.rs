@@ -14,7 +14,7 @@ use crate::common::dielectric::*;
 use crate::common::*;
 use glam::DVec3;
 use msx::microfacet::fresnel;
-use msx::models::posfree::Segments;
+use msx::models::posfree::{Options, Segments};
 use msx::models::posfree::dielectric as pfd;
 use msx::models::single::dielectric as sd;
 use msx::models::WalkOptions;
@@ -24,8 +24,8 @@ use std::f64::consts::PI;
 
 const DISTS: [Distribution; 2] = [Distribution::Ggx, Distribution::Beckmann];
 
-fn opts(segments: Segments, orders: (u32, u32)) -> WalkOptions {
-    WalkOptions { segments, max_bounces: 1000, orders }
+fn opts(segments: Segments, orders: (u32, u32)) -> Options {
+    Options { segments, walk: WalkOptions { max_bounces: 1000, orders } }
 }
 
 // ---------------------------------------------------------------------------
@@ -436,7 +436,7 @@ fn robustness() {
                     let wi = if k < dirs.len() { dirs[k] } else { sphere_dir(&mut rng, 0.0) };
                     let wo = if k < dirs.len() { dirs[(k + 3) % dirs.len()] } else { sphere_dir(&mut rng, 0.0) };
                     for seg in [Segments::Uncorrelated, Segments::Correlated] {
-                        let o = WalkOptions { segments: seg, max_bounces: 64, orders: (1, u32::MAX) };
+                        let o = Options { segments: seg, walk: WalkOptions { max_bounces: 64, orders: (1, u32::MAX) } };
                         let (v, _) = pfd::eval_pt(&mf, eta, true, wi, wo, &o, &mut rng);
                         total += 1;
                         if !(v.is_finite() && v >= 0.0) {

@@ -13,7 +13,7 @@ use crate::common::*;
 use crate::shared::*;
 use glam::DVec3;
 use msx::microfacet::fresnel::dielectric_full;
-use msx::models::posfree::Segments;
+use msx::models::posfree::{Options, Segments};
 use msx::models::posfree::dielectric as bd;
 use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
 use msx::models::posfree::dielectric as pfd;
@@ -26,8 +26,8 @@ use std::time::Instant;
 const MAX_BOUNCES: u32 = 64;
 const ETA: f64 = 1.5;
 
-fn opts(segments: Segments, orders: (u32, u32)) -> WalkOptions {
-    WalkOptions { segments, max_bounces: MAX_BOUNCES, orders }
+fn opts(segments: Segments, orders: (u32, u32)) -> Options {
+    Options { segments, walk: WalkOptions { max_bounces: MAX_BOUNCES, orders } }
 }
 
 fn flip(d: DVec3) -> DVec3 {

@@ -16,7 +16,7 @@
 use crate::common::*;
 use crate::shared::*;
 use glam::DVec3;
-use msx::models::posfree::Segments;
+use msx::models::posfree::{Options, Segments};
 use msx::models::posfree::diffuse::{eval_pt, sample_walk};
 use msx::models::WalkOptions;
 use msx::rng::Sampler;
@@ -25,8 +25,8 @@ use std::f64::consts::PI;
 
 const MAX_BOUNCES: u32 = 1024;
 
-fn opts(segments: Segments, orders: (u32, u32)) -> WalkOptions {
-    WalkOptions { segments, max_bounces: MAX_BOUNCES, orders }
+fn opts(segments: Segments, orders: (u32, u32)) -> Options {
+    Options { segments, walk: WalkOptions { max_bounces: MAX_BOUNCES, orders } }
 }
 
 const SEGS: [Segments; 2] = [Segments::Uncorrelated, Segments::Correlated];
@@ -38,7 +38,7 @@ fn sample_stats(
     mf: &Microfacet,
     albedo: Spectrum,
     wi: DVec3,
-    o: &WalkOptions,
+    o: &Options,
     n: usize,
     seed: u64,
     moments: &[fn(DVec3) -> f64],
@@ -69,7 +69,7 @@ fn eval_stats(
     mf: &Microfacet,
     albedo: Spectrum,
     wi: DVec3,
-    o: &WalkOptions,
+    o: &Options,
     n: usize,
     seed: u64,
     moments: &[fn(DVec3) -> f64],

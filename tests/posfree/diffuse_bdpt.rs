@@ -13,7 +13,7 @@
 
 use crate::common::*;
 use crate::shared::*;
-use msx::models::posfree::Segments;
+use msx::models::posfree::{Options, Segments};
 use msx::models::posfree::diffuse as bd;
 use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
 use msx::models::posfree::diffuse as pfd;
@@ -24,8 +24,8 @@ use std::f64::consts::PI;
 
 const MAX_BOUNCES: u32 = 256;
 
-fn opts(segments: Segments, orders: (u32, u32)) -> WalkOptions {
-    WalkOptions { segments, max_bounces: MAX_BOUNCES, orders }
+fn opts(segments: Segments, orders: (u32, u32)) -> Options {
+    Options { segments, walk: WalkOptions { max_bounces: MAX_BOUNCES, orders } }
 }
 
 fn albedo() -> Spectrum {

@@ -337,7 +337,7 @@ fn valid_incidence(mat: &Mat, wi: DVec3) -> bool {
 
 /// One unbiased estimate of f(ω_i, ω_o)·|cos θ_o| restricted to the scattering
 /// orders `opts.orders` (1 = single scattering) and at most `opts.max_bounces`
-/// vertices. `opts.segments` is ignored.
+/// vertices.
 pub fn eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
     let mat = Mat::of(surf);
     if !valid_incidence(&mat, wi) || !valid_incidence(&mat, wo) {
@@ -559,7 +559,7 @@ impl super::ScatteringModel for Heitz {
     }
 
     fn eval(&self, call: &super::Call, wi: DVec3, wo: DVec3) -> Spectrum {
-        let v = eval(&call.mf, &call.surf, wi, wo, &call.walk(super::posfree::Segments::Correlated), &mut call.rng());
+        let v = eval(&call.mf, &call.surf, wi, wo, &call.walk(), &mut call.rng());
         match call.surf {
             // The dielectric walk carries one value in every channel.
             Microsurface::Dielectric { .. } => Spectrum::splat(v.0[0]),
@@ -572,7 +572,7 @@ impl super::ScatteringModel for Heitz {
     }
 
     fn sample(&self, call: &super::Call, wi: DVec3, first: (f64, f64, f64)) -> Option<super::Sampled> {
-        let (wo, w, order) = sample(&call.mf, &call.surf, wi, first, &call.walk(super::posfree::Segments::Correlated), &mut call.rng())?;
+        let (wo, w, order) = sample(&call.mf, &call.surf, wi, first, &call.walk(), &mut call.rng())?;
         let weight = if let Microsurface::Dielectric { .. } = call.surf { Spectrum::splat(w.0[0]) } else { w };
         Some(super::Sampled { wo, weight, order, pdf: None })
     }

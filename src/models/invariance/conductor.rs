@@ -51,7 +51,7 @@ const CONNECT_MAX_ORDER: u32 = 3;
 
 /// One unbiased estimate of f(ω_i, ω_o)·cos θ_o of the invariance model,
 /// restricted to the orders `opts.orders` and at most `opts.max_bounces`
-/// vertices (`opts.segments` is ignored). Order 1 is deterministic:
+/// vertices. Order 1 is deterministic:
 /// F·D·G2/(4 cos θ_i) with G2 = 1/(1 + Λ(ω_i) + Λ(ω_o)).
 ///
 /// Orders 2 ≤ k ≤ `CONNECT_MAX_ORDER` (3) combine two strategies for the last

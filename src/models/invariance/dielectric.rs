@@ -21,7 +21,7 @@
 //! **Exact part: the first run.** Until the first refraction the path stays in
 //! the medium of ω_i and only reflects, so its directions are monotone (down…
 //! down, up… up: a reflection turns an upward ray further up, see
-//! `invariance.rs`). For such a run the depth of the current vertex has an
+//! `conductor.rs`). For such a run the depth of the current vertex has an
 //! exact finite description, [`PieceChain`]: the downward directions stack
 //! independent exponential pieces X_0, …, X_{a−1} (rates L_0 … L_{a−1}); an
 //! upward jump Y ~ Exp(Λ) eats the pieces from the bottom; by memorylessness a
@@ -35,7 +35,7 @@
 //!
 //! All terms are positive (stable). The exit probability of a same-side ω_o
 //! given the hits is E[e^{−Λ_o τ}] = Σ_c π(c) Π_{i≤c} L_i/(L_i+Λ_o) — the same
-//! numbers as Cui's S_k (`invariance.rs`, tested against it) — and the
+//! numbers as Cui's S_k (`recursion.rs`, tested against it) — and the
 //! continuation probability of an upward direction is 1 − P(leave).
 //!
 //! **Sampled part.** Through the interface the exit probability is
@@ -52,7 +52,7 @@
 //! reflection with probability F (Heitz's phase function), carries the exact
 //! hit probabilities in its throughput, and estimates towards ω_o at every
 //! vertex with the phase function × the exact exit probability above. Russian
-//! roulette as in `invariance.rs`. `sample`: the same walk leaves along an
+//! roulette as in `conductor.rs`. `sample`: the same walk leaves along an
 //! upward direction with the exact probability 1 − H_{m+1}/H_m, so every
 //! sample weight is 1 (times Mitsuba's 1/η² for a Radiance-mode transmission).
 //! Transport modes as in `src/models/heitz/mod.rs` (Importance-mode vertex terms; the

@@ -3,7 +3,7 @@
 //! not monotone in z (after a Lambertian bounce a direction can go up and the
 //! next one down again), so the complete S_k recursion of docs/paper-notes.md is needed.
 //!
-//! **Path contribution.** As in `invariance.rs`: a path d_0 = −ω_i, d_1, …,
+//! **Path contribution.** As in `recursion.rs`: a path d_0 = −ω_i, d_1, …,
 //! d_k = ω_o contributes (Π_{j<k} v_j)·S_k(d_0..d_k) to f·cos θ_o, with
 //! v_j = L_j·p(−d_j → d_{j+1}) (L_j = |Λ(d_j)|, p Heitz's diffuse phase function,
 //! see `src/models/posfree/diffuse.rs`). With p_exit(d_0..d_k) = (Π_{j<k} L_j)·S_k (Cui
@@ -182,8 +182,8 @@ fn lam(mf: &Microfacet, d: DVec3) -> Option<(f64, bool)> {
 
 /// One unbiased estimate of f(ω_i, ω_o)·cos θ_o of the invariance model on the
 /// diffuse microsurface, orders `opts.orders`, at most `opts.max_bounces`
-/// vertices (`opts.segments` is ignored). Zero for conductors (see
-/// `invariance.rs`) and dielectrics (not implemented, module docs).
+/// vertices. Zero for conductors and dielectrics, whose walks are
+/// `conductor.rs` and `dielectric.rs`.
 pub fn eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
     let Microsurface::Diffuse { albedo } = *surf else { return Spectrum::ZERO };
     if !(wi.z > 0.0) || !(wo.z > 0.0) || !wi.is_finite() || !wo.is_finite() {

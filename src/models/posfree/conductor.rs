@@ -4,7 +4,7 @@
 //! bidirectional estimator (`walk/bdpt.rs`). The pair factors of the segment
 //! models are in `mod.rs`.
 
-use super::{roulette_importance, Segments};
+use super::{roulette_importance, Options, Segments};
 use crate::models::{ConductorFresnel, WalkOptions};
 use crate::walk::{bdpt, russian_roulette_keep, vertex_numbers, RR_START};
 use crate::microfacet::{reflect, Microfacet};
@@ -22,13 +22,13 @@ use glam::DVec3;
 /// the projected-area factor of ω_i's visible normals there, as at any
 /// vertex reached by an upward segment. ω_o must point up (light leaves
 /// upward only).
-pub fn eval_pt(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
+pub fn eval_pt(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, opts: &Options, rng: &mut Sampler) -> Spectrum {
     if wi.z == 0.0 || wo.z <= 0.0 {
         return Spectrum::ZERO;
     }
     // Vertex 0: light arrives from ω_i, L_0 = |Λ(d_0)| = |Λ(−ω_i)| (1 + Λ(ω_i) for ω_i above).
     let start = PtState { w: wi, l: mf.abs_lambda(-wi), throughput: Spectrum::ONE };
-    let orders = opts.clamped_orders();
+    let orders = opts.walk.clamped_orders();
     pt_walk(mf, fresnel, wo, mf.lambda(wo), opts.segments, start, 0, orders, RR_START, rng)
 }
 
@@ -137,7 +137,7 @@ pub fn sample_walk(
     fresnel: &ConductorFresnel,
     wi: DVec3,
     first: (f64, f64, f64),
-    opts: &WalkOptions,
+    opts: &Options,
     rng: &mut Sampler,
 ) -> Option<(DVec3, Spectrum, u32)> {
     if wi.z == 0.0 {
@@ -146,7 +146,7 @@ pub fn sample_walk(
     let mut w = wi;
     let mut l = mf.abs_lambda(-wi); // as in eval_pt: ω_i may lie below the macro surface
     let mut weight = Spectrum::ONE;
-    for j in 0..opts.max_bounces {
+    for j in 0..opts.walk.max_bounces {
         let (u_exit, u1, u2) = vertex_numbers(j, first, rng);
         let m = mf.sample_visible(w, u1, u2)?;
         let cos_wm = w.dot(m);
@@ -409,7 +409,7 @@ impl<S: ConductorSegments> bdpt::BdptSurface for Bidirectional<'_, S> {
 
 /// BDPT estimate of f(ω_i, ω_o)·cos θ_o with the default number of
 /// bidirectional orders ([`bdpt::DEFAULT_BDPT_ORDERS`]).
-pub fn eval_bdpt(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
+pub fn eval_bdpt(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, opts: &Options, rng: &mut Sampler) -> Spectrum {
     eval_bdpt_with(mf, fresnel, wi, wo, opts, bdpt::DEFAULT_BDPT_ORDERS, rng)
 }
 
@@ -420,7 +420,7 @@ pub fn eval_bdpt_with(
     fresnel: &ConductorFresnel,
     wi: DVec3,
     wo: DVec3,
-    opts: &WalkOptions,
+    opts: &Options,
     bdpt_orders: u32,
     rng: &mut Sampler,
 ) -> Spectrum {
@@ -431,11 +431,11 @@ pub fn eval_bdpt_with(
     if wi.z <= 0.0 || wo.z <= 0.0 {
         return Spectrum::ZERO;
     }
-    estimate_bdpt(mf, fresnel, &opts.segments, wi, wo, opts, bdpt_orders, rng)
+    estimate_bdpt(mf, fresnel, &opts.segments, wi, wo, &opts.walk, bdpt_orders, rng)
 }
 
 /// The bidirectional estimate of a conductor with the segment term `seg`
-/// (ω_i and ω_o above the surface), orders `opts.orders`.
+/// (ω_i and ω_o above the surface), orders `opts.walk.orders`.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn estimate_bdpt<S: ConductorSegments>(
     mf: &Microfacet,

@@ -62,8 +62,7 @@
 //! (G1 of each direction taken in its own medium's frame), of `Correlated`
 //! with G2 = 1/(1+Λ_i+Λ_o) (reflection) or B(1+Λ_i, 1+Λ_o) (transmission).
 
-use super::{roulette_importance, Segments};
-use crate::models::WalkOptions;
+use super::{roulette_importance, Options, Segments};
 use crate::walk::{bdpt, roulette_scalar, RR_START};
 use crate::microfacet::dielectric::{eta_seen, radiance_scale, reflect_or_refract, valid_ior};
 use crate::microfacet::fresnel::dielectric_full;
@@ -239,14 +238,14 @@ fn valid_inputs(eta: f64, wi: DVec3) -> bool {
 }
 
 /// PT estimator with next-event estimation to ω_o at every vertex: one unbiased
-/// sample of f(ω_i, ω_o)·|cos θ_o| over the orders `opts.orders`, and whether
+/// sample of f(ω_i, ω_o)·|cos θ_o| over the orders `opts.walk.orders`, and whether
 /// the pair is a reflection (ω_i, ω_o on the same side).
-pub fn eval_pt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> (f64, bool) {
+pub fn eval_pt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &Options, rng: &mut Sampler) -> (f64, bool) {
     let is_reflection = wi.z * wo.z > 0.0;
     if !valid_inputs(eta, wi) || wo.z == 0.0 || !wo.is_finite() {
         return (0.0, is_reflection);
     }
-    let orders = opts.clamped_orders();
+    let orders = opts.walk.clamped_orders();
     let result = pt_walk(mf, opts.segments, wo, State::new(mf, eta, wi), 1.0, 0, orders, RR_START, rng);
     (result * radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0), is_reflection)
 }
@@ -315,14 +314,14 @@ fn pt_walk(
 /// transmission in Radiance mode). `first` = (sample1, u1, u2) drives the first
 /// vertex: sample1 chooses reflection when sample1 < F and, rescaled to [0, 1)
 /// within the chosen branch, decides the first exit. Returns (ω_o, weight,
-/// order) or None (no visible normal, or `opts.max_bounces` reached).
-pub fn sample_walk(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, first: (f64, f64, f64), opts: &WalkOptions, rng: &mut Sampler) -> Option<(DVec3, f64, u32)> {
+/// order) or None (no visible normal, or `opts.walk.max_bounces` reached).
+pub fn sample_walk(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, first: (f64, f64, f64), opts: &Options, rng: &mut Sampler) -> Option<(DVec3, f64, u32)> {
     if !valid_inputs(eta, wi) {
         return None;
     }
     let seg = opts.segments;
     let mut st = State::new(mf, eta, wi);
-    for j in 0..opts.max_bounces {
+    for j in 0..opts.walk.max_bounces {
         let (u_choice, u1, u2) = if j == 0 {
             first
         } else {
@@ -603,8 +602,8 @@ impl bdpt::BdptSurface for Bidirectional<'_> {
     }
 }
 
-/// BDPT estimate of f(ω_i, ω_o)·|cos θ_o| (orders `opts.orders`), default K_b.
-pub fn eval_bdpt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> f64 {
+/// BDPT estimate of f(ω_i, ω_o)·|cos θ_o| (orders `opts.walk.orders`), default K_b.
+pub fn eval_bdpt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &Options, rng: &mut Sampler) -> f64 {
     eval_bdpt_with(mf, eta, radiance, wi, wo, opts, bdpt::DEFAULT_BDPT_ORDERS, rng)
 }
 
@@ -617,7 +616,7 @@ pub fn eval_bdpt_with(
     radiance: bool,
     wi: DVec3,
     wo: DVec3,
-    opts: &WalkOptions,
+    opts: &Options,
     bdpt_orders: u32,
     rng: &mut Sampler,
 ) -> f64 {
@@ -628,7 +627,7 @@ pub fn eval_bdpt_with(
     let side_o = if wo.z > 0.0 { 1.0 } else { -1.0 };
     let surface =
         Bidirectional { mf, eta, seg: opts.segments, d0: Dir::new(mf, -wi, side_i), dk: Dir::new(mf, wo, side_o), wo };
-    let result = bdpt::estimate(&surface, opts.clamped_orders(), bdpt_orders, rng);
+    let result = bdpt::estimate(&surface, opts.walk.clamped_orders(), bdpt_orders, rng);
     let value = result * radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0);
     if value.is_finite() && value > 0.0 {
         value

@@ -93,10 +93,17 @@ pub(crate) fn roulette_importance(nee: f64, last: f64, gain: f64) -> f64 {
 pub(crate) const RR_LAST_WEIGHT: f64 = 0.05;
 
 use super::mis::{walk_pdf, OrderOneExit};
-use super::{Call, Microsurface, Sampled, ScatteringModel};
+use super::{Call, Microsurface, Sampled, ScatteringModel, WalkOptions};
 use crate::config::{Estimator, Surface};
 use crate::spectrum::Spectrum;
 use glam::DVec3;
+
+/// Options of one position-free walk: its segment terms and the walk's bounds.
+#[derive(Clone, Copy, Debug)]
+pub struct Options {
+    pub segments: Segments,
+    pub walk: WalkOptions,
+}
 
 /// `model="uncorrelated"` / `"correlated"` with `estimator` PT or BDPT.
 #[derive(Clone, Copy, Debug)]
@@ -115,7 +122,7 @@ impl ScatteringModel for PosFree {
     }
 
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
-        let (opts, mf, rng) = (&call.walk(self.segments), &call.mf, &mut call.rng());
+        let (opts, mf, rng) = (&Options { segments: self.segments, walk: call.walk() }, &call.mf, &mut call.rng());
         match (&call.surf, self.estimator) {
             (Microsurface::Conductor(fresnel), Estimator::Pt) => conductor::eval_pt(mf, fresnel, wi, wo, opts, rng),
             (Microsurface::Conductor(fresnel), Estimator::Bdpt) => conductor::eval_bdpt(mf, fresnel, wi, wo, opts, rng),
@@ -138,7 +145,7 @@ impl ScatteringModel for PosFree {
     }
 
     fn sample(&self, call: &Call, wi: DVec3, first: (f64, f64, f64)) -> Option<Sampled> {
-        let (opts, mf, rng) = (&call.walk(self.segments), &call.mf, &mut call.rng());
+        let (opts, mf, rng) = (&Options { segments: self.segments, walk: call.walk() }, &call.mf, &mut call.rng());
         let (wo, weight, order) = match &call.surf {
             Microsurface::Conductor(fresnel) => conductor::sample_walk(mf, fresnel, wi, first, opts, rng)?,
             &Microsurface::Dielectric { eta, radiance } => {

@@ -13,6 +13,10 @@ pub mod ggx;
 pub mod mitsuba;
 pub mod special;
 
+mod microsurface;
+
+pub use microsurface::{ConductorFresnel, Microsurface};
+
 use crate::config::Distribution;
 use glam::DVec3;
 

@@ -6,7 +6,8 @@
 //! the walk can go; the sample weights stay the walk's own, so any positive
 //! density keeps the estimates unbiased (docs/conventions.md).
 
-use super::{Call, Microsurface};
+use super::Call;
+use crate::microfacet::Microsurface;
 use crate::microfacet::Microfacet;
 use super::single::dielectric::pdf as single_dielectric_pdf;
 use crate::tables::albedo::AlbedoTable;

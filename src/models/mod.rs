@@ -24,9 +24,10 @@ pub mod posfree;
 pub mod single;
 
 use crate::config::{Estimator, Surface};
-use crate::microfacet::{fresnel, Microfacet};
+use crate::microfacet::{Microfacet, Microsurface};
 use crate::rng::{hash_words, Sampler};
-use crate::spectrum::{ChannelMask, Spectrum};
+use crate::spectrum::Spectrum;
+use crate::walk::WalkOptions;
 use glam::DVec3;
 
 /// What one BSDF call gives a model: unit directions and a usable material
@@ -120,69 +121,3 @@ pub trait ScatteringModel: Send + Sync + std::fmt::Debug {
     fn sample(&self, call: &Call, wi: DVec3, first: (f64, f64, f64)) -> Option<Sampled>;
 }
 
-/// The bounds of one walk (every random-walk model; `posfree::Options` adds
-/// the segment terms of the position-free models).
-#[derive(Clone, Copy, Debug)]
-pub struct WalkOptions {
-    /// Maximum number of scattering events (vertices).
-    pub max_bounces: u32,
-    /// Scattering orders counted, 1-based inclusive (k = 1 is single scattering).
-    pub orders: (u32, u32),
-}
-
-impl WalkOptions {
-    /// The order of the last vertex a walk may reach, min(orders.1,
-    /// max_bounces); None when that leaves no order to count.
-    #[inline]
-    pub fn last_order(&self) -> Option<u32> {
-        let last = self.orders.1.min(self.max_bounces);
-        (last > 0 && self.orders.0 <= last).then_some(last)
-    }
-
-    /// The orders counted, from 1 and within the bounce cap (may be empty).
-    #[inline]
-    pub fn clamped_orders(&self) -> (u32, u32) {
-        (self.orders.0.max(1), self.orders.1.min(self.max_bounces))
-    }
-}
-
-/// What a microfacet does to light (Heitz 2016 §3.2–3.4): the microsurface's
-/// material, shared by every multiple-scattering model.
-#[derive(Clone, Copy, Debug)]
-pub enum Microsurface {
-    /// Specular conductor facets, complex Fresnel per channel.
-    Conductor(ConductorFresnel),
-    /// Specular dielectric facets. `eta` = η_int/η_ext (> 0) of the interface;
-    /// directions with z < 0 are inside (Mitsuba's roughdielectric convention).
-    /// `radiance`: scale transmission by 1/η² as Mitsuba's Radiance mode does.
-    Dielectric { eta: f64, radiance: bool },
-    /// Lambertian facets with the given albedo (Heitz 2016 §3.3).
-    Diffuse { albedo: Spectrum },
-}
-
-/// Per-channel Fresnel factor of a conductor (F = 1 fast path for the
-/// perfect mirror, Mitsuba's `material="none"`).
-#[derive(Clone, Copy, Debug)]
-pub struct ConductorFresnel {
-    pub eta: Spectrum,
-    pub k: Spectrum,
-    pub channels: usize,
-    pub mirror: bool,
-    keep: ChannelMask,
-}
-
-impl ConductorFresnel {
-    pub fn new(eta: Spectrum, k: Spectrum, channels: usize) -> Self {
-        let channels = channels.clamp(1, crate::spectrum::MAX_CHANNELS);
-        let mirror = (0..channels).all(|c| eta.0[c] == 0.0 && k.0[c] == 1.0);
-        ConductorFresnel { eta, k, channels, mirror, keep: ChannelMask::first(channels) }
-    }
-
-    #[inline]
-    pub fn eval(&self, cos_i: f64) -> Spectrum {
-        if self.mirror {
-            return Spectrum::ONE;
-        }
-        Spectrum(fresnel::conductor4(cos_i, &self.eta.0, &self.k.0)).masked(self.keep)
-    }
-}

@@ -11,6 +11,32 @@ use crate::spectrum::Spectrum;
 use glam::DVec3;
 use std::f64::consts::PI;
 
+/// The bounds of one walk (every random-walk model; the position-free
+/// models' `posfree::Options` adds their segment terms).
+#[derive(Clone, Copy, Debug)]
+pub struct WalkOptions {
+    /// Maximum number of scattering events (vertices).
+    pub max_bounces: u32,
+    /// Scattering orders counted, 1-based inclusive (k = 1 is single scattering).
+    pub orders: (u32, u32),
+}
+
+impl WalkOptions {
+    /// The order of the last vertex a walk may reach, min(orders.1,
+    /// max_bounces); None when that leaves no order to count.
+    #[inline]
+    pub fn last_order(&self) -> Option<u32> {
+        let last = self.orders.1.min(self.max_bounces);
+        (last > 0 && self.orders.0 <= last).then_some(last)
+    }
+
+    /// The orders counted, from 1 and within the bounce cap (may be empty).
+    #[inline]
+    pub fn clamped_orders(&self) -> (u32, u32) {
+        (self.orders.0.max(1), self.orders.1.min(self.max_bounces))
+    }
+}
+
 /// First vertex at which Russian roulette may end a walk, in every walk of the
 /// crate: the roulette is played from the first continuation on (after vertex
 /// 1's estimates). The continuation factor is small for most directions at

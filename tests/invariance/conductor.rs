@@ -16,7 +16,9 @@
 use crate::common::*;
 use glam::DVec3;
 use msx::models::posfree::{self, Segments};
-use msx::models::{heitz, invariance, ConductorFresnel, Microsurface, WalkOptions};
+use msx::models::{heitz, invariance};
+use msx::microfacet::{ConductorFresnel, Microsurface};
+use msx::walk::WalkOptions;
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet, Spectrum};
 use std::f64::consts::PI;

@@ -13,7 +13,9 @@
 use crate::common::*;
 use glam::DVec3;
 use msx::models::invariance::general as ig;
-use msx::models::{heitz, invariance, Microsurface, WalkOptions};
+use msx::models::{heitz, invariance};
+use msx::microfacet::Microsurface;
+use msx::walk::WalkOptions;
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet, Spectrum};
 use std::f64::consts::PI;
@@ -152,7 +154,7 @@ fn conductor_and_dielectric_are_not_handled() {
     let mf = Microfacet::new(Distribution::Ggx, 0.5, 0.5);
     let mut rng = Sampler::new(1);
     let (wi, wo) = (dir(0.5, 0.0), dir(0.7, 2.0));
-    let cond = Microsurface::Conductor(msx::models::ConductorFresnel::new(Spectrum::splat(0.0), Spectrum::splat(1.0), 3));
+    let cond = Microsurface::Conductor(msx::microfacet::ConductorFresnel::new(Spectrum::splat(0.0), Spectrum::splat(1.0), 3));
     let diel = Microsurface::Dielectric { eta: 1.5, radiance: false };
     for s in [cond, diel] {
         ck.assert("eval zero", ig::eval(&mf, &s, wi, wo, &all_orders(), &mut rng).max_value() == 0.0);

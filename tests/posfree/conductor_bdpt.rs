@@ -16,7 +16,8 @@ use crate::shared::*;
 use msx::models::posfree::{self, Options, Segments};
 use msx::models::posfree::conductor as posfree_bdpt;
 use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
-use msx::models::{ConductorFresnel, WalkOptions};
+use msx::microfacet::ConductorFresnel;
+use msx::walk::WalkOptions;
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet, Spectrum};
 

@@ -17,7 +17,7 @@ use msx::microfacet::fresnel;
 use msx::models::posfree::{Options, Segments};
 use msx::models::posfree::dielectric as pfd;
 use msx::models::single::dielectric as sd;
-use msx::models::WalkOptions;
+use msx::walk::WalkOptions;
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet};
 use std::f64::consts::PI;

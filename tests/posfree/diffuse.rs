@@ -18,7 +18,7 @@ use crate::shared::*;
 use glam::DVec3;
 use msx::models::posfree::{Options, Segments};
 use msx::models::posfree::diffuse::{eval_pt, sample_walk};
-use msx::models::WalkOptions;
+use msx::walk::WalkOptions;
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet, Spectrum};
 use std::f64::consts::PI;

@@ -17,7 +17,7 @@ use msx::models::posfree::{Options, Segments};
 use msx::models::posfree::diffuse as bd;
 use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
 use msx::models::posfree::diffuse as pfd;
-use msx::models::WalkOptions;
+use msx::walk::WalkOptions;
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet, Spectrum};
 use std::f64::consts::PI;

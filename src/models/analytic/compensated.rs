@@ -14,7 +14,7 @@
 
 pub use crate::tables::albedo::{single_albedo, AlbedoTable};
 use crate::models::single::conductor as single;
-use crate::models::ConductorFresnel;
+use crate::microfacet::ConductorFresnel;
 use crate::microfacet::Microfacet;
 use crate::spectrum::{Spectrum, MAX_CHANNELS};
 use glam::DVec3;

@@ -14,7 +14,7 @@
 //! its albedo is measured in the tests. Sampling uses `single`'s sampler.
 
 use crate::models::single::conductor as single;
-use crate::models::ConductorFresnel;
+use crate::microfacet::ConductorFresnel;
 use crate::microfacet::Microfacet;
 use crate::spectrum::Spectrum;
 use glam::DVec3;

@@ -14,7 +14,8 @@ pub mod dielectric_albedo;
 pub mod fastmsx;
 
 use super::single::{conductor as single, dielectric as single_dielectric};
-use super::{Call, Microsurface, Sampled, ScatteringModel};
+use super::{Call, Sampled, ScatteringModel};
+use crate::microfacet::Microsurface;
 use crate::config::Surface;
 use crate::spectrum::Spectrum;
 use glam::DVec3;

@@ -37,7 +37,8 @@
 pub mod table;
 
 use super::posfree::{PosFree, Segments};
-use super::{Call, Microsurface, Sampled, ScatteringModel};
+use super::{Call, Sampled, ScatteringModel};
+use crate::microfacet::Microsurface;
 use crate::config::{Distribution, Estimator, Surface};
 use crate::spectrum::Spectrum;
 use glam::DVec3;

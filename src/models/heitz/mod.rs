@@ -48,7 +48,8 @@
 //! dielectrics).
 
 
-use crate::models::{Microsurface, WalkOptions};
+use crate::microfacet::Microsurface;
+use crate::walk::WalkOptions;
 use crate::walk::{cosine_about, russian_roulette};
 use crate::microfacet::dielectric::{eta_seen, radiance_scale, refract_unit, valid_ior};
 use crate::microfacet::{fresnel, reflect, Microfacet};
@@ -231,7 +232,7 @@ pub(crate) fn dielectric_phase(mf: &Microfacet, wi: DVec3, wo: DVec3, eta: f64, 
 /// What the walk needs to know of the material.
 #[derive(Clone, Copy)]
 enum Mat<'a> {
-    Conductor(&'a crate::models::ConductorFresnel),
+    Conductor(&'a crate::microfacet::ConductorFresnel),
     Diffuse(Spectrum),
     Dielectric { eta: f64, radiance: bool },
 }

@@ -23,7 +23,8 @@
 //! both: measured by `benches/models.rs`, numbers in benches/README.md.
 
 use super::recursion::MonotoneExit;
-use crate::models::{ConductorFresnel, WalkOptions};
+use crate::microfacet::ConductorFresnel;
+use crate::walk::WalkOptions;
 use crate::models::posfree::conductor::{self as posfree_conductor, CamVertex, ConductorSegments, LightVertex as WalkLight};
 use crate::walk::{bdpt, russian_roulette_keep, vertex_numbers, RR_START};
 use crate::microfacet::{reflect, Microfacet};

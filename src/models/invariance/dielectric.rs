@@ -59,7 +59,8 @@
 //! Radiance-mode factor applied once per path).
 
 use crate::models::heitz::{self, WalkState};
-use crate::models::{Microsurface, WalkOptions};
+use crate::microfacet::Microsurface;
+use crate::walk::WalkOptions;
 use crate::walk::{russian_roulette, vertex_numbers, RR_START};
 use crate::microfacet::dielectric::{eta_seen, radiance_scale, refract_unit, valid_ior};
 use crate::microfacet::{fresnel, reflect, Microfacet};

@@ -38,7 +38,8 @@
 //! `dielectric.rs` integrates the heights exactly up to the first
 //! refraction and samples them after it.
 
-use crate::models::{Microsurface, WalkOptions};
+use crate::microfacet::Microsurface;
+use crate::walk::WalkOptions;
 use crate::walk::{cosine_about, russian_roulette, vertex_numbers, RR_START};
 use crate::microfacet::Microfacet;
 use crate::rng::Sampler;

@@ -17,7 +17,8 @@ pub mod recursion;
 pub use recursion::{p_exit, p_exit_error_study, p_exit_with_bound, segment_term, segment_term_monotone, MonotoneExit};
 
 use super::mis::{walk_pdf, OrderOneExit};
-use super::{Call, Microsurface, Sampled, ScatteringModel};
+use super::{Call, Sampled, ScatteringModel};
+use crate::microfacet::Microsurface;
 use crate::config::{Estimator, Surface};
 use crate::spectrum::Spectrum;
 use glam::DVec3;

@@ -5,7 +5,8 @@
 //! models are in `mod.rs`.
 
 use super::{roulette_importance, Options, Segments};
-use crate::models::{ConductorFresnel, WalkOptions};
+use crate::microfacet::ConductorFresnel;
+use crate::walk::WalkOptions;
 use crate::walk::{bdpt, russian_roulette_keep, vertex_numbers, RR_START};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;

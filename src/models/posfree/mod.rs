@@ -93,7 +93,9 @@ pub(crate) fn roulette_importance(nee: f64, last: f64, gain: f64) -> f64 {
 pub(crate) const RR_LAST_WEIGHT: f64 = 0.05;
 
 use super::mis::{walk_pdf, OrderOneExit};
-use super::{Call, Microsurface, Sampled, ScatteringModel, WalkOptions};
+use super::{Call, Sampled, ScatteringModel};
+use crate::microfacet::Microsurface;
+use crate::walk::WalkOptions;
 use crate::config::{Estimator, Surface};
 use crate::spectrum::Spectrum;
 use glam::DVec3;

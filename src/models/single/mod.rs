@@ -6,7 +6,8 @@
 pub mod conductor;
 pub mod dielectric;
 
-use super::{Call, Microsurface, Sampled, ScatteringModel};
+use super::{Call, Sampled, ScatteringModel};
+use crate::microfacet::Microsurface;
 use crate::config::Surface;
 use crate::spectrum::Spectrum;
 use glam::DVec3;

@@ -1,4 +1,4 @@
-//! Heitz et al. 2016 random walk (`msx::models::heitz`): the supplement's §4
+//! Heitz et al. 2016 random walk (`msx::walk::height`, model `msx::models::heitz`): the supplement's §4
 //! validation list on the full sphere — height sampling (§4.1), white furnace
 //! (§4.4.1), reciprocity (§4.4.2), single scattering (§4.4.3), importance
 //! sampling moments (§4.4.4) — plus per-order energies sample vs eval and the
@@ -17,9 +17,8 @@ mod common;
 use common::*;
 use glam::DVec3;
 use msx::microfacet::fresnel;
-use msx::models::heitz;
 use msx::microfacet::{ConductorFresnel, Microsurface};
-use msx::walk::WalkOptions;
+use msx::walk::{height, WalkOptions};
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet, Spectrum};
 use std::f64::consts::PI;
@@ -82,10 +81,10 @@ fn eval_integral<S: Fn(&mut Sampler) -> Option<DVec3>, P: Fn(DVec3) -> f64, G: F
     g: G,
     channel: usize,
 ) -> (f64, f64) {
-    proposal_integral(n, seed, 0xabcd_ef01, sample, pdf, |wo, walk| heitz::eval(mf, surf, wi, wo, o, walk).0[channel] * g(wo))
+    proposal_integral(n, seed, 0xabcd_ef01, sample, pdf, |wo, walk| height::eval(mf, surf, wi, wo, o, walk).0[channel] * g(wo))
 }
 
-/// Mean of weight·g(ω_o) over `heitz::sample`, and the fraction of failed samples.
+/// Mean of weight·g(ω_o) over `height::sample`, and the fraction of failed samples.
 fn sample_integral<G: Fn(DVec3, u32) -> f64>(
     mf: &Microfacet,
     surf: &Microsurface,
@@ -103,7 +102,7 @@ fn sample_integral<G: Fn(DVec3, u32) -> f64>(
         let mut fails = 0usize;
         for _ in 0..n {
             let first = (rng.next(), rng.next(), rng.next());
-            let x = match heitz::sample(mf, surf, wi, first, o, &mut walk) {
+            let x = match height::sample(mf, surf, wi, first, o, &mut walk) {
                 Some((wo, w, k)) => {
                     assert!(wo.is_finite() && (wo.length() - 1.0).abs() < 1e-9, "non-unit ω_o {wo:?}");
                     assert!(w.is_finite() && w.0.iter().all(|&v| v >= 0.0), "bad weight {w:?}");
@@ -144,17 +143,17 @@ fn height_sampling_masking_shadowing() {
                 (Stat::default(), Stat::default(), Stat::default(), Stat::default(), Stat::default());
             for _ in 0..n {
                 let t = rand_t(&mut rng);
-                let ex_o = heitz::sample_height(&mf, wo, t, rng.next()).is_none();
-                let ex_i = heitz::sample_height(&mf, wi, t, rng.next()).is_none();
+                let ex_o = height::sample_height(&mf, wo, t, rng.next()).is_none();
+                let ex_i = height::sample_height(&mf, wi, t, rng.next()).is_none();
                 g1.push(ex_o as u8 as f64);
                 g2.push((ex_o && ex_i) as u8 as f64);
                 // Transmission: −ω_o leaves the flipped microsurface from the flipped height.
-                let ex_t = heitz::sample_height(&mf, wo, heitz::flip_height(t), rng.next()).is_none();
+                let ex_t = height::sample_height(&mf, wo, height::flip_height(t), rng.next()).is_none();
                 g2t.push((ex_i && ex_t) as u8 as f64);
                 // Shadowing given masking: height of the first hit from ω_i (top start).
-                let h = heitz::sample_height(&mf, -wi, 0.0, rng.next()).unwrap();
-                cond.push(heitz::sample_height(&mf, wo, h, rng.next()).is_none() as u8 as f64);
-                condt.push(heitz::sample_height(&mf, wo, heitz::flip_height(h), rng.next()).is_none() as u8 as f64);
+                let h = height::sample_height(&mf, -wi, 0.0, rng.next()).unwrap();
+                cond.push(height::sample_height(&mf, wo, h, rng.next()).is_none() as u8 as f64);
+                condt.push(height::sample_height(&mf, wo, height::flip_height(h), rng.next()).is_none() as u8 as f64);
             }
             ck.close(&format!("{tag} G1(ωo)"), g1.est(), exact(1.0 / (1.0 + lo)), 0.0, 0.0);
             ck.close(&format!("{tag} G2(ωi,ωo)"), g2.est(), exact(1.0 / (1.0 + li + lo)), 0.0, 0.0);
@@ -169,7 +168,7 @@ fn height_sampling_masking_shadowing() {
             );
             // Deterministic: masking_at is C¹^Λ.
             let t = -0.7;
-            ck.assert(&format!("{tag} masking_at"), (heitz::masking_at(&mf, wo, t) - (lo * t).exp()).abs() < 1e-14);
+            ck.assert(&format!("{tag} masking_at"), (height::masking_at(&mf, wo, t) - (lo * t).exp()).abs() < 1e-14);
         }
     }
     ck.finish();
@@ -279,7 +278,7 @@ fn mean_eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, o: &Wal
         let mut rng = Sampler::new(seed);
         let mut st = Stat::default();
         for _ in 0..n {
-            st.push(heitz::eval(mf, surf, wi, wo, o, &mut rng).0[channel]);
+            st.push(height::eval(mf, surf, wi, wo, o, &mut rng).0[channel]);
         }
         st
     };
@@ -571,7 +570,7 @@ fn degenerate_cases_are_finite() {
                 for &wi in &dirs {
                     for &wo in &dirs {
                         for _ in 0..4 {
-                            let v = heitz::eval(&mf, surf, wi, wo, &o, &mut rng);
+                            let v = height::eval(&mf, surf, wi, wo, &o, &mut rng);
                             calls += 1;
                             if !(v.is_finite() && v.0.iter().all(|&x| x >= 0.0)) {
                                 bad += 1;
@@ -582,7 +581,7 @@ fn degenerate_cases_are_finite() {
                     for _ in 0..16 {
                         let first = (rng.next(), rng.next(), rng.next());
                         calls += 1;
-                        if let Some((w, s, k)) = heitz::sample(&mf, surf, wi, first, &o, &mut rng) {
+                        if let Some((w, s, k)) = height::sample(&mf, surf, wi, first, &o, &mut rng) {
                             if !(w.is_finite() && (w.length() - 1.0).abs() < 1e-9 && s.is_finite() && s.0.iter().all(|&x| x >= 0.0) && k >= 1) {
                                 bad += 1;
                                 println!("sample {dist:?} α={alpha} {surf:?} wi={wi}: {w} {s:?} {k}");
@@ -592,7 +591,7 @@ fn degenerate_cases_are_finite() {
                     // Boundary random numbers.
                     for first in [(0.0, 0.0, 0.0), (1.0, 1.0, 1.0), (f64::NAN, 0.5, 1.0 - 1e-17)] {
                         calls += 1;
-                        if let Some((w, s, _)) = heitz::sample(&mf, surf, wi, first, &o, &mut rng) {
+                        if let Some((w, s, _)) = height::sample(&mf, surf, wi, first, &o, &mut rng) {
                             if !(w.is_finite() && s.is_finite() && s.0.iter().all(|&x| x >= 0.0)) {
                                 bad += 1;
                             }
@@ -608,9 +607,9 @@ fn degenerate_cases_are_finite() {
     let mf = Microfacet::new(Distribution::Ggx, 0.5, 0.5);
     let (up, down) = (DVec3::new(0.6, 0.0, 0.8), DVec3::new(0.6, 0.0, -0.8));
     for surf in [copper(), diffuse(0.5)] {
-        ck.assert("below the horizon gives zero", heitz::eval(&mf, &surf, up, down, &o, &mut rng) == Spectrum::ZERO);
-        ck.assert("below the horizon gives zero (wi)", heitz::eval(&mf, &surf, down, up, &o, &mut rng) == Spectrum::ZERO);
-        ck.assert("no sample from below", heitz::sample(&mf, &surf, down, (0.3, 0.3, 0.3), &o, &mut rng).is_none());
+        ck.assert("below the horizon gives zero", height::eval(&mf, &surf, up, down, &o, &mut rng) == Spectrum::ZERO);
+        ck.assert("below the horizon gives zero (wi)", height::eval(&mf, &surf, down, up, &o, &mut rng) == Spectrum::ZERO);
+        ck.assert("no sample from below", height::sample(&mf, &surf, down, (0.3, 0.3, 0.3), &o, &mut rng).is_none());
     }
     ck.finish();
 }

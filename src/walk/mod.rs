@@ -2,9 +2,11 @@
 //! implements: Russian roulette, the uniform numbers of a sampled vertex and
 //! the Lambertian direction of a diffuse facet; and the bidirectional
 //! estimator of a position-free path integral (`bdpt.rs`), written once for
-//! every surface.
+//! every surface; and the height-explicit walk of Heitz 2016 (`height.rs`),
+//! used by `heitz` and by `invariance` on dielectrics.
 
 pub mod bdpt;
+pub mod height;
 
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;

@@ -16,9 +16,9 @@
 use crate::common::*;
 use glam::DVec3;
 use msx::models::posfree::{self, Segments};
-use msx::models::{heitz, invariance};
+use msx::models::invariance;
 use msx::microfacet::{ConductorFresnel, Microsurface};
-use msx::walk::WalkOptions;
+use msx::walk::{height, WalkOptions};
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet, Spectrum};
 use std::f64::consts::PI;
@@ -368,7 +368,7 @@ fn inv_eval(mf: Microfacet, fr: ConductorFresnel, o: WalkOptions) -> impl Fn(DVe
 }
 
 fn heitz_eval(mf: Microfacet, fr: ConductorFresnel, o: WalkOptions) -> impl Fn(DVec3, DVec3, &mut Sampler) -> Spectrum {
-    move |wi, wo, rng| heitz::eval(&mf, &Microsurface::Conductor(fr), wi, wo, &o, rng)
+    move |wi, wo, rng| height::eval(&mf, &Microsurface::Conductor(fr), wi, wo, &o, rng)
 }
 
 /// Mean of weight·g over `n` samples (failed samples count as 0), channel c;
@@ -492,7 +492,7 @@ fn per_order_energy_and_heitz_agreement() {
             None => bins.push(None, 0.0),
         }
         let first = (hrng.next(), hrng.next(), hrng.next());
-        match heitz::sample(&mf, &Microsurface::Conductor(mirror()), wi, first, &all_orders(), &mut hrng) {
+        match height::sample(&mf, &Microsurface::Conductor(mirror()), wi, first, &all_orders(), &mut hrng) {
             Some((_, w, k)) => hbins.push(Some((k.min(4) - 1) as usize), w.0[0]),
             None => hbins.push(None, 0.0),
         }
@@ -534,7 +534,7 @@ fn per_order_energy_and_heitz_agreement() {
             seed += 2;
             for _ in 0..100_000 {
                 a.push(invariance::conductor::eval(&mf, &mirror(), wi, wo, &o, &mut r1).0[0]);
-                b.push(heitz::eval(&mf, &Microsurface::Conductor(mirror()), wi, wo, &o, &mut r2).0[0]);
+                b.push(height::eval(&mf, &Microsurface::Conductor(mirror()), wi, wo, &o, &mut r2).0[0]);
             }
             ck.close(&format!("{dist:?} α=0.8 θi={ti} θo={to} Δφ={:.2} multiple-scattering f·cos: invariance vs Heitz", po - pi), a.est(), b.est(), 0.0, 0.0);
         }
@@ -561,7 +561,7 @@ fn variance_and_time_per_call() {
             let fs: [&dyn Fn(&mut Sampler) -> Spectrum; 3] = [
                 &|r| invariance::conductor::eval(&mf, &fr, wi, wo, &o, r),
                 &|r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &posfree::Options { segments: Segments::Correlated, walk: o }, r),
-                &|r| heitz::eval(&mf, &Microsurface::Conductor(fr), wi, wo, &o, r),
+                &|r| height::eval(&mf, &Microsurface::Conductor(fr), wi, wo, &o, r),
             ];
             let mut rngs = [Sampler::new(1), Sampler::new(2), Sampler::new(3)];
             let mut stats = [Stat::default(); 3];

@@ -15,9 +15,9 @@ use crate::common::*;
 use glam::DVec3;
 use msx::microfacet::fresnel;
 use msx::models::invariance::dielectric::{self as idl, PieceChain};
-use msx::models::{heitz, invariance};
+use msx::models::invariance;
 use msx::microfacet::Microsurface;
-use msx::walk::WalkOptions;
+use msx::walk::{height, WalkOptions};
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet};
 use std::f64::consts::PI;
@@ -264,7 +264,7 @@ fn inv(mf: Microfacet, eta: f64, radiance: bool, o: WalkOptions) -> impl Fn(DVec
 
 fn heitz_eval(mf: Microfacet, eta: f64, radiance: bool, o: WalkOptions) -> impl Fn(DVec3, DVec3, &mut Sampler) -> f64 {
     let s = Microsurface::Dielectric { eta, radiance };
-    move |wi, wo, rng| heitz::eval(&mf, &s, wi, wo, &o, rng).0[0]
+    move |wi, wo, rng| height::eval(&mf, &s, wi, wo, &o, rng).0[0]
 }
 
 /// Mean of weight·g(ω_o) over `invariance_dielectric::sample`.

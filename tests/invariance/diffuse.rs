@@ -13,9 +13,9 @@
 use crate::common::*;
 use glam::DVec3;
 use msx::models::invariance::general as ig;
-use msx::models::{heitz, invariance};
+use msx::models::invariance;
 use msx::microfacet::Microsurface;
-use msx::walk::WalkOptions;
+use msx::walk::{height, WalkOptions};
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet, Spectrum};
 use std::f64::consts::PI;
@@ -123,7 +123,7 @@ fn inv_eval(mf: Microfacet, s: Microsurface, o: WalkOptions) -> impl Fn(DVec3, D
 }
 
 fn heitz_eval(mf: Microfacet, s: Microsurface, o: WalkOptions) -> impl Fn(DVec3, DVec3, &mut Sampler) -> Spectrum {
-    move |wi, wo, rng| heitz::eval(&mf, &s, wi, wo, &o, rng)
+    move |wi, wo, rng| height::eval(&mf, &s, wi, wo, &o, rng)
 }
 
 fn sample_mean(mf: Microfacet, s: Microsurface, wi: DVec3, o: WalkOptions, n: usize, seed: u64, g: &dyn Fn(DVec3) -> f64) -> (f64, f64) {
@@ -279,7 +279,7 @@ fn variance_and_time_per_call() {
         let mf = Microfacet::new(dist, alpha, alpha);
         let (wi, wo) = (dir(ti, pi), dir(to, po));
         let o = opts(64, (1, 64));
-        let fs: [&dyn Fn(&mut Sampler) -> Spectrum; 2] = [&|r| ig::eval(&mf, &s, wi, wo, &o, r), &|r| heitz::eval(&mf, &s, wi, wo, &o, r)];
+        let fs: [&dyn Fn(&mut Sampler) -> Spectrum; 2] = [&|r| ig::eval(&mf, &s, wi, wo, &o, r), &|r| height::eval(&mf, &s, wi, wo, &o, r)];
         let mut rngs = [Sampler::new(1), Sampler::new(2)];
         let mut stats = [Stat::default(); 2];
         let mut blocks: [Vec<f64>; 2] = [Vec::new(), Vec::new()];

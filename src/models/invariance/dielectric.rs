@@ -44,7 +44,7 @@
 //! Walter's BTDF with the Beta G2); for c ≥ 1 one τ is drawn from the exact
 //! conditional law. When the walk itself refracts, τ is drawn from the exact
 //! conditional law of the vertex depth given the whole run, flipped, and the
-//! rest of the path is Heitz's walk (`heitz::eval_from` / `sample_from`) from
+//! rest of the path is Heitz's walk (`walk::height::eval_from` / `sample_from`) from
 //! that height: by the tower property the estimate stays unbiased, and it
 //! equals Heitz's walk in expectation (tests/invariance/dielectric.rs).
 //!
@@ -55,13 +55,12 @@
 //! roulette as in `conductor.rs`. `sample`: the same walk leaves along an
 //! upward direction with the exact probability 1 − H_{m+1}/H_m, so every
 //! sample weight is 1 (times Mitsuba's 1/η² for a Radiance-mode transmission).
-//! Transport modes as in `src/models/heitz/mod.rs` (Importance-mode vertex terms; the
+//! Transport modes as in `src/walk/height.rs` (Importance-mode vertex terms; the
 //! Radiance-mode factor applied once per path).
 
-use crate::models::heitz::{self, WalkState};
 use crate::microfacet::Microsurface;
 use crate::walk::WalkOptions;
-use crate::walk::{russian_roulette, vertex_numbers, RR_START};
+use crate::walk::{height, russian_roulette, vertex_numbers, RR_START};
 use crate::microfacet::dielectric::{eta_seen, radiance_scale, refract_unit, valid_ior};
 use crate::microfacet::{fresnel, reflect, Microfacet};
 use crate::models::posfree::dielectric::l_beta;
@@ -256,10 +255,10 @@ pub fn eval(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opt
     let outside = wi.z > 0.0;
     let same_side = (wo.z > 0.0) == outside;
     let e = eta_seen(eta, outside);
-    let wo_l = heitz::local(wo, outside);
+    let wo_l = height::local(wo, outside);
     // Λ of ω_o in the frame of the medium it leaves into.
     let lambda_o = if same_side { mf.lambda(wo_l) } else { mf.lambda(-wo_l) };
-    let mut w = heitz::local(wi, outside); // −d_m, local frame of the first run
+    let mut w = height::local(wi, outside); // −d_m, local frame of the first run
     let l0 = mf.abs_lambda(-w);
     if !lambda_o.is_finite() || !l0.is_finite() {
         return 0.0;
@@ -271,7 +270,7 @@ pub fn eval(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opt
         let order = j + 1;
         // Next-event estimation towards ω_o: phase function × exit probability.
         if order >= opts.orders.0 {
-            let phase = heitz::dielectric_phase(mf, w, wo_l, e, same_side);
+            let phase = height::dielectric_phase(mf, w, wo_l, e, same_side);
             if phase > 0.0 {
                 let exit = if same_side { chain.exit_given_hits(lambda_o) } else { chain.transmit_exit(lambda_o, rng) };
                 result += throughput * phase * exit;
@@ -289,15 +288,15 @@ pub fn eval(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opt
         }
         // Scatter: visible normal, then reflect with probability F.
         let (u1, u2) = rng.next2();
-        let Some(m) = heitz::visible_normal(mf, w, u1, u2) else { break };
+        let Some(m) = height::visible_normal(mf, w, u1, u2) else { break };
         let c = w.dot(m);
         let f = fresnel::dielectric(c, e);
         if rng.next() >= f {
             if let Some(o) = refract_unit(w, m, c, e) {
                 // Leave the exact part: sample the vertex depth, continue as Heitz.
                 let tau = chain.sample_depth(rng);
-                let state = WalkState::after_refraction(outside, o, -tau, Spectrum::splat(throughput), order + 1);
-                result += heitz::eval_from(mf, &surf, wo, state, opts, rng).0[0];
+                let state = height::State::after_refraction(outside, o, -tau, Spectrum::splat(throughput), order + 1);
+                result += height::eval_from(mf, &surf, wo, state, opts, rng).0[0];
                 break;
             }
             // Total internal reflection: reflect (F = 1 in effect).
@@ -357,7 +356,7 @@ pub fn sample(
     let surf = Microsurface::Dielectric { eta, radiance };
     let outside = wi.z > 0.0;
     let e = eta_seen(eta, outside);
-    let mut w = heitz::local(wi, outside);
+    let mut w = height::local(wi, outside);
     let l0 = mf.abs_lambda(-w);
     if !l0.is_finite() {
         return None;
@@ -370,14 +369,14 @@ pub fn sample(
     for j in 0..last {
         let order = j + 1;
         let (u_choice, u1, u2) = vertex_numbers(j, first, rng);
-        let m = heitz::visible_normal(mf, w, u1, u2)?;
+        let m = height::visible_normal(mf, w, u1, u2)?;
         let c = w.dot(m);
         let f = fresnel::dielectric(c, e);
         if u_choice >= f {
             if let Some(o) = refract_unit(w, m, c, e) {
                 let tau = chain.sample_depth(rng);
-                let state = WalkState::after_refraction(outside, o, -tau, Spectrum::ONE, order + 1);
-                let (wo, weight, k) = heitz::sample_from(mf, &surf, state, None, opts, rng)?;
+                let state = height::State::after_refraction(outside, o, -tau, Spectrum::ONE, order + 1);
+                let (wo, weight, k) = height::sample_from(mf, &surf, state, None, opts, rng)?;
                 return finish(wo, weight.0[0], k);
             }
         }
@@ -392,7 +391,7 @@ pub fn sample(
             }
             let cont = chain.push_up(lambda);
             if rng.next() >= cont {
-                return finish(heitz::local(d, outside), 1.0, order);
+                return finish(height::local(d, outside), 1.0, order);
             }
         } else {
             let l = mf.abs_lambda(d);

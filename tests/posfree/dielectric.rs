@@ -133,9 +133,9 @@ fn order1_is_single_scattering() {
                         ref_beta(1.0 + li, 1.0 + lo)
                     };
                     let mut dummy = Sampler::new(0);
-                    let (u, _) = pfd::eval_pt(&mf, eta, false, wi, wo, &opts(Segments::Uncorrelated, (1, 1)), &mut dummy);
-                    let (c, _) = pfd::eval_pt(&mf, eta, false, wi, wo, &opts(Segments::Correlated, (1, 1)), &mut dummy);
-                    let (ur, _) = pfd::eval_pt(&mf, eta, true, wi, wo, &opts(Segments::Uncorrelated, (1, 1)), &mut dummy);
+                    let u = pfd::eval_pt(&mf, eta, false, wi, wo, &opts(Segments::Uncorrelated, (1, 1)), &mut dummy);
+                    let c = pfd::eval_pt(&mf, eta, false, wi, wo, &opts(Segments::Correlated, (1, 1)), &mut dummy);
+                    let ur = pfd::eval_pt(&mf, eta, true, wi, wo, &opts(Segments::Uncorrelated, (1, 1)), &mut dummy);
                     let k = if refl { 0 } else { 1 };
                     counts[k] += 1;
 
@@ -221,7 +221,8 @@ fn furnace_config(dist: Distribution, seg: Segments, eta: f64, inside: bool, alp
         if let Some(w) = prop.sample(&mut rng) {
             let q = prop.pdf(w);
             if q > 0.0 {
-                let (v, is_r) = pfd::eval_pt(&mf, eta, false, wi, w, &o, &mut rng);
+                let v = pfd::eval_pt(&mf, eta, false, wi, w, &o, &mut rng);
+                let is_r = wi.z * w.z > 0.0;
                 let x = v / q;
                 if is_r {
                     er = x;
@@ -357,8 +358,8 @@ fn reciprocity() {
                         let (ni, no) = sides(eta, wi, wo);
                         // Order 1 is deterministic: generalised reciprocity to rounding.
                         let mut r0 = Sampler::new(0);
-                        let s_f = pfd::eval_pt(&mf, eta, false, wi, wo, &opts(seg, (1, 1)), &mut r0).0 / wo.z.abs() * ni * ni;
-                        let s_b = pfd::eval_pt(&mf, eta, false, wo, wi, &opts(seg, (1, 1)), &mut r0).0 / wi.z.abs() * no * no;
+                        let s_f = pfd::eval_pt(&mf, eta, false, wi, wo, &opts(seg, (1, 1)), &mut r0) / wo.z.abs() * ni * ni;
+                        let s_b = pfd::eval_pt(&mf, eta, false, wo, wi, &opts(seg, (1, 1)), &mut r0) / wi.z.abs() * no * no;
                         if seg == Segments::Uncorrelated {
                             worst_order1 = worst_order1.max(rel(s_f, s_b));
                         }
@@ -369,8 +370,8 @@ fn reciprocity() {
                         let (mut fwd, mut bwd) = (Stat::default(), Stat::default());
                         let (mut max_f, mut max_b) = (0.0f64, 0.0f64);
                         for _ in 0..n {
-                            let a = pfd::eval_pt(&mf, eta, false, wi, wo, &o, &mut rng).0 / wo.z.abs() * ni * ni;
-                            let b = pfd::eval_pt(&mf, eta, false, wo, wi, &o, &mut rng).0 / wi.z.abs() * no * no;
+                            let a = pfd::eval_pt(&mf, eta, false, wi, wo, &o, &mut rng) / wo.z.abs() * ni * ni;
+                            let b = pfd::eval_pt(&mf, eta, false, wo, wi, &o, &mut rng) / wi.z.abs() * no * no;
                             fwd.push(a);
                             bwd.push(b);
                             max_f = max_f.max(a);
@@ -437,7 +438,7 @@ fn robustness() {
                     let wo = if k < dirs.len() { dirs[(k + 3) % dirs.len()] } else { sphere_dir(&mut rng, 0.0) };
                     for seg in [Segments::Uncorrelated, Segments::Correlated] {
                         let o = Options { segments: seg, walk: WalkOptions { max_bounces: 64, orders: (1, u32::MAX) } };
-                        let (v, _) = pfd::eval_pt(&mf, eta, true, wi, wo, &o, &mut rng);
+                        let v = pfd::eval_pt(&mf, eta, true, wi, wo, &o, &mut rng);
                         total += 1;
                         if !(v.is_finite() && v >= 0.0) {
                             bad += 1;

@@ -72,7 +72,7 @@ fn bdpt_equals_pt_per_order() {
                         }
                         let o = opts(seg, orders);
                         seed += 2;
-                        let (pt, _) = run(n, |r| pfd::eval_pt(&mf, ETA, radiance, wi, wo, &o, r).0, seed);
+                        let (pt, _) = run(n, |r| pfd::eval_pt(&mf, ETA, radiance, wi, wo, &o, r), seed);
                         let (b, _) = run(n, |r| bd::eval_bdpt(&mf, ETA, radiance, wi, wo, &o, r), seed + 1);
                         let label = format!(
                             "{} ggx α={alpha} {pname} orders {}..={}{}",
@@ -103,7 +103,7 @@ fn bdpt_tail_and_kb_agree() {
                 for orders in [(1, MAX_BOUNCES), (3, 6)] {
                     let o = opts(seg, orders);
                     seed += 2;
-                    let (pt, _) = run(n, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r).0, seed);
+                    let (pt, _) = run(n, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r), seed);
                     let (b, _) = run(n, |r| bd::eval_bdpt_with(&mf, ETA, false, wi, wo, &o, kb, r), seed + 1);
                     let label = format!("{} ggx α=1 {pname} K_b={kb} orders {}..={}", seg_name(seg), orders.0, orders.1);
                     ck.close(&label, b.est(), pt.est(), 0.0, 1e-12);
@@ -222,8 +222,8 @@ fn bdpt_vs_pt_variance_and_time() {
             for (pname, wi, wo) in [pairs()[0], pairs()[1], pairs()[3]] {
                 let o = opts(seg, (1, MAX_BOUNCES));
                 seed += 2;
-                let _ = run(2000, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r).0, seed + 77);
-                let (pt, t_pt) = run(n, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r).0, seed);
+                let _ = run(2000, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r), seed + 77);
+                let (pt, t_pt) = run(n, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r), seed);
                 let (b, t_bd) = run(n, |r| bd::eval_bdpt(&mf, ETA, false, wi, wo, &o, r), seed + 1);
                 let (vp, vb) = (pt.var(), b.var());
                 println!(

@@ -238,16 +238,14 @@ fn valid_inputs(eta: f64, wi: DVec3) -> bool {
 }
 
 /// PT estimator with next-event estimation to ω_o at every vertex: one unbiased
-/// sample of f(ω_i, ω_o)·|cos θ_o| over the orders `opts.walk.orders`, and whether
-/// the pair is a reflection (ω_i, ω_o on the same side).
-pub fn eval_pt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &Options, rng: &mut Sampler) -> (f64, bool) {
-    let is_reflection = wi.z * wo.z > 0.0;
+/// sample of f(ω_i, ω_o)·|cos θ_o| over the orders `opts.walk.orders`.
+pub fn eval_pt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &Options, rng: &mut Sampler) -> f64 {
     if !valid_inputs(eta, wi) || wo.z == 0.0 || !wo.is_finite() {
-        return (0.0, is_reflection);
+        return 0.0;
     }
     let orders = opts.walk.clamped_orders();
     let result = pt_walk(mf, opts.segments, wo, State::new(mf, eta, wi), 1.0, 0, orders, RR_START, rng);
-    (result * radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0), is_reflection)
+    result * radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0)
 }
 
 /// The PT-with-NEE walk from vertex `first_vertex` (0-based) on, the light

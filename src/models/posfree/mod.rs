@@ -128,7 +128,7 @@ impl ScatteringModel for PosFree {
         match (&call.surf, self.estimator) {
             (Microsurface::Conductor(fresnel), Estimator::Pt) => conductor::eval_pt(mf, fresnel, wi, wo, opts, rng),
             (Microsurface::Conductor(fresnel), Estimator::Bdpt) => conductor::eval_bdpt(mf, fresnel, wi, wo, opts, rng),
-            (&Microsurface::Dielectric { eta, radiance }, Estimator::Pt) => Spectrum::splat(dielectric::eval_pt(mf, eta, radiance, wi, wo, opts, rng).0),
+            (&Microsurface::Dielectric { eta, radiance }, Estimator::Pt) => Spectrum::splat(dielectric::eval_pt(mf, eta, radiance, wi, wo, opts, rng)),
             (&Microsurface::Dielectric { eta, radiance }, Estimator::Bdpt) => {
                 Spectrum::splat(dielectric::eval_bdpt(mf, eta, radiance, wi, wo, opts, rng))
             }

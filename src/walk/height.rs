@@ -237,27 +237,6 @@ pub(crate) fn dielectric_phase(mf: &Microfacet, wi: DVec3, wo: DVec3, eta: f64, 
 // ---------------------------------------------------------------------------
 // The walk.
 
-/// What the walk needs to know of the material.
-#[derive(Clone, Copy)]
-enum Mat<'a> {
-    Conductor(&'a crate::microfacet::ConductorFresnel),
-    Diffuse(Spectrum),
-    Dielectric { eta: f64, radiance: bool },
-}
-
-impl<'a> Mat<'a> {
-    fn of(surf: &'a Microsurface) -> Self {
-        match surf {
-            Microsurface::Conductor(f) => Mat::Conductor(f),
-            Microsurface::Diffuse { albedo } => Mat::Diffuse(*albedo),
-            Microsurface::Dielectric { eta, radiance } => Mat::Dielectric { eta: *eta, radiance: *radiance },
-        }
-    }
-}
-
-
-
-
 /// Result of scattering at a vertex: the new travel direction (local frame of
 /// the new side), whether the side changed, and the vertex weight.
 struct Scatter {
@@ -270,15 +249,15 @@ struct Scatter {
 /// incoming ray, m is a visible normal of wi already drawn, (ua, ub) further
 /// numbers (diffuse direction, or ua = Fresnel choice for dielectrics).
 #[inline]
-fn scatter(mat: &Mat, wi: DVec3, m: DVec3, outside: bool, ua: f64, ub: f64) -> Option<Scatter> {
+fn scatter(mat: &Microsurface, wi: DVec3, m: DVec3, outside: bool, ua: f64, ub: f64) -> Option<Scatter> {
     let c = wi.dot(m);
     if !(c > 0.0) {
         return None;
     }
     match mat {
-        Mat::Conductor(fr) => Some(Scatter { dir: reflect(wi, m), crossed: false, weight: fr.eval(c) }),
-        Mat::Diffuse(albedo) => Some(Scatter { dir: cosine_about(m, ua, ub), crossed: false, weight: *albedo }),
-        Mat::Dielectric { eta, .. } => {
+        Microsurface::Conductor(fr) => Some(Scatter { dir: reflect(wi, m), crossed: false, weight: fr.eval(c) }),
+        Microsurface::Diffuse { albedo } => Some(Scatter { dir: cosine_about(m, ua, ub), crossed: false, weight: *albedo }),
+        Microsurface::Dielectric { eta, .. } => {
             let e = eta_seen(*eta, outside);
             if ua < fresnel::dielectric(c, e) {
                 return Some(Scatter { dir: reflect(wi, m), crossed: false, weight: Spectrum::ONE });
@@ -334,13 +313,13 @@ impl State {
 
 /// Checks shared by `eval` and `sample`: finite directions, the upper
 /// hemisphere for conductor and diffuse, a usable IOR for dielectrics.
-fn valid_incidence(mat: &Mat, wi: DVec3) -> bool {
+fn valid_incidence(mat: &Microsurface, wi: DVec3) -> bool {
     if !wi.is_finite() {
         return false;
     }
     match mat {
-        Mat::Conductor(_) | Mat::Diffuse(_) => wi.z > 0.0,
-        Mat::Dielectric { eta, .. } => wi.z != 0.0 && valid_ior(*eta),
+        Microsurface::Conductor(_) | Microsurface::Diffuse { .. } => wi.z > 0.0,
+        Microsurface::Dielectric { eta, .. } => wi.z != 0.0 && valid_ior(*eta),
     }
 }
 
@@ -348,12 +327,12 @@ fn valid_incidence(mat: &Mat, wi: DVec3) -> bool {
 /// orders `opts.orders` (1 = single scattering) and at most `opts.max_bounces`
 /// vertices.
 pub fn eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
-    let mat = Mat::of(surf);
+    let mat = *surf;
     if !valid_incidence(&mat, wi) || !valid_incidence(&mat, wo) {
         return Spectrum::ZERO;
     }
     let mut sum = eval_from(mf, surf, wo, State::start(wi), opts, rng);
-    if let Mat::Dielectric { eta, radiance } = mat {
+    if let Microsurface::Dielectric { eta, radiance } = mat {
         sum *= radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0);
     }
     sum
@@ -368,7 +347,7 @@ pub fn eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, opts: &W
 /// Kept as one loop over the vertices on purpose: its steps (next event,
 /// roulette, scattering, exit bookkeeping) share the walk's state.
 pub fn eval_from(mf: &Microfacet, surf: &Microsurface, wo: DVec3, state: State, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
-    let mat = Mat::of(surf);
+    let mat = *surf;
     let Some(last) = opts.last_order().filter(|&last| state.next_order <= last) else { return Spectrum::ZERO };
     let wo_outside = wo.z > 0.0;
     let State { mut outside, dir: mut wr, mut t, mut throughput, next_order } = state;
@@ -391,7 +370,7 @@ pub fn eval_from(mf: &Microfacet, surf: &Microsurface, wo: DVec3, state: State, 
         let wo_l = local(wo, outside);
         // A normal visible from wi_l: the diffuse NEE and the continuation
         // share it (both unbiased; linearity of expectation).
-        let need_m = order < last || (order >= opts.orders.0 && matches!(mat, Mat::Diffuse(_)));
+        let need_m = order < last || (order >= opts.orders.0 && matches!(mat, Microsurface::Diffuse { .. }));
         let m = if need_m {
             let (u1, u2) = rng.next2();
             visible_normal(mf, wi_l, u1, u2)
@@ -402,15 +381,15 @@ pub fn eval_from(mf: &Microfacet, surf: &Microsurface, wo: DVec3, state: State, 
         // Next-event estimation towards ω_o: phase function × G1(ω_o, h).
         if order >= opts.orders.0 {
             let contrib = match mat {
-                Mat::Conductor(fr) => match conductor_phase(mf, wi_l, wo_l) {
+                Microsurface::Conductor(fr) => match conductor_phase(mf, wi_l, wo_l) {
                     Some((p, c)) => fr.eval(c) * (p * masking_at(mf, wo_l, t)),
                     None => Spectrum::ZERO,
                 },
-                Mat::Diffuse(albedo) => match m {
+                Microsurface::Diffuse { albedo } => match m {
                     Some(m) => albedo * (m.dot(wo_l).max(0.0) / PI * masking_at(mf, wo_l, t)),
                     None => Spectrum::ZERO,
                 },
-                Mat::Dielectric { eta, .. } => {
+                Microsurface::Dielectric { eta, .. } => {
                     let e = eta_seen(eta, outside);
                     if wo_outside == outside {
                         Spectrum::splat(dielectric_phase(mf, wi_l, wo_l, e, true) * masking_at(mf, wo_l, t))
@@ -470,7 +449,7 @@ pub fn sample(
     opts: &WalkOptions,
     rng: &mut Sampler,
 ) -> Option<(DVec3, Spectrum, u32)> {
-    let mat = Mat::of(surf);
+    let mat = *surf;
     if !valid_incidence(&mat, wi) {
         return None;
     }
@@ -478,7 +457,7 @@ pub fn sample(
     let first = (clamp_u(first.0), clamp_u(first.1), clamp_u(first.2));
     let (wo, weight, order) = sample_from(mf, surf, State::start(wi), Some(first), opts, rng)?;
     let mut weight = weight;
-    if let Mat::Dielectric { eta, radiance } = mat {
+    if let Microsurface::Dielectric { eta, radiance } = mat {
         weight *= radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0);
     }
     if !weight.is_finite() {
@@ -499,9 +478,9 @@ pub fn sample_from(
     opts: &WalkOptions,
     rng: &mut Sampler,
 ) -> Option<(DVec3, Spectrum, u32)> {
-    let mat = Mat::of(surf);
+    let mat = *surf;
     let last = opts.last_order()?;
-    let is_dielectric = matches!(mat, Mat::Dielectric { .. });
+    let is_dielectric = matches!(mat, Microsurface::Dielectric { .. });
     let State { mut outside, dir: mut wr, mut t, mut throughput, next_order } = state;
     let mut order = next_order.max(1) - 1; // vertices so far
 

@@ -145,17 +145,31 @@ impl Default for MsxMaterial {
     }
 }
 
+/// The surface of an MSX_SURFACE_* code.
+pub(super) fn surface_from(code: u32) -> Option<Surface> {
+    match code {
+        MSX_SURFACE_CONDUCTOR => Some(Surface::Conductor),
+        MSX_SURFACE_DIELECTRIC => Some(Surface::Dielectric),
+        MSX_SURFACE_DIFFUSE => Some(Surface::Diffuse),
+        _ => None,
+    }
+}
+
+/// The distribution of an MSX_DISTRIBUTION_* code.
+pub(super) fn distribution_from(code: u32) -> Option<Distribution> {
+    match code {
+        MSX_DISTRIBUTION_BECKMANN => Some(Distribution::Beckmann),
+        MSX_DISTRIBUTION_GGX => Some(Distribution::Ggx),
+        _ => None,
+    }
+}
+
 pub(super) fn config_from(p: &MsxParams) -> Result<Config, (&'static str, String)> {
-    let surface = match p.surface {
-        MSX_SURFACE_CONDUCTOR => Surface::Conductor,
-        MSX_SURFACE_DIELECTRIC => Surface::Dielectric,
-        MSX_SURFACE_DIFFUSE => Surface::Diffuse,
-        v => return Err(("surface", format!("unknown value {v}; allowed: conductor (0), dielectric (1), diffuse (2)"))),
+    let Some(surface) = surface_from(p.surface) else {
+        return Err(("surface", format!("unknown value {}; allowed: conductor (0), dielectric (1), diffuse (2)", p.surface)));
     };
-    let distribution = match p.distribution {
-        MSX_DISTRIBUTION_BECKMANN => Distribution::Beckmann,
-        MSX_DISTRIBUTION_GGX => Distribution::Ggx,
-        v => return Err(("distribution", format!("unknown value {v}; allowed: beckmann (0), ggx (1)"))),
+    let Some(distribution) = distribution_from(p.distribution) else {
+        return Err(("distribution", format!("unknown value {}; allowed: beckmann (0), ggx (1)", p.distribution)));
     };
     let model = match p.model {
         MSX_MODEL_SINGLE => Model::Single,

@@ -5,7 +5,6 @@
 use super::output::caught_panic;
 use super::params::*;
 use super::{write_error, MSX_ERR_INVALID_PARAMETER, MSX_ERR_NULL_POINTER, MSX_ERR_PANIC, MSX_OK};
-use crate::config::Distribution;
 use glam::DVec3;
 use std::os::raw::c_char;
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -27,11 +26,7 @@ pub struct MsxPexitStudy {
 /// See `MsxPexitStudy`. Invalid arguments give all zeros.
 #[no_mangle]
 pub extern "C" fn msx_pexit_study(distribution: u32, alpha: f64, theta_i: f64, vertices: u32, paths: u32, seed: u64) -> MsxPexitStudy {
-    let dist = match distribution {
-        MSX_DISTRIBUTION_BECKMANN => Distribution::Beckmann,
-        MSX_DISTRIBUTION_GGX => Distribution::Ggx,
-        _ => return MsxPexitStudy::default(),
-    };
+    let Some(dist) = distribution_from(distribution) else { return MsxPexitStudy::default() };
     if !(alpha.is_finite() && alpha > 0.0 && theta_i.is_finite()) || vertices == 0 || vertices > 64 {
         return MsxPexitStudy::default();
     }

@@ -5,7 +5,6 @@
 use super::output::caught_panic;
 use super::params::*;
 use super::{write_error, MSX_ERR_INVALID_PARAMETER, MSX_ERR_NULL_POINTER, MSX_ERR_PANIC, MSX_OK};
-use crate::config::{Distribution, Surface};
 use std::os::raw::c_char;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 
@@ -77,13 +76,9 @@ pub extern "C" fn msx_table(kind: u32, distribution: u32, shape: *mut MsxTableSh
             write_error(err, err_len, "null pointer passed to msx_table");
             return MSX_ERR_NULL_POINTER;
         }
-        let dist = match distribution {
-            MSX_DISTRIBUTION_BECKMANN => Distribution::Beckmann,
-            MSX_DISTRIBUTION_GGX => Distribution::Ggx,
-            _ => {
-                write_error(err, err_len, &format!("invalid parameter 'distribution': unknown value {distribution}"));
-                return MSX_ERR_INVALID_PARAMETER;
-            }
+        let Some(dist) = distribution_from(distribution) else {
+            write_error(err, err_len, &format!("invalid parameter 'distribution': unknown value {distribution}"));
+            return MSX_ERR_INVALID_PARAMETER;
         };
         let albedo = || crate::tables::albedo::AlbedoTable::get(dist);
         let dielectric = || crate::models::analytic::dielectric_albedo::DielectricAlbedoTable::get(dist).grids();
@@ -143,22 +138,13 @@ pub extern "C" fn msx_auto_rule(
             write_error(err, err_len, "null pointer passed to msx_auto_rule");
             return MSX_ERR_NULL_POINTER;
         }
-        let surface = match surface {
-            MSX_SURFACE_CONDUCTOR => Surface::Conductor,
-            MSX_SURFACE_DIELECTRIC => Surface::Dielectric,
-            MSX_SURFACE_DIFFUSE => Surface::Diffuse,
-            _ => {
-                write_error(err, err_len, &format!("invalid parameter 'surface': unknown value {surface}"));
-                return MSX_ERR_INVALID_PARAMETER;
-            }
+        let Some(surface) = surface_from(surface) else {
+            write_error(err, err_len, &format!("invalid parameter 'surface': unknown value {surface}"));
+            return MSX_ERR_INVALID_PARAMETER;
         };
-        let dist = match distribution {
-            MSX_DISTRIBUTION_BECKMANN => Distribution::Beckmann,
-            MSX_DISTRIBUTION_GGX => Distribution::Ggx,
-            _ => {
-                write_error(err, err_len, &format!("invalid parameter 'distribution': unknown value {distribution}"));
-                return MSX_ERR_INVALID_PARAMETER;
-            }
+        let Some(dist) = distribution_from(distribution) else {
+            write_error(err, err_len, &format!("invalid parameter 'distribution': unknown value {distribution}"));
+            return MSX_ERR_INVALID_PARAMETER;
         };
         let tolerance = if tolerance == 0.0 { MSX_DEFAULT_AUTO_TOLERANCE } else { tolerance };
         if !(tolerance > 0.0 && tolerance < 1.0 && eta.is_finite()) {

@@ -344,8 +344,8 @@ pub fn eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, opts: &W
 /// Radiance-mode 1/η² (the caller applies it once for the whole path).
 /// Public so that a model that integrates the heights of the first vertices
 /// exactly can hand the rest of a path to this walk.
-/// Kept as one loop over the vertices on purpose: its steps (next event,
-/// roulette, scattering, exit bookkeeping) share the walk's state.
+/// One loop over the vertices: its steps (next event, roulette, scattering,
+/// exit bookkeeping) share the walk's state.
 pub fn eval_from(mf: &Microfacet, surf: &Microsurface, wo: DVec3, state: State, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
     let mat = *surf;
     let Some(last) = opts.last_order().filter(|&last| state.next_order <= last) else { return Spectrum::ZERO };

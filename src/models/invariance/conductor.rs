@@ -125,8 +125,8 @@ impl Walk<'_> {
 
     /// The estimates of the vertices from `first_vertex` (0-based) on, within
     /// `orders` (the upper one within the bounce cap).
-    /// Kept as one loop over the vertices on purpose: its steps (next event,
-    /// roulette, scattering, exit bookkeeping) share the walk's state.
+    /// One loop over the vertices: its steps (next event, roulette, scattering,
+    /// exit bookkeeping) share the walk's state.
     pub fn from(&self, state: WalkState, first_vertex: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
         let (mf, fresnel, wo, lambda_o) = (self.mf, self.fresnel, self.wo, self.lambda_o);
         let WalkState { mut w, mut pdf_scale, mut pdf_walk, mut dp, mut throughput } = state;

@@ -244,8 +244,8 @@ impl PieceChain {
 /// (Heitz's microsurface, relative IOR `eta` = η_int/η_ext) with the heights
 /// of the first run integrated out (module docs), orders `opts.orders`, at most
 /// `opts.max_bounces` vertices. Radiance mode scales a transmission by 1/η_rel².
-/// Kept as one loop over the vertices on purpose: its steps (next event,
-/// roulette, scattering, exit bookkeeping) share the walk's state.
+/// One loop over the vertices: its steps (next event, roulette, scattering,
+/// exit bookkeeping) share the walk's state.
 pub fn eval(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> f64 {
     if !wi.is_finite() || !wo.is_finite() || wi.z == 0.0 || wo.z == 0.0 || !valid_ior(eta) {
         return 0.0;

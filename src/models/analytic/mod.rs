@@ -13,7 +13,7 @@ pub mod compensated_dielectric;
 pub mod dielectric_albedo;
 pub mod fastmsx;
 
-use super::single::{conductor as single, dielectric as single_dielectric};
+use super::single::{conductor as single, Single};
 use super::{Call, Sampled, ScatteringModel};
 use crate::microfacet::Microsurface;
 use crate::config::Surface;
@@ -67,12 +67,9 @@ impl ScatteringModel for Compensated {
         }
     }
 
+    /// `single`'s density: the compensation scales `single`'s value and keeps its sampler.
     fn pdf(&self, call: &Call, wi: DVec3, wo: DVec3) -> f64 {
-        match &call.surf {
-            Microsurface::Conductor(_) => single::pdf(&call.mf, wi, wo),
-            &Microsurface::Dielectric { eta, .. } => single_dielectric::pdf(&call.mf, eta, wi, wo),
-            &Microsurface::Diffuse { .. } => 0.0,
-        }
+        Single.pdf(call, wi, wo)
     }
 
     fn sample(&self, call: &Call, wi: DVec3, (s1, u1, u2): (f64, f64, f64)) -> Option<Sampled> {

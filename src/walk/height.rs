@@ -161,7 +161,7 @@ pub fn flip_height(t: f64) -> f64 {
 
 
 #[inline]
-pub(crate) fn local(v: DVec3, outside: bool) -> DVec3 {
+pub fn local(v: DVec3, outside: bool) -> DVec3 {
     if outside {
         v
     } else {
@@ -175,7 +175,7 @@ pub(crate) fn local(v: DVec3, outside: bool) -> DVec3 {
 
 /// Conductor phase function × Fresnel at ω_o (same side): F·D_ωi(h)/(4 ωi·h).
 #[inline]
-pub(crate) fn conductor_phase(mf: &Microfacet, wi: DVec3, wo: DVec3) -> Option<(f64, f64)> {
+fn conductor_phase(mf: &Microfacet, wi: DVec3, wo: DVec3) -> Option<(f64, f64)> {
     let h = wi + wo;
     let len = h.length();
     if !(len > 1e-12) {
@@ -198,7 +198,7 @@ pub(crate) fn conductor_phase(mf: &Microfacet, wi: DVec3, wo: DVec3) -> Option<(
 /// (reflection, `same = true`) or on the other side (transmission; ω_o in the
 /// current local frame points down). `eta` = relative IOR of the far side.
 #[inline]
-pub(crate) fn dielectric_phase(mf: &Microfacet, wi: DVec3, wo: DVec3, eta: f64, same: bool) -> f64 {
+pub fn dielectric_phase(mf: &Microfacet, wi: DVec3, wo: DVec3, eta: f64, same: bool) -> f64 {
     if same {
         match conductor_phase(mf, wi, wo) {
             Some((p, c)) => p * fresnel::dielectric(c, eta),
@@ -273,7 +273,7 @@ fn scatter(mat: &Microsurface, wi: DVec3, m: DVec3, outside: bool, ua: f64, ub: 
 
 /// Draws the visible normal of `wi` (local frame).
 #[inline]
-pub(crate) fn visible_normal(mf: &Microfacet, wi: DVec3, u1: f64, u2: f64) -> Option<DVec3> {
+pub fn visible_normal(mf: &Microfacet, wi: DVec3, u1: f64, u2: f64) -> Option<DVec3> {
     let m = mf.sample_visible(wi, u1, u2)?;
     if m.is_finite() && wi.dot(m) > 0.0 {
         Some(m)

@@ -12,6 +12,7 @@ use crate::models::posfree::{PosFree, Segments};
 use crate::models::single::Single;
 use crate::models::{Call, ScatteringModel, Stream};
 use crate::microfacet::{ConductorFresnel, Microsurface};
+use crate::rng::unit_interval;
 use crate::spectrum::{ChannelMask, Spectrum, MAX_CHANNELS};
 use glam::DVec3;
 use std::sync::{Arc, OnceLock};
@@ -323,7 +324,7 @@ impl Bsdf {
     pub fn sample_with_order(&self, mat: &Material, wi: DVec3, sample1: f64, sample2: (f64, f64)) -> Option<(BsdfSample, u32)> {
         let wi = finite_unit(wi)?;
         let mat = &mat.usable(self.cfg.surface, self.cfg.channels)?;
-        let clamp01 = |u: f64| if u.is_finite() { u.clamp(0.0, 1.0 - f64::EPSILON / 2.0) } else { 0.5 };
+        let clamp01 = |u: f64| unit_interval(u).unwrap_or(0.5);
         let (s1, u1, u2) = (clamp01(sample1), clamp01(sample2.0), clamp01(sample2.1));
         let words = [s1.to_bits(), u1.to_bits(), u2.to_bits(), wi.x.to_bits(), wi.z.to_bits()];
         let call = self.call(mat, (1, u32::MAX), &words);

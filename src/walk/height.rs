@@ -453,6 +453,8 @@ pub fn sample(
     if !valid_incidence(&mat, wi) {
         return None;
     }
+    // Bound 1 − ε, one f64 below `rng::unit_interval`'s 1 − ε/2: the two differ
+    // only for u = 1 − ε/2 (and u ≥ 1), which this walk maps to 1 − ε.
     let clamp_u = |u: f64| if u.is_finite() { u.clamp(0.0, 1.0 - f64::EPSILON) } else { 0.5 };
     let first = (clamp_u(first.0), clamp_u(first.1), clamp_u(first.2));
     let (wo, weight, order) = sample_from(mf, surf, State::start(wi), Some(first), opts, rng)?;

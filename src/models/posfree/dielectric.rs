@@ -67,7 +67,7 @@ use crate::walk::{bdpt, roulette_scalar, RR_START};
 use crate::microfacet::dielectric::{eta_seen, radiance_scale, reflect_or_refract, valid_ior};
 use crate::microfacet::fresnel::dielectric_full;
 use crate::microfacet::Microfacet;
-use crate::rng::Sampler;
+use crate::rng::{unit_interval, Sampler};
 use glam::DVec3;
 
 /// ln(L·B(L, 1+Λ)) = ln Γ(L+1) + ln Γ(Λ+1) − ln Γ(L+Λ+1) (≤ 0 for L, Λ ≥ 0).
@@ -334,11 +334,7 @@ pub fn sample_walk(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, first: 
             let u_exit = if j == 0 {
                 // Reuse sample1: uniform again within the chosen branch.
                 let u = if refracted { (u_choice - f) / (1.0 - f) } else { u_choice / f };
-                if u.is_finite() {
-                    u.clamp(0.0, 1.0 - f64::EPSILON / 2.0)
-                } else {
-                    rng.next()
-                }
+                unit_interval(u).unwrap_or_else(|| rng.next())
             } else {
                 rng.next()
             };

@@ -8,6 +8,7 @@
 pub mod bdpt;
 pub mod height;
 
+use crate::microfacet::{reflect, ConductorFresnel, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
@@ -95,6 +96,56 @@ fn survival(ratio: f64, rng: &mut Sampler) -> Option<f64> {
         return None;
     }
     Some(q)
+}
+
+/// How a conductor walk leaves the microsurface, the one part in which the
+/// sampling walks of the position-free models and of the invariance model
+/// differ: the probability of going on along an upward direction, and the
+/// bookkeeping of a downward one.
+pub trait ConductorExit {
+    /// The probability that the walk goes on along an upward direction of
+    /// Λ = `lambda` (it leaves otherwise); None ends the walk without a sample.
+    fn up(&mut self, lambda: f64) -> Option<f64>;
+    /// A downward direction of |Λ| = `l`; false ends the walk without a sample.
+    fn down(&mut self, l: f64) -> bool;
+}
+
+/// The sampling walk on specular conductor facets: each vertex reflects about a
+/// visible normal, and at each upward direction the walk leaves with the
+/// probability `exit` gives, so that the weight is the product of the Fresnel
+/// terms. The first vertex uses the caller's (u_exit, u1, u2). At most
+/// `max_vertices` vertices; returns (ω_o, weight, order) or None.
+pub fn sample_conductor<E: ConductorExit>(
+    mf: &Microfacet,
+    fresnel: &ConductorFresnel,
+    wi: DVec3,
+    first: (f64, f64, f64),
+    max_vertices: u32,
+    exit: &mut E,
+    rng: &mut Sampler,
+) -> Option<(DVec3, Spectrum, u32)> {
+    let mut w = wi;
+    let mut weight = Spectrum::ONE;
+    for j in 0..max_vertices {
+        let (u_exit, u1, u2) = vertex_numbers(j, first, rng);
+        let m = mf.sample_visible(w, u1, u2)?;
+        let cos_wm = w.dot(m);
+        if cos_wm <= 0.0 {
+            return None;
+        }
+        let d_next = reflect(w, m);
+        weight *= fresnel.eval(cos_wm);
+        if d_next.z > 0.0 {
+            let cont = exit.up(mf.lambda(d_next))?;
+            if u_exit >= cont {
+                return Some((d_next, weight, j + 1));
+            }
+        } else if !exit.down(mf.abs_lambda(d_next)) {
+            return None;
+        }
+        w = -d_next;
+    }
+    None
 }
 
 /// The three uniform numbers (u_choice, u1, u2) of vertex `j` of a sampled

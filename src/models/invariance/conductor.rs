@@ -26,7 +26,7 @@ use super::recursion::MonotoneExit;
 use crate::microfacet::ConductorFresnel;
 use crate::walk::WalkOptions;
 use crate::models::posfree::conductor::{self as posfree_conductor, CamVertex, ConductorSegments, LightVertex as WalkLight};
-use crate::walk::{bdpt, russian_roulette_keep, vertex_numbers, RR_START};
+use crate::walk::{bdpt, russian_roulette_keep, sample_conductor, ConductorExit, RR_START};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
@@ -312,40 +312,24 @@ pub fn sample(
         return None;
     }
     let last = opts.last_order()?;
-    let mut w = wi;
     let mut dp = MonotoneExit::new(mf.abs_lambda(-wi));
-    let mut weight = Spectrum::ONE;
-    for j in 0..last {
-        let (u_exit, u1, u2) = vertex_numbers(j, first, rng);
-        let m = mf.sample_visible(w, u1, u2)?;
-        let cos_wm = w.dot(m);
-        if cos_wm <= 0.0 {
+    let (wo, weight, order) = sample_conductor(mf, fresnel, wi, first, last, &mut dp, rng)?;
+    (order >= opts.orders.0 && wo.is_finite()).then_some((wo, weight, order))
+}
+
+/// The invariance exit: the exact probability of leaving given the monotone
+/// run so far; a non-finite Λ ends the walk.
+impl ConductorExit for MonotoneExit {
+    fn up(&mut self, lambda: f64) -> Option<f64> {
+        if !lambda.is_finite() {
             return None;
         }
-        let d_next = reflect(w, m);
-        weight *= fresnel.eval(cos_wm);
-        if d_next.z > 0.0 {
-            let lambda = mf.lambda(d_next);
-            if !lambda.is_finite() {
-                return None;
-            }
-            let cont = dp.push_up(lambda);
-            if u_exit >= cont {
-                let order = j + 1;
-                if order < opts.orders.0 || !d_next.is_finite() {
-                    return None;
-                }
-                return Some((d_next, weight, order));
-            }
-        } else {
-            let l = mf.abs_lambda(d_next);
-            if !l.is_finite() || !dp.push_down(l) {
-                return None;
-            }
-        }
-        w = -d_next;
+        Some(self.push_up(lambda))
     }
-    None
+
+    fn down(&mut self, l: f64) -> bool {
+        l.is_finite() && self.push_down(l)
+    }
 }
 
 // ---------------------------------------------------------------------------

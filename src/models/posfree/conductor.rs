@@ -7,7 +7,7 @@
 use super::{roulette_importance, Options, Segments};
 use crate::microfacet::ConductorFresnel;
 use crate::walk::WalkOptions;
-use crate::walk::{bdpt, russian_roulette_keep, vertex_numbers, RR_START};
+use crate::walk::{bdpt, russian_roulette_keep, sample_conductor, ConductorExit, RR_START};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
@@ -130,9 +130,10 @@ pub(crate) fn pt_walk(
 }
 
 /// Random-walk sampler (Wang §4.3 with the exit probabilities of docs/paper-notes.md):
-/// at each upward direction the walk leaves with probability 1 − continue_up,
-/// so that the weight is the product of the Fresnel terms. The first vertex
-/// uses the caller's (u_exit, u1, u2). Returns (ω_o, weight, order) or None.
+/// at each upward direction the walk leaves with probability 1 − continue_up
+/// ([`walk::sample_conductor`](crate::walk::sample_conductor)), so that the
+/// weight is the product of the Fresnel terms. The first vertex uses the
+/// caller's (u_exit, u1, u2). Returns (ω_o, weight, order) or None.
 pub fn sample_walk(
     mf: &Microfacet,
     fresnel: &ConductorFresnel,
@@ -144,31 +145,29 @@ pub fn sample_walk(
     if wi.z == 0.0 {
         return None;
     }
-    let mut w = wi;
-    let mut l = mf.abs_lambda(-wi); // as in eval_pt: ω_i may lie below the macro surface
-    let mut weight = Spectrum::ONE;
-    for j in 0..opts.walk.max_bounces {
-        let (u_exit, u1, u2) = vertex_numbers(j, first, rng);
-        let m = mf.sample_visible(w, u1, u2)?;
-        let cos_wm = w.dot(m);
-        if cos_wm <= 0.0 {
-            return None;
-        }
-        let d_next = reflect(w, m);
-        weight *= fresnel.eval(cos_wm);
-        if d_next.z > 0.0 {
-            let lambda = mf.lambda(d_next);
-            let p_continue = opts.segments.continue_up(l, lambda);
-            if u_exit >= p_continue {
-                return Some((d_next, weight, j + 1));
-            }
-            l = lambda;
-        } else {
-            l = mf.abs_lambda(d_next);
-        }
-        w = -d_next;
+    // As in eval_pt: ω_i may lie below the macro surface.
+    let mut exit = SegmentExit { segments: opts.segments, l: mf.abs_lambda(-wi) };
+    sample_conductor(mf, fresnel, wi, first, opts.walk.max_bounces, &mut exit, rng)
+}
+
+/// The position-free exit: the segment term's continuation probability from
+/// the last segment's |Λ| `l`.
+struct SegmentExit {
+    segments: Segments,
+    l: f64,
+}
+
+impl ConductorExit for SegmentExit {
+    fn up(&mut self, lambda: f64) -> Option<f64> {
+        let p_continue = self.segments.continue_up(self.l, lambda);
+        self.l = lambda;
+        Some(p_continue)
     }
-    None
+
+    fn down(&mut self, l: f64) -> bool {
+        self.l = l;
+        true
+    }
 }
 
 // ---------------------------------------------------------------------------

@@ -2,8 +2,9 @@
 //! implements: Russian roulette, the uniform numbers of a sampled vertex and
 //! the Lambertian direction of a diffuse facet; and the bidirectional
 //! estimator of a position-free path integral (`bdpt.rs`), written once for
-//! every surface; and the height-explicit walk of Heitz 2016 (`height.rs`),
-//! used by `heitz` and by `invariance` on dielectrics.
+//! every surface; the conductor sampling walk of the position-free and the
+//! invariance models ([`sample_conductor`]); and the height-explicit walk of
+//! Heitz 2016 (`height.rs`), used by `heitz` and by `invariance` on dielectrics.
 
 pub mod bdpt;
 pub mod height;

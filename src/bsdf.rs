@@ -4,6 +4,7 @@
 
 use crate::config::{Config, Distribution, Estimator, Model, ParamError, Surface, ALL_MODELS, ALL_SURFACES, DEFAULT_TOLERANCE, MAX_BOUNCES_LIMIT};
 use crate::microfacet::Microfacet;
+use crate::microfacet::{ConductorFresnel, Microsurface};
 use crate::models::analytic::{Compensated, FastMsx};
 use crate::models::auto::Auto;
 use crate::models::heitz::Heitz;
@@ -11,7 +12,6 @@ use crate::models::invariance::Invariance;
 use crate::models::posfree::{PosFree, Segments};
 use crate::models::single::Single;
 use crate::models::{Call, ScatteringModel, Stream};
-use crate::microfacet::{ConductorFresnel, Microsurface};
 use crate::rng::unit_interval;
 use crate::spectrum::{ChannelMask, Spectrum, MAX_CHANNELS};
 use glam::DVec3;
@@ -225,10 +225,7 @@ impl Bsdf {
             });
         }
         if cfg.max_bounces == 0 || cfg.max_bounces > MAX_BOUNCES_LIMIT {
-            return Err(ParamError {
-                parameter: "max_bounces",
-                message: format!("must be 1..={MAX_BOUNCES_LIMIT}, got {}", cfg.max_bounces),
-            });
+            return Err(ParamError { parameter: "max_bounces", message: format!("must be 1..={MAX_BOUNCES_LIMIT}, got {}", cfg.max_bounces) });
         }
         let model = implementation(cfg.model, cfg.estimator, cfg.surface, cfg.distribution, cfg.tolerance);
         Ok(Bsdf { cfg, model })

@@ -18,8 +18,8 @@ use common::*;
 use glam::DVec3;
 use msx::microfacet::fresnel;
 use msx::microfacet::{ConductorFresnel, Microsurface};
-use msx::walk::{height, WalkOptions};
 use msx::rng::Sampler;
+use msx::walk::{height, WalkOptions};
 use msx::{Distribution, Microfacet, Spectrum};
 use std::f64::consts::PI;
 
@@ -63,7 +63,6 @@ fn side_dir(theta: f64, phi: f64, outside: bool) -> DVec3 {
 fn beta(a: f64, b: f64) -> f64 {
     (libm::lgamma(a) + libm::lgamma(b) - libm::lgamma(a + b)).exp()
 }
-
 
 // ---------------------------------------------------------------------------
 // Proposals for ω_o written here (densities computed independently of the walk).
@@ -159,13 +158,7 @@ fn height_sampling_masking_shadowing() {
             ck.close(&format!("{tag} G2(ωi,ωo)"), g2.est(), exact(1.0 / (1.0 + li + lo)), 0.0, 0.0);
             ck.close(&format!("{tag} G2 transmission B(1+Λi,1+Λ(−ωo'))"), g2t.est(), exact(beta(1.0 + li, 1.0 + lo)), 0.0, 0.0);
             ck.close(&format!("{tag} G2/G1 given masking"), cond.est(), exact((1.0 + li) / (1.0 + li + lo)), 0.0, 0.0);
-            ck.close(
-                &format!("{tag} G2/G1 given masking, transmission"),
-                condt.est(),
-                exact((1.0 + li) * beta(1.0 + li, 1.0 + lo)),
-                0.0,
-                0.0,
-            );
+            ck.close(&format!("{tag} G2/G1 given masking, transmission"), condt.est(), exact((1.0 + li) * beta(1.0 + li, 1.0 + lo)), 0.0, 0.0);
             // Deterministic: masking_at is C¹^Λ.
             let t = -0.7;
             ck.assert(&format!("{tag} masking_at"), (height::masking_at(&mf, wo, t) - (lo * t).exp()).abs() < 1e-14);
@@ -271,7 +264,6 @@ fn furnace_dielectric() {
 
 // ---------------------------------------------------------------------------
 // §4.4.3 Order 1 = single scattering with the height-correlated G2.
-
 
 fn mean_eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, o: &WalkOptions, n: usize, seed: u64, channel: usize) -> (f64, f64) {
     let run = |seed: u64| {
@@ -416,7 +408,13 @@ fn reciprocity() {
                     let a = mean_eval(&mf, &surf, wi, wo, &o, n, seed, 0);
                     let b = mean_eval(&mf, &surf, wo, wi, &o, n, seed + 1, 0);
                     let (x, y) = dielectric_reciprocal_pair(a, b, wi, wo, eta, radiance);
-                    ck.close(&format!("{dist:?} α=({ax},{ay}) dielectric {name} {}", if radiance { "radiance" } else { "importance" }), x, y, 0.0, 0.0);
+                    ck.close(
+                        &format!("{dist:?} α=({ax},{ay}) dielectric {name} {}", if radiance { "radiance" } else { "importance" }),
+                        x,
+                        y,
+                        0.0,
+                        0.0,
+                    );
                 }
             }
         }
@@ -440,13 +438,43 @@ fn sampling_cases() -> Vec<Case> {
     vec![
         Case { name: "copper GGX α=1 θi=1.0", mf: iso(Distribution::Ggx, 1.0), surf: copper(), wi: dir(1.0, 0.7), channel: 0 },
         Case { name: "mirror Beckmann α=0.5 θi=1.45", mf: iso(Distribution::Beckmann, 0.5), surf: mirror(), wi: dir(1.45, 0.7), channel: 0 },
-        Case { name: "mirror GGX α=(0.3,1.0) θi=0.8", mf: Microfacet::new(Distribution::Ggx, 0.3, 1.0), surf: mirror(), wi: dir(0.8, 0.7), channel: 0 },
+        Case {
+            name: "mirror GGX α=(0.3,1.0) θi=0.8",
+            mf: Microfacet::new(Distribution::Ggx, 0.3, 1.0),
+            surf: mirror(),
+            wi: dir(0.8, 0.7),
+            channel: 0,
+        },
         Case { name: "diffuse 0.8 GGX α=0.5 θi=0", mf: iso(Distribution::Ggx, 0.5), surf: diffuse(0.8), wi: dir(0.0, 0.0), channel: 0 },
         Case { name: "diffuse 0.8 Beckmann α=1.5 θi=1.2", mf: iso(Distribution::Beckmann, 1.5), surf: diffuse(0.8), wi: dir(1.2, 0.7), channel: 0 },
-        Case { name: "dielectric 1.5 GGX α=0.5 θi=1.0 outside", mf: iso(Distribution::Ggx, 0.5), surf: dielectric(1.5, false), wi: side_dir(1.0, 0.7, true), channel: 0 },
-        Case { name: "dielectric 1.5 Beckmann α=1 θi=0.5 inside", mf: iso(Distribution::Beckmann, 1.0), surf: dielectric(1.5, false), wi: side_dir(0.5, 0.7, false), channel: 0 },
-        Case { name: "dielectric 1.5 GGX α=0.7 θi=0.8 outside, radiance", mf: iso(Distribution::Ggx, 0.7), surf: dielectric(1.5, true), wi: side_dir(0.8, 0.7, true), channel: 0 },
-        Case { name: "dielectric 2.4 GGX α=1 θi=0.3 inside, radiance", mf: iso(Distribution::Ggx, 1.0), surf: dielectric(2.4, true), wi: side_dir(0.3, 0.7, false), channel: 0 },
+        Case {
+            name: "dielectric 1.5 GGX α=0.5 θi=1.0 outside",
+            mf: iso(Distribution::Ggx, 0.5),
+            surf: dielectric(1.5, false),
+            wi: side_dir(1.0, 0.7, true),
+            channel: 0,
+        },
+        Case {
+            name: "dielectric 1.5 Beckmann α=1 θi=0.5 inside",
+            mf: iso(Distribution::Beckmann, 1.0),
+            surf: dielectric(1.5, false),
+            wi: side_dir(0.5, 0.7, false),
+            channel: 0,
+        },
+        Case {
+            name: "dielectric 1.5 GGX α=0.7 θi=0.8 outside, radiance",
+            mf: iso(Distribution::Ggx, 0.7),
+            surf: dielectric(1.5, true),
+            wi: side_dir(0.8, 0.7, true),
+            channel: 0,
+        },
+        Case {
+            name: "dielectric 2.4 GGX α=1 θi=0.3 inside, radiance",
+            mf: iso(Distribution::Ggx, 1.0),
+            surf: dielectric(2.4, true),
+            wi: side_dir(0.3, 0.7, false),
+            channel: 0,
+        },
     ]
 }
 
@@ -482,15 +510,8 @@ fn sampling_moments() {
     let mut ck = Checker::new("§4.4.4 moments of f·cos: sample (mean weight·g) vs eval integration");
     let o = all_orders();
     let n = 40_000;
-    let moments: [(&str, fn(DVec3) -> f64); 7] = [
-        ("1", |_| 1.0),
-        ("x", |w| w.x),
-        ("y", |w| w.y),
-        ("z", |w| w.z),
-        ("x²", |w| w.x * w.x),
-        ("y²", |w| w.y * w.y),
-        ("z²", |w| w.z * w.z),
-    ];
+    let moments: [(&str, fn(DVec3) -> f64); 7] =
+        [("1", |_| 1.0), ("x", |w| w.x), ("y", |w| w.y), ("z", |w| w.z), ("x²", |w| w.x * w.x), ("y²", |w| w.y * w.y), ("z²", |w| w.z * w.z)];
     for (ci, c) in sampling_cases().iter().enumerate() {
         let prop = Prop::of(c);
         for (mi, (mname, g)) in moments.iter().enumerate() {
@@ -517,16 +538,8 @@ fn per_order_energy() {
             let s = 5000 + 100 * ci as u64 + 10 * bi as u64;
             let e = eval_integral(&c.mf, &c.surf, c.wi, &o, n, s, |r| prop.sample(r), |w| prop.pdf(w), |_| 1.0, c.channel);
             // Sample with all orders, binned by the returned order.
-            let (m, _) = sample_integral(
-                &c.mf,
-                &c.surf,
-                c.wi,
-                &all_orders(),
-                n,
-                s + 1,
-                |_, k| (k >= orders.0 && k <= orders.1) as u8 as f64,
-                c.channel,
-            );
+            let (m, _) =
+                sample_integral(&c.mf, &c.surf, c.wi, &all_orders(), n, s + 1, |_, k| (k >= orders.0 && k <= orders.1) as u8 as f64, c.channel);
             // And `sample` restricted to the same orders must give the same energy.
             let (mr, _) = sample_integral(&c.mf, &c.surf, c.wi, &o, n, s + 2, |_, _| 1.0, c.channel);
             let lab = if orders.1 == u32::MAX { "4+".to_string() } else { orders.0.to_string() };

@@ -166,10 +166,7 @@ fn inputs(b: &MsxBatchIn) -> Result<Inputs, String> {
     let alpha_v = if b.alpha_v.ptr.is_null() || b.alpha_v.len == 0 { r(&b.alpha_u, 0.1, "alpha_u")? } else { r(&b.alpha_v, 0.1, "alpha_v")? };
     let given = |a: &MsxF32Array| !a.ptr.is_null() && a.len > 0;
     let at = if given(&b.p[0]) {
-        Some((
-            [r(&b.p[0], 0.0, "p.x")?, r(&b.p[1], 0.0, "p.y")?, r(&b.p[2], 0.0, "p.z")?],
-            [r(&b.uv[0], 0.0, "uv.x")?, r(&b.uv[1], 0.0, "uv.y")?],
-        ))
+        Some(([r(&b.p[0], 0.0, "p.x")?, r(&b.p[1], 0.0, "p.y")?, r(&b.p[2], 0.0, "p.z")?], [r(&b.uv[0], 0.0, "uv.x")?, r(&b.uv[1], 0.0, "uv.y")?]))
     } else {
         None
     };
@@ -254,9 +251,7 @@ fn run_lane(b: &Bsdf, inp: &Inputs, out: OutPtrs, key: u64, op: Op, i: usize) {
         None => key.wrapping_add(i as u64),
     };
     let (value, pdf, wo) = match op {
-        Op::Eval(first, last) => {
-            (out_spectrum(b.eval_orders(&mat, wi, Inputs::dir(&inp.wo, i), lane_key, (first, last)), channels), 0.0, [0.0; 3])
-        }
+        Op::Eval(first, last) => (out_spectrum(b.eval_orders(&mat, wi, Inputs::dir(&inp.wo, i), lane_key, (first, last)), channels), 0.0, [0.0; 3]),
         Op::Pdf => (MsxSpectrum::default(), out_f32(b.pdf(&mat, wi, Inputs::dir(&inp.wo, i))), [0.0; 3]),
         Op::EvalPdf => {
             let (v, p) = b.eval_pdf(&mat, wi, Inputs::dir(&inp.wo, i), lane_key);
@@ -306,11 +301,7 @@ fn run_batch(bsdf: *const MsxBsdf, input: *const MsxBatchIn, output: *const MsxB
                 return MSX_ERR_INVALID_PARAMETER;
             }
         };
-        let out = OutPtrs {
-            value: bout.value.map(|p| p as usize),
-            pdf: bout.pdf as usize,
-            wo: bout.wo.map(|p| p as usize),
-        };
+        let out = OutPtrs { value: bout.value.map(|p| p as usize), pdf: bout.pdf as usize, wo: bout.wo.map(|p| p as usize) };
         let (n, key) = (bin.n, bin.key);
         let threads = std::thread::available_parallelism().map(|t| t.get()).unwrap_or(1).min(n / LANES_PER_THREAD).max(1);
         if threads == 1 {
@@ -341,7 +332,13 @@ fn run_batch(bsdf: *const MsxBsdf, input: *const MsxBatchIn, output: *const MsxB
 
 /// Batched `msx_eval`: writes `value` (per channel) for n lanes.
 #[no_mangle]
-pub extern "C" fn msx_eval_batch(bsdf: *const MsxBsdf, input: *const MsxBatchIn, output: *const MsxBatchOut, err: *mut c_char, err_len: usize) -> i32 {
+pub extern "C" fn msx_eval_batch(
+    bsdf: *const MsxBsdf,
+    input: *const MsxBatchIn,
+    output: *const MsxBatchOut,
+    err: *mut c_char,
+    err_len: usize,
+) -> i32 {
     run_batch(bsdf, input, output, Op::Eval(1, u32::MAX), err, err_len)
 }
 
@@ -368,14 +365,26 @@ pub extern "C" fn msx_pdf_batch(bsdf: *const MsxBsdf, input: *const MsxBatchIn, 
 
 /// Batched `msx_eval_pdf`: writes `value` and `pdf` for n lanes.
 #[no_mangle]
-pub extern "C" fn msx_eval_pdf_batch(bsdf: *const MsxBsdf, input: *const MsxBatchIn, output: *const MsxBatchOut, err: *mut c_char, err_len: usize) -> i32 {
+pub extern "C" fn msx_eval_pdf_batch(
+    bsdf: *const MsxBsdf,
+    input: *const MsxBatchIn,
+    output: *const MsxBatchOut,
+    err: *mut c_char,
+    err_len: usize,
+) -> i32 {
     run_batch(bsdf, input, output, Op::EvalPdf, err, err_len)
 }
 
 /// Batched `msx_sample`: writes `wo`, `pdf` and `value` (= weight) for n
 /// lanes; an invalid sample has pdf 0 and zero weight.
 #[no_mangle]
-pub extern "C" fn msx_sample_batch(bsdf: *const MsxBsdf, input: *const MsxBatchIn, output: *const MsxBatchOut, err: *mut c_char, err_len: usize) -> i32 {
+pub extern "C" fn msx_sample_batch(
+    bsdf: *const MsxBsdf,
+    input: *const MsxBatchIn,
+    output: *const MsxBatchOut,
+    err: *mut c_char,
+    err_len: usize,
+) -> i32 {
     run_batch(bsdf, input, output, Op::Sample, err, err_len)
 }
 

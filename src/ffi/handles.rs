@@ -109,9 +109,7 @@ pub extern "C" fn msx_eval_orders(
     first: u32,
     last: u32,
 ) -> MsxSpectrum {
-    with_bsdf(bsdf, mat, MsxSpectrum::default(), |b, m| {
-        out_spectrum(b.eval_orders(&m, vec3(wi), vec3(wo), key, (first, last)), b.config().channels)
-    })
+    with_bsdf(bsdf, mat, MsxSpectrum::default(), |b, m| out_spectrum(b.eval_orders(&m, vec3(wi), vec3(wo), key, (first, last)), b.config().channels))
 }
 
 /// Density that `msx_sample` reports for ω_o (for MIS).
@@ -132,7 +130,5 @@ pub extern "C" fn msx_eval_pdf(bsdf: *const MsxBsdf, mat: *const MsxMaterial, wi
 /// Samples ω_o from Mitsuba's `sample1` and `sample2` (in [0, 1)).
 #[no_mangle]
 pub extern "C" fn msx_sample(bsdf: *const MsxBsdf, mat: *const MsxMaterial, wi: MsxVec3, sample1: f32, u: f32, v: f32) -> MsxSample {
-    with_bsdf(bsdf, mat, MsxSample::default(), |b, m| {
-        out_sample(b.sample(&m, vec3(wi), sample1 as f64, (u as f64, v as f64)), b.config().channels)
-    })
+    with_bsdf(bsdf, mat, MsxSample::default(), |b, m| out_sample(b.sample(&m, vec3(wi), sample1 as f64, (u as f64, v as f64)), b.config().channels))
 }

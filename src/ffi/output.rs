@@ -79,9 +79,7 @@ pub(super) fn out_sample(s: Option<BsdfSample>, channels: usize) -> MsxSample {
     let Some(s) = s else { return MsxSample::default() };
     let pdf = out_f32(s.pdf);
     match out_direction(s.wo) {
-        Some([x, y, z]) if pdf > 0.0 => {
-            MsxSample { wo: MsxVec3 { x, y, z }, pdf, weight: out_spectrum(s.weight, channels), valid: 1 }
-        }
+        Some([x, y, z]) if pdf > 0.0 => MsxSample { wo: MsxVec3 { x, y, z }, pdf, weight: out_spectrum(s.weight, channels), valid: 1 },
         _ => MsxSample::default(),
     }
 }

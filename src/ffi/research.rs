@@ -264,4 +264,3 @@ pub extern "C" fn msx_sim_surface(sim: *const MsxSim, index: u32, heights: *mut 
     }))
     .unwrap_or(MSX_ERR_PANIC)
 }
-

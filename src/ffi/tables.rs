@@ -70,7 +70,15 @@ fn axis_out(a: &crate::tables::Axis) -> MsxAxis {
 /// `*shape` and, when `out_values` is not null and `len` ≥ the table's length,
 /// its values. Computes the table on first use (as the models do).
 #[no_mangle]
-pub extern "C" fn msx_table(kind: u32, distribution: u32, shape: *mut MsxTableShape, out_values: *mut f64, len: usize, err: *mut c_char, err_len: usize) -> i32 {
+pub extern "C" fn msx_table(
+    kind: u32,
+    distribution: u32,
+    shape: *mut MsxTableShape,
+    out_values: *mut f64,
+    len: usize,
+    err: *mut c_char,
+    err_len: usize,
+) -> i32 {
     let result = catch_unwind(AssertUnwindSafe(|| {
         if shape.is_null() {
             write_error(err, err_len, "null pointer passed to msx_table");

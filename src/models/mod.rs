@@ -120,4 +120,3 @@ pub trait ScatteringModel: Send + Sync + std::fmt::Debug {
     /// first vertex, the call's stream the rest.
     fn sample(&self, call: &Call, wi: DVec3, first: (f64, f64, f64)) -> Option<Sampled>;
 }
-

@@ -57,7 +57,6 @@
 //! per-vertex weights (Fresnel for conductors, albedo for diffuse, 1 for
 //! dielectrics).
 
-
 use super::{cosine_about, russian_roulette, WalkOptions};
 use crate::microfacet::dielectric::{eta_seen, radiance_scale, refract_unit, valid_ior};
 use crate::microfacet::{fresnel, reflect, Microfacet, Microsurface};
@@ -158,7 +157,6 @@ pub fn flip_height(t: f64) -> f64 {
 
 // ---------------------------------------------------------------------------
 // Small geometry helpers.
-
 
 #[inline]
 pub fn local(v: DVec3, outside: bool) -> DVec3 {
@@ -281,7 +279,6 @@ pub fn visible_normal(mf: &Microfacet, wi: DVec3, u1: f64, u2: f64) -> Option<DV
         None
     }
 }
-
 
 /// State of a walk between two vertices: the medium the ray travels in
 /// (`outside`), its direction in that medium's local frame, its height

@@ -11,7 +11,6 @@
 // Lints relaxed for this test file: angles near 2π on purpose.
 #![allow(clippy::approx_constant)]
 
-
 use crate::common::{Checker, Stat, VndfOutProposal};
 use glam::DVec3;
 use msx::models::analytic::compensated::{self, AlbedoTable};

@@ -9,16 +9,15 @@
 // Lints relaxed for this test file: test helpers take every configuration axis; angles near π/2 on purpose.
 #![allow(clippy::too_many_arguments, clippy::approx_constant)]
 
-
 use crate::common::dielectric::*;
 use crate::common::*;
 use glam::DVec3;
 use msx::microfacet::fresnel;
-use msx::models::posfree::{Options, Segments};
 use msx::models::posfree::dielectric as pfd;
+use msx::models::posfree::{Options, Segments};
 use msx::models::single::dielectric as sd;
-use msx::walk::WalkOptions;
 use msx::rng::Sampler;
+use msx::walk::WalkOptions;
 use msx::{Distribution, Microfacet};
 use std::f64::consts::PI;
 
@@ -49,7 +48,13 @@ fn correlated_transmission_beta_form() {
                 let h = a + k as f64 * hstep;
                 let c = phi(h);
                 let g = c.powf(li) * (1.0 - c).powf(lo) * (-0.5 * h * h).exp() / (2.0 * PI).sqrt();
-                let wgt = if k == 0 || k == n { 1.0 } else if k % 2 == 1 { 4.0 } else { 2.0 };
+                let wgt = if k == 0 || k == n {
+                    1.0
+                } else if k % 2 == 1 {
+                    4.0
+                } else {
+                    2.0
+                };
                 s += wgt * g;
             }
             let integral = s * hstep / 3.0;
@@ -139,7 +144,10 @@ fn order1_is_single_scattering() {
                     let k = if refl { 0 } else { 1 };
                     counts[k] += 1;
 
-                    let (du, dc) = (rel(u, walter(dist, alpha, alpha, eta, wi, wo, g_unc, false)), rel(c, walter(dist, alpha, alpha, eta, wi, wo, g_cor, false)));
+                    let (du, dc) = (
+                        rel(u, walter(dist, alpha, alpha, eta, wi, wo, g_unc, false)),
+                        rel(c, walter(dist, alpha, alpha, eta, wi, wo, g_cor, false)),
+                    );
                     if well_conditioned(eta, wi, wo) {
                         worst[k] = worst[k].max(du);
                         worst[2 + k] = worst[2 + k].max(dc);
@@ -189,7 +197,17 @@ struct FurnaceResult {
     mean_order: f64,
 }
 
-fn furnace_config(dist: Distribution, seg: Segments, eta: f64, inside: bool, alpha: f64, theta: f64, seed: u64, n_eval: usize, n_sample: usize) -> FurnaceResult {
+fn furnace_config(
+    dist: Distribution,
+    seg: Segments,
+    eta: f64,
+    inside: bool,
+    alpha: f64,
+    theta: f64,
+    seed: u64,
+    n_eval: usize,
+    n_sample: usize,
+) -> FurnaceResult {
     let mf = Microfacet::new(dist, alpha, alpha);
     let mut wi = dir(theta, 0.7);
     if inside {
@@ -262,10 +280,7 @@ fn furnace_config(dist: Distribution, seg: Segments, eta: f64, inside: bool, alp
         sm[2].push(ex);
         sm[3].push(ez);
     }
-    let tag = format!(
-        "{dist:?} {seg:?} η={eta} {} α={alpha} θ_i={theta}",
-        if inside { "inside" } else { "outside" }
-    );
+    let tag = format!("{dist:?} {seg:?} η={eta} {} α={alpha} θ_i={theta}", if inside { "inside" } else { "outside" });
     FurnaceResult {
         tag,
         ev: ev.map(|s| s.est()),
@@ -428,7 +443,15 @@ fn robustness() {
     let mut bad = 0usize;
     let mut total = 0usize;
     let etas = [1.0, 1.0 + 1e-12, 1.0 - 1e-9, 1.0001, 0.5, 1.5, 4.0, 1e-3, 1e3];
-    let dirs = [DVec3::Z, -DVec3::Z, DVec3::new(1.0, 0.0, 1e-12).normalize(), DVec3::new(0.0, 1.0, -1e-12).normalize(), DVec3::new(1.0, 0.0, 0.0), dir(1.5707, 0.3), dir(PI - 1e-9, 0.3)];
+    let dirs = [
+        DVec3::Z,
+        -DVec3::Z,
+        DVec3::new(1.0, 0.0, 1e-12).normalize(),
+        DVec3::new(0.0, 1.0, -1e-12).normalize(),
+        DVec3::new(1.0, 0.0, 0.0),
+        dir(1.5707, 0.3),
+        dir(PI - 1e-9, 0.3),
+    ];
     for dist in DISTS {
         for &alpha in &[1e-4, 0.01, 0.5, 3.0, 50.0] {
             let mf = Microfacet::new(dist, alpha, alpha);

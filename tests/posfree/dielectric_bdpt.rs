@@ -8,17 +8,16 @@
 //! combined Monte Carlo standard error, z the family-wise 3σ level of
 //! `crate::common::family_sigmas`. Run with `--nocapture` for the measured values.
 
-
 use crate::common::*;
 use crate::shared::*;
 use glam::DVec3;
 use msx::microfacet::fresnel::dielectric_full;
-use msx::models::posfree::{Options, Segments};
 use msx::models::posfree::dielectric as bd;
-use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
 use msx::models::posfree::dielectric as pfd;
-use msx::walk::WalkOptions;
+use msx::models::posfree::{Options, Segments};
 use msx::rng::Sampler;
+use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
+use msx::walk::WalkOptions;
 use msx::{Distribution, Microfacet};
 use std::f64::consts::PI;
 use std::time::Instant;
@@ -193,12 +192,7 @@ fn bdpt_furnace() {
                     }
                     st.push(v);
                 }
-                let label = format!(
-                    "{} ggx α={alpha} {side} θ_i={theta} (E_r {:.4}, E_t {:.4})",
-                    seg_name(seg),
-                    er / n as f64,
-                    et / n as f64
-                );
+                let label = format!("{} ggx α={alpha} {side} θ_i={theta} (E_r {:.4}, E_t {:.4})", seg_name(seg), er / n as f64, et / n as f64);
                 ck.close(&label, st.est(), exact(1.0), 0.003, 0.0);
             }
         }
@@ -210,10 +204,7 @@ fn bdpt_furnace() {
 #[test]
 fn bdpt_vs_pt_variance_and_time() {
     println!("=== dielectric η = 1.5, GGX, all orders: variance and ns per call, pt vs bdpt (K_b = {}) ===", DEFAULT_BDPT_ORDERS);
-    println!(
-        "{:<4} {:>4} {:<12} {:>11} {:>11} {:>7} {:>7} {:>6} {:>6}",
-        "seg", "α", "pair", "var pt", "var bdpt", "ns pt", "ns bd", "var×", "eff×"
-    );
+    println!("{:<4} {:>4} {:<12} {:>11} {:>11} {:>7} {:>7} {:>6} {:>6}", "seg", "α", "pair", "var pt", "var bdpt", "ns pt", "ns bd", "var×", "eff×");
     let n = 40_000;
     let mut seed = 7000u64;
     for seg in [Segments::Uncorrelated, Segments::Correlated] {

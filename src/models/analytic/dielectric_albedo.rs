@@ -124,7 +124,8 @@ impl DielectricAlbedoTable {
                 }
             }
         });
-        let side = |s: usize| Grid { axes: [ALPHA, eta, MU], values: rows.chunks(2 * row).flat_map(|r| r[s * row..(s + 1) * row].to_vec()).collect() };
+        let side =
+            |s: usize| Grid { axes: [ALPHA, eta, MU], values: rows.chunks(2 * row).flat_map(|r| r[s * row..(s + 1) * row].to_vec()).collect() };
         DielectricAlbedoTable { enter: side(0), leave: side(1) }
     }
 

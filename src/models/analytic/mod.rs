@@ -15,8 +15,8 @@ pub mod fastmsx;
 
 use super::single::{conductor as single, Single};
 use super::{Call, Sampled, ScatteringModel};
-use crate::microfacet::Microsurface;
 use crate::config::Surface;
+use crate::microfacet::Microsurface;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 

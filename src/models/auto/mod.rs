@@ -38,12 +38,12 @@ pub mod table;
 
 use super::posfree::{PosFree, Segments};
 use super::{Call, Sampled, ScatteringModel};
-use crate::microfacet::Microsurface;
 use crate::config::{Distribution, Estimator, Surface};
+use crate::microfacet::Microsurface;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
-use table::{mu_cell, MsTable, ALPHA, MU};
 use std::sync::OnceLock;
+use table::{mu_cell, MsTable, ALPHA, MU};
 
 /// The order-1 thresholds of one tolerance: per IOR node and μ cell, the α
 /// below which order 1 alone omits at most `tolerance` (module docs).
@@ -122,7 +122,7 @@ pub struct Auto {
 
 impl Auto {
     pub fn new(surface: Surface, dist: Distribution, tolerance: f64, estimator: Estimator) -> Self {
-Auto { rule: OrderOneRule::new(surface, dist, tolerance), full: PosFree { segments: Segments::Correlated, estimator } }
+        Auto { rule: OrderOneRule::new(surface, dist, tolerance), full: PosFree { segments: Segments::Correlated, estimator } }
     }
 
     /// The call with this call's bounce cap: 1 where order 1 suffices.

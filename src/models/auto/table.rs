@@ -10,9 +10,9 @@
 //! L₀/(L₀ + Λ), Beta transmission L₀·B(L₀, 1 + Λ'). Used by `auto`
 //! (`mod.rs` here), which explains why F = 1 bounds every material.
 
+use crate::config::Distribution;
 use crate::config::Surface;
 use crate::microfacet::fresnel::dielectric_full;
-use crate::config::Distribution;
 use crate::microfacet::{reflect, refract, Microfacet};
 use crate::models::posfree::{dielectric as posfree_dielectric, Segments};
 use crate::rng::{hash_words, Sampler};

@@ -24,12 +24,12 @@
 
 use super::recursion::MonotoneExit;
 use crate::microfacet::ConductorFresnel;
-use crate::walk::WalkOptions;
-use crate::models::posfree::conductor::{self as posfree_conductor, CamVertex, ConductorSegments, LightVertex as WalkLight};
-use crate::walk::{bdpt, russian_roulette_keep, sample_conductor, ConductorExit, RR_START};
 use crate::microfacet::{reflect, Microfacet};
+use crate::models::posfree::conductor::{self as posfree_conductor, CamVertex, ConductorSegments, LightVertex as WalkLight};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
+use crate::walk::WalkOptions;
+use crate::walk::{bdpt, russian_roulette_keep, sample_conductor, ConductorExit, RR_START};
 use glam::DVec3;
 
 /// Throughput (largest channel) above which the walk of `eval` surely goes on.
@@ -41,14 +41,12 @@ use glam::DVec3;
 /// 13 % (mirror) for ≈ 5 % more time.
 const RR_KEEP: f64 = 0.5;
 
-
 /// Highest order estimated by the connection as well as by the walk's NEE.
 /// Beyond it the NEE alone is better: at GGX α = 1 off-specular, connecting
 /// at every order raises the variance per call by 4 % (the shared y
 /// correlates the orders) and costs a D, a Fresnel term and an O(a) exit
 /// probability per vertex. Order 3 still pays (−8 % variance for ≈ 5 % time).
 const CONNECT_MAX_ORDER: u32 = 3;
-
 
 /// One unbiased estimate of f(ω_i, ω_o)·cos θ_o of the invariance model,
 /// restricted to the orders `opts.orders` and at most `opts.max_bounces`
@@ -385,7 +383,17 @@ impl ConductorSegments for WholePath {
         Some(exit_table(dirs)?.exit_probability(lambda_o))
     }
 
-    fn pt_tail(&self, mf: &Microfacet, fresnel: &ConductorFresnel, wo: DVec3, lambda_o: f64, cam: &[CamVertex], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
+    fn pt_tail(
+        &self,
+        mf: &Microfacet,
+        fresnel: &ConductorFresnel,
+        wo: DVec3,
+        lambda_o: f64,
+        cam: &[CamVertex],
+        kb: u32,
+        orders: (u32, u32),
+        rng: &mut Sampler,
+    ) -> Spectrum {
         let Some(dp) = exit_table(cam.iter().map(|c| (c.l, c.d))) else { return Spectrum::ZERO };
         let cv = &cam[kb as usize];
         let walk = Walk::unidirectional(mf, fresnel, wo, lambda_o);

@@ -58,14 +58,14 @@
 //! Transport modes as in `src/walk/height.rs` (Importance-mode vertex terms; the
 //! Radiance-mode factor applied once per path).
 
-use crate::microfacet::Microsurface;
-use crate::walk::WalkOptions;
-use crate::walk::{height, russian_roulette, vertex_numbers, RR_START};
 use crate::microfacet::dielectric::{eta_seen, radiance_scale, refract_unit, valid_ior};
+use crate::microfacet::Microsurface;
 use crate::microfacet::{fresnel, reflect, Microfacet};
 use crate::models::posfree::dielectric::l_beta;
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
+use crate::walk::WalkOptions;
+use crate::walk::{height, russian_roulette, vertex_numbers, RR_START};
 use glam::DVec3;
 
 /// Exact depth law of the current vertex of a monotone one-sided run entered
@@ -238,7 +238,6 @@ impl PieceChain {
         }
     }
 }
-
 
 /// One unbiased estimate of f(ω_i, ω_o)·|cos θ_o| of the rough dielectric
 /// (Heitz's microsurface, relative IOR `eta` = η_int/η_ext) with the heights

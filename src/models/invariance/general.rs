@@ -38,12 +38,12 @@
 //! `dielectric.rs` integrates the heights exactly up to the first
 //! refraction and samples them after it.
 
-use crate::microfacet::Microsurface;
-use crate::walk::WalkOptions;
-use crate::walk::{cosine_about, russian_roulette, vertex_numbers, RR_START};
 use crate::microfacet::Microfacet;
+use crate::microfacet::Microsurface;
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
+use crate::walk::WalkOptions;
+use crate::walk::{cosine_about, russian_roulette, vertex_numbers, RR_START};
 use glam::DVec3;
 use std::f64::consts::FRAC_1_PI;
 
@@ -67,7 +67,13 @@ pub struct ExitTable {
 impl ExitTable {
     /// Starts a path with the downward d_0 of |Λ(d_0)| = `l0` (= 1 + Λ(ω_i)).
     pub fn new(l0: f64) -> Self {
-        let mut t = ExitTable { l: Vec::with_capacity(16), down: Vec::with_capacity(16), p: Vec::with_capacity(136), scratch: Vec::with_capacity(17), hit: 1.0 };
+        let mut t = ExitTable {
+            l: Vec::with_capacity(16),
+            down: Vec::with_capacity(16),
+            p: Vec::with_capacity(136),
+            scratch: Vec::with_capacity(17),
+            hit: 1.0,
+        };
         t.l.push(l0);
         t.down.push(true);
         t.p.push(1.0);
@@ -241,7 +247,14 @@ pub fn eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, opts: &W
 /// E[weight·g(ω_o)] = ∫ g·eval). `first` = (u_exit, u1, u2) drives the first
 /// vertex (visible normal and exit decision); the cosine lobe and later
 /// vertices use `rng`. None for conductors and dielectrics.
-pub fn sample(mf: &Microfacet, surf: &Microsurface, wi: DVec3, first: (f64, f64, f64), opts: &WalkOptions, rng: &mut Sampler) -> Option<(DVec3, Spectrum, u32)> {
+pub fn sample(
+    mf: &Microfacet,
+    surf: &Microsurface,
+    wi: DVec3,
+    first: (f64, f64, f64),
+    opts: &WalkOptions,
+    rng: &mut Sampler,
+) -> Option<(DVec3, Spectrum, u32)> {
     let Microsurface::Diffuse { albedo } = *surf else { return None };
     if !(wi.z > 0.0) || !wi.is_finite() {
         return None;

@@ -18,8 +18,8 @@ pub use recursion::{p_exit, p_exit_error_study, p_exit_with_bound, segment_term,
 
 use super::mis::{walk_pdf, OrderOneExit};
 use super::{Call, Sampled, ScatteringModel};
-use crate::microfacet::Microsurface;
 use crate::config::{Estimator, Surface};
+use crate::microfacet::Microsurface;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 

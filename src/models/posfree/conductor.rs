@@ -6,11 +6,11 @@
 
 use super::{roulette_importance, Options, Segments};
 use crate::microfacet::ConductorFresnel;
-use crate::walk::WalkOptions;
-use crate::walk::{bdpt, russian_roulette_keep, sample_conductor, ConductorExit, RR_START};
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
+use crate::walk::WalkOptions;
+use crate::walk::{bdpt, russian_roulette_keep, sample_conductor, ConductorExit, RR_START};
 use glam::DVec3;
 
 /// PT estimator with next-event estimation towards ω_o at every vertex
@@ -253,7 +253,17 @@ pub(crate) trait ConductorSegments {
     }
     /// The model's PT estimate of the orders above K_b from the end of `cam`.
     #[allow(clippy::too_many_arguments)]
-    fn pt_tail(&self, mf: &Microfacet, fresnel: &ConductorFresnel, wo: DVec3, lambda_o: f64, cam: &[CamVertex], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum;
+    fn pt_tail(
+        &self,
+        mf: &Microfacet,
+        fresnel: &ConductorFresnel,
+        wo: DVec3,
+        lambda_o: f64,
+        cam: &[CamVertex],
+        kb: u32,
+        orders: (u32, u32),
+        rng: &mut Sampler,
+    ) -> Spectrum;
 }
 
 impl ConductorSegments for Segments {
@@ -267,7 +277,17 @@ impl ConductorSegments for Segments {
         Segments::last(*self, l, lambda_o)
     }
 
-    fn pt_tail(&self, mf: &Microfacet, fresnel: &ConductorFresnel, wo: DVec3, lambda_o: f64, cam: &[CamVertex], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
+    fn pt_tail(
+        &self,
+        mf: &Microfacet,
+        fresnel: &ConductorFresnel,
+        wo: DVec3,
+        lambda_o: f64,
+        cam: &[CamVertex],
+        kb: u32,
+        orders: (u32, u32),
+        rng: &mut Sampler,
+    ) -> Spectrum {
         let cv = &cam[kb as usize];
         let state = PtState { w: -cv.d, l: cv.l, throughput: cv.thr };
         pt_walk(mf, fresnel, wo, lambda_o, *self, state, kb, orders, kb + RR_START, rng)

@@ -63,11 +63,11 @@
 //! with G2 = 1/(1+Λ_i+Λ_o) (reflection) or B(1+Λ_i, 1+Λ_o) (transmission).
 
 use super::{roulette_importance, Options, Segments};
-use crate::walk::{bdpt, roulette_scalar, RR_START};
 use crate::microfacet::dielectric::{eta_seen, radiance_scale, reflect_or_refract, valid_ior};
 use crate::microfacet::fresnel::dielectric_full;
 use crate::microfacet::Microfacet;
 use crate::rng::{unit_interval, Sampler};
+use crate::walk::{bdpt, roulette_scalar, RR_START};
 use glam::DVec3;
 
 /// ln(L·B(L, 1+Λ)) = ln Γ(L+1) + ln Γ(Λ+1) − ln Γ(L+Λ+1) (≤ 0 for L, Λ ≥ 0).
@@ -223,7 +223,6 @@ fn scatter(mf: &Microfacet, st: &mut State, u_choice: f64, u1: f64, u2: f64) -> 
     Some((-d, true, f))
 }
 
-
 /// Gain of the next-event value in `posfree::roulette_importance` for
 /// dielectrics. Larger than the conductors' because the reflection near the
 /// normal is small (F ≈ 0.04 at the first vertex) against the height-chain
@@ -313,7 +312,15 @@ fn pt_walk(
 /// vertex: sample1 chooses reflection when sample1 < F and, rescaled to [0, 1)
 /// within the chosen branch, decides the first exit. Returns (ω_o, weight,
 /// order) or None (no visible normal, or `opts.walk.max_bounces` reached).
-pub fn sample_walk(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, first: (f64, f64, f64), opts: &Options, rng: &mut Sampler) -> Option<(DVec3, f64, u32)> {
+pub fn sample_walk(
+    mf: &Microfacet,
+    eta: f64,
+    radiance: bool,
+    wi: DVec3,
+    first: (f64, f64, f64),
+    opts: &Options,
+    rng: &mut Sampler,
+) -> Option<(DVec3, f64, u32)> {
     if !valid_inputs(eta, wi) {
         return None;
     }
@@ -421,7 +428,6 @@ impl Dir {
         State { w: -self.side * self.g, l: self.l, side: self.side, eta_f: eta_seen(eta, self.side > 0.0) }
     }
 }
-
 
 /// The camera vertex: d_s and the prefix f/p (Π c).
 #[derive(Clone, Copy, Default)]
@@ -604,23 +610,13 @@ pub fn eval_bdpt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3
 /// BDPT estimate with orders 1..=`bdpt_orders` bidirectional (clamped to
 /// 1..=[`bdpt::MAX_BDPT_ORDERS`]) and higher orders by path tracing.
 #[allow(clippy::too_many_arguments)]
-pub fn eval_bdpt_with(
-    mf: &Microfacet,
-    eta: f64,
-    radiance: bool,
-    wi: DVec3,
-    wo: DVec3,
-    opts: &Options,
-    bdpt_orders: u32,
-    rng: &mut Sampler,
-) -> f64 {
+pub fn eval_bdpt_with(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &Options, bdpt_orders: u32, rng: &mut Sampler) -> f64 {
     if !valid_inputs(eta, wi) || wo.z == 0.0 || !wo.is_finite() {
         return 0.0;
     }
     let side_i = if wi.z > 0.0 { 1.0 } else { -1.0 };
     let side_o = if wo.z > 0.0 { 1.0 } else { -1.0 };
-    let surface =
-        Bidirectional { mf, eta, seg: opts.segments, d0: Dir::new(mf, -wi, side_i), dk: Dir::new(mf, wo, side_o), wo };
+    let surface = Bidirectional { mf, eta, seg: opts.segments, d0: Dir::new(mf, -wi, side_i), dk: Dir::new(mf, wo, side_o), wo };
     let result = bdpt::estimate(&surface, opts.walk.clamped_orders(), bdpt_orders, rng);
     let value = result * radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0);
     if value.is_finite() && value > 0.0 {

@@ -50,10 +50,10 @@
 
 use super::conductor::{cont, smith};
 use super::{Options, Segments};
-use crate::walk::{bdpt, cosine_about, russian_roulette, vertex_numbers, RR_START};
 use crate::microfacet::Microfacet;
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
+use crate::walk::{bdpt, cosine_about, russian_roulette, vertex_numbers, RR_START};
 use glam::DVec3;
 use std::f64::consts::FRAC_1_PI;
 
@@ -341,15 +341,7 @@ pub fn eval_bdpt(mf: &Microfacet, albedo: Spectrum, wi: DVec3, wo: DVec3, opts: 
 
 /// BDPT estimate with orders 1..=`bdpt_orders` bidirectional (clamped to
 /// 1..=[`bdpt::MAX_BDPT_ORDERS`]) and higher orders by path tracing.
-pub fn eval_bdpt_with(
-    mf: &Microfacet,
-    albedo: Spectrum,
-    wi: DVec3,
-    wo: DVec3,
-    opts: &Options,
-    bdpt_orders: u32,
-    rng: &mut Sampler,
-) -> Spectrum {
+pub fn eval_bdpt_with(mf: &Microfacet, albedo: Spectrum, wi: DVec3, wo: DVec3, opts: &Options, bdpt_orders: u32, rng: &mut Sampler) -> Spectrum {
     if !(wi.z > 0.0) || !(wo.z > 0.0) {
         return Spectrum::ZERO;
     }

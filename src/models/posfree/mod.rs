@@ -94,10 +94,10 @@ pub(crate) const RR_LAST_WEIGHT: f64 = 0.05;
 
 use super::mis::{walk_pdf, OrderOneExit};
 use super::{Call, Sampled, ScatteringModel};
-use crate::microfacet::Microsurface;
-use crate::walk::WalkOptions;
 use crate::config::{Estimator, Surface};
+use crate::microfacet::Microsurface;
 use crate::spectrum::Spectrum;
+use crate::walk::WalkOptions;
 use glam::DVec3;
 
 /// Options of one position-free walk: its segment terms and the walk's bounds.
@@ -128,7 +128,9 @@ impl ScatteringModel for PosFree {
         match (&call.surf, self.estimator) {
             (Microsurface::Conductor(fresnel), Estimator::Pt) => conductor::eval_pt(mf, fresnel, wi, wo, opts, rng),
             (Microsurface::Conductor(fresnel), Estimator::Bdpt) => conductor::eval_bdpt(mf, fresnel, wi, wo, opts, rng),
-            (&Microsurface::Dielectric { eta, radiance }, Estimator::Pt) => Spectrum::splat(dielectric::eval_pt(mf, eta, radiance, wi, wo, opts, rng)),
+            (&Microsurface::Dielectric { eta, radiance }, Estimator::Pt) => {
+                Spectrum::splat(dielectric::eval_pt(mf, eta, radiance, wi, wo, opts, rng))
+            }
             (&Microsurface::Dielectric { eta, radiance }, Estimator::Bdpt) => {
                 Spectrum::splat(dielectric::eval_bdpt(mf, eta, radiance, wi, wo, opts, rng))
             }

@@ -7,8 +7,8 @@ pub mod conductor;
 pub mod dielectric;
 
 use super::{Call, Sampled, ScatteringModel};
-use crate::microfacet::Microsurface;
 use crate::config::Surface;
+use crate::microfacet::Microsurface;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 

@@ -260,11 +260,8 @@ fn main() {
     let set = fixed_set();
     // Short defaults so that a plain `cargo bench --bench eval` finishes in
     // about 1.5 minutes; command-line options override them.
-    let mut c = Criterion::default()
-        .warm_up_time(Duration::from_secs(1))
-        .measurement_time(Duration::from_secs(2))
-        .sample_size(30)
-        .configure_from_args();
+    let mut c =
+        Criterion::default().warm_up_time(Duration::from_secs(1)).measurement_time(Duration::from_secs(2)).sample_size(30).configure_from_args();
     bench_core_eval(&mut c, &set);
     bench_core_sample(&mut c, &set);
     bench_ffi_eval(&mut c, &set);

@@ -12,7 +12,17 @@ use std::time::Instant;
 fn main() {
     let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     let rays_per_surface = 125_000u64; // 2M rays on 16 surfaces
-    println!("{:<11} {:>10} {:>5} {:>8} {:>12} {:>12} {:>8} {:>9}", "surface", "alpha", "θi", "gen s", format!("rays/s ({cores}t)"), "rays/s (1t)", "speedup", "bounces");
+    println!(
+        "{:<11} {:>10} {:>5} {:>8} {:>12} {:>12} {:>8} {:>9}",
+        "surface",
+        "alpha",
+        "θi",
+        "gen s",
+        format!("rays/s ({cores}t)"),
+        "rays/s (1t)",
+        "speedup",
+        "bounces"
+    );
     for facet in [Facet::Conductor { eta: 0.0, k: 1.0 }, Facet::Dielectric { ior: 1.5 }, Facet::Diffuse { albedo: 1.0 }] {
         for alpha in [(0.25, 0.25), (1.0, 1.0), (1.0, 0.1)] {
             for theta in [0.0, 1.5] {
@@ -47,7 +57,11 @@ fn main() {
                 };
                 let r_multi = rays as f64 / multi;
                 let r_one = (rays / 4) as f64 / single;
-                println!("{name:<11} {:>10} {theta:>5} {gen:>8.2} {r_multi:>12.0} {r_one:>12.0} {:>7.2}x {bounces:>9.3}", format!("{alpha:?}"), r_multi / r_one);
+                println!(
+                    "{name:<11} {:>10} {theta:>5} {gen:>8.2} {r_multi:>12.0} {r_one:>12.0} {:>7.2}x {bounces:>9.3}",
+                    format!("{alpha:?}"),
+                    r_multi / r_one
+                );
             }
         }
     }

@@ -265,8 +265,7 @@ fn print_speed_table(since: SystemTime) {
 // ---------------------------------------------------- part 2: variance table
 
 /// The three fixed (ωi, ωo) pairs: (name, θi, θo, Δφ).
-const PAIRS: [(&str, f64, f64, f64); 3] =
-    [("mirror", 0.6, 0.6, std::f64::consts::PI), ("off-spec", 0.6, 1.1, 2.1), ("grazing", 1.45, 1.4, 3.0)];
+const PAIRS: [(&str, f64, f64, f64); 3] = [("mirror", 0.6, 0.6, std::f64::consts::PI), ("off-spec", 0.6, 1.1, 2.1), ("grazing", 1.45, 1.4, 3.0)];
 
 fn dir(theta: f64, phi: f64) -> DVec3 {
     DVec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos())
@@ -308,7 +307,13 @@ impl Acc {
 fn rel_eff(a: &Acc, r: Option<&Acc>) -> String {
     let s = match r {
         None => "-".to_string(),
-        Some(r) if a.cost() == 0.0 => if r.cost() == 0.0 { "-".into() } else { "exact".into() },
+        Some(r) if a.cost() == 0.0 => {
+            if r.cost() == 0.0 {
+                "-".into()
+            } else {
+                "exact".into()
+            }
+        }
         Some(r) => format!("{:.2}x", r.cost() / a.cost()),
     };
     format!("{s:>9}")
@@ -433,15 +438,7 @@ fn plain_speed_table(set: &Set) {
     println!("{:<11} {:<18} {:>8} {:>8} {:>8} {:>8}", "surface", "model", "eval.5", "eval1.0", "smpl.5", "smpl1.0");
     for c in &cells {
         let f = |x: f64| if x > 0.0 { format!("{:8.1}", x / calls) } else { format!("{:>8}", "-") };
-        println!(
-            "{:<11} {:<18} {} {} {} {}",
-            c.surface.name(),
-            c.label,
-            f(c.ns[0][0]),
-            f(c.ns[0][1]),
-            f(c.ns[1][0]),
-            f(c.ns[1][1])
-        );
+        println!("{:<11} {:<18} {} {} {} {}", c.surface.name(), c.label, f(c.ns[0][0]), f(c.ns[0][1]), f(c.ns[1][0]), f(c.ns[1][1]));
     }
 }
 
@@ -454,8 +451,7 @@ fn auto_speed_table(set: &Set) {
     println!("{:<11} {:>6} {:>11} {:>9} {:>11}", "surface", "alpha", "correlated", "auto", "auto/corr");
     for surface in SURFACES {
         let wo = if surface == Surface::Dielectric { &set.wo_dielectric } else { &set.wo };
-        let models = [Model::Correlated, Model::Auto]
-            .map(|model| Variant { surface, model, estimator: Estimator::Pt }.bsdf());
+        let models = [Model::Correlated, Model::Auto].map(|model| Variant { surface, model, estimator: Estimator::Pt }.bsdf());
         for alpha in AUTO_ALPHAS {
             let mat = material(surface, alpha);
             let mut ns = [0.0f64; 2];
@@ -485,9 +481,7 @@ fn auto_speed_table(set: &Set) {
 /// not with MSX_BENCH_NO_TABLES set.
 fn skip_tables() -> bool {
     let args: Vec<String> = std::env::args().collect();
-    !args.iter().any(|a| a == "--bench")
-        || args.iter().any(|a| a == "--list" || a == "--test")
-        || std::env::var_os("MSX_BENCH_NO_TABLES").is_some()
+    !args.iter().any(|a| a == "--bench") || args.iter().any(|a| a == "--list" || a == "--test") || std::env::var_os("MSX_BENCH_NO_TABLES").is_some()
 }
 
 fn main() {

@@ -88,7 +88,17 @@ fn main() {
                         (v.0[0] + v.0[1] + v.0[2]) / 3.0
                     };
                     let row = |pair: &str, mean: f64, var: f64, ns: f64| {
-                        println!("{:<10} {:>4} {:<9} {:<5} {:<13} {:>11.5e} {:>10.3e} {:>8.1}", name, alpha, pair, format!("{est:?}"), model.name(), mean, var, ns);
+                        println!(
+                            "{:<10} {:>4} {:<9} {:<5} {:<13} {:>11.5e} {:>10.3e} {:>8.1}",
+                            name,
+                            alpha,
+                            pair,
+                            format!("{est:?}"),
+                            model.name(),
+                            mean,
+                            var,
+                            ns
+                        );
                     };
                     for (pair, wi, wo) in fixed {
                         let (mut s, mut s2) = (0.0, 0.0);

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Runs every test: installs the package (builds the Rust library and the cffi
-# extension), then the Rust tests (unit, statistical, fuzz, C consumer, header
-# check) and the Python plugin tests inside Mitsuba. Each step prints its
-# progress: test names as they pass, skip reasons at the end.
+# extension), then the Rust format check, lints and tests (unit, statistical,
+# fuzz, C consumer, header check) and the Python plugin tests inside Mitsuba.
+# Each step prints its progress: test names as they pass, skip reasons at the end.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 step() { printf '\n== %s (%s) ==\n' "$1" "$(date +%T)"; }
@@ -10,7 +10,12 @@ step() { printf '\n== %s (%s) ==\n' "$1" "$(date +%T)"; }
 step "1/4 build and install msx with pip (cargo build --release inside)"
 python3 -m pip install --disable-pip-version-check --progress-bar off '.[test]'
 
-step "2/4 Rust lints (cargo clippy --all-targets -- -D warnings)"
+step "2/4 Rust format and lints (cargo fmt --check; cargo clippy --all-targets -- -D warnings)"
+if cargo fmt --version >/dev/null 2>&1; then
+    cargo fmt --check
+else
+    echo "skipped: rustfmt is not installed (rustup component add rustfmt)"
+fi
 if cargo clippy --version >/dev/null 2>&1; then
     cargo clippy --all-targets --quiet -- -D warnings
 else

@@ -2,74 +2,20 @@
 //! Per-hit values (roughness, IOR, reflectance) arrive with every call as a
 //! [`Material`], since Mitsuba evaluates textures at the hit.
 
-use crate::microfacet::{Distribution, Microfacet};
+use crate::config::{Config, Distribution, Estimator, Model, ParamError, Surface, ALL_MODELS, ALL_SURFACES, DEFAULT_TOLERANCE, MAX_BOUNCES_LIMIT};
+use crate::microfacet::Microfacet;
+use crate::microfacet::{ConductorFresnel, Microsurface};
 use crate::models::analytic::{Compensated, FastMsx};
-use crate::models::auto::{self, Auto};
+use crate::models::auto::Auto;
 use crate::models::heitz::Heitz;
 use crate::models::invariance::Invariance;
 use crate::models::posfree::{PosFree, Segments};
 use crate::models::single::Single;
-use crate::models::{Call, ConductorFresnel, Microsurface, ScatteringModel, Stream};
+use crate::models::{Call, ScatteringModel, Stream};
+use crate::rng::unit_interval;
 use crate::spectrum::{ChannelMask, Spectrum, MAX_CHANNELS};
 use glam::DVec3;
-use std::fmt;
 use std::sync::{Arc, OnceLock};
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Surface {
-    Conductor,
-    Dielectric,
-    Diffuse,
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Model {
-    Single,
-    Uncorrelated,
-    Correlated,
-    Heitz,
-    Invariance,
-    FastMsx,
-    Compensated,
-    /// `correlated`, reduced per call to its analytic order 1 where the
-    /// multiply scattered energy is under `Config::tolerance` (models/auto.rs).
-    Auto,
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Estimator {
-    Pt,
-    Bdpt,
-}
-
-impl Surface {
-    pub fn name(self) -> &'static str {
-        match self {
-            Surface::Conductor => "conductor",
-            Surface::Dielectric => "dielectric",
-            Surface::Diffuse => "diffuse",
-        }
-    }
-}
-
-impl Model {
-    pub fn name(self) -> &'static str {
-        match self {
-            Model::Single => "single",
-            Model::Uncorrelated => "uncorrelated",
-            Model::Correlated => "correlated",
-            Model::Heitz => "heitz",
-            Model::Invariance => "invariance",
-            Model::FastMsx => "fastmsx",
-            Model::Compensated => "compensated",
-            Model::Auto => "auto",
-        }
-    }
-}
-
-/// Every model, in the order of the docs.
-pub const ALL_MODELS: [Model; 8] =
-    [Model::Single, Model::Uncorrelated, Model::Correlated, Model::Heitz, Model::Invariance, Model::FastMsx, Model::Compensated, Model::Auto];
 
 /// The code of a model: the one place that maps the configuration to an
 /// implementation of [`ScatteringModel`].
@@ -91,10 +37,10 @@ fn implementation(model: Model, estimator: Estimator, surface: Surface, dist: Di
 fn support() -> &'static [(Vec<Model>, Vec<Model>); 3] {
     static SUPPORT: OnceLock<[(Vec<Model>, Vec<Model>); 3]> = OnceLock::new();
     SUPPORT.get_or_init(|| {
-        [Surface::Conductor, Surface::Dielectric, Surface::Diffuse].map(|surface| {
+        ALL_SURFACES.map(|surface| {
             let imps: Vec<_> = ALL_MODELS
                 .iter()
-                .map(|&m| (m, implementation(m, Estimator::Pt, surface, Distribution::Ggx, auto::DEFAULT_TOLERANCE)))
+                .map(|&m| (m, implementation(m, Estimator::Pt, surface, Distribution::Ggx, DEFAULT_TOLERANCE)))
                 .filter(|(_, imp)| imp.surfaces().contains(&surface))
                 .collect();
             let bdpt = imps.iter().filter(|(_, imp)| imp.estimators(surface).contains(&Estimator::Bdpt)).map(|(m, _)| *m).collect();
@@ -112,54 +58,6 @@ pub fn models_for(surface: Surface) -> &'static [Model] {
 pub fn bdpt_models(surface: Surface) -> &'static [Model] {
     &support()[surface as usize].1
 }
-
-/// Bounce cap when the user gives none. Russian roulette ends most paths far
-/// earlier; the cap only bounds the cost at extreme roughness.
-pub const DEFAULT_MAX_BOUNCES: u32 = 64;
-pub const MAX_BOUNCES_LIMIT: u32 = 1024;
-
-#[derive(Clone, Copy, Debug)]
-pub struct Config {
-    pub surface: Surface,
-    pub distribution: Distribution,
-    pub model: Model,
-    pub estimator: Estimator,
-    pub max_bounces: u32,
-    pub channels: usize,
-    pub seed: u64,
-    /// `auto` only: fraction of the scattered energy order 1 alone may omit.
-    pub tolerance: f64,
-}
-
-impl Default for Config {
-    fn default() -> Self {
-        Config {
-            surface: Surface::Conductor,
-            distribution: Distribution::Beckmann,
-            model: Model::Correlated,
-            estimator: Estimator::Pt,
-            max_bounces: DEFAULT_MAX_BOUNCES,
-            channels: 3,
-            seed: 0,
-            tolerance: auto::DEFAULT_TOLERANCE,
-        }
-    }
-}
-
-/// An invalid parameter: its name and what is allowed.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ParamError {
-    pub parameter: &'static str,
-    pub message: String,
-}
-
-impl fmt::Display for ParamError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "invalid parameter '{}': {}", self.parameter, self.message)
-    }
-}
-
-impl std::error::Error for ParamError {}
 
 /// Values that may vary per hit (textures).
 #[derive(Clone, Copy, Debug)]
@@ -327,10 +225,7 @@ impl Bsdf {
             });
         }
         if cfg.max_bounces == 0 || cfg.max_bounces > MAX_BOUNCES_LIMIT {
-            return Err(ParamError {
-                parameter: "max_bounces",
-                message: format!("must be 1..={MAX_BOUNCES_LIMIT}, got {}", cfg.max_bounces),
-            });
+            return Err(ParamError { parameter: "max_bounces", message: format!("must be 1..={MAX_BOUNCES_LIMIT}, got {}", cfg.max_bounces) });
         }
         let model = implementation(cfg.model, cfg.estimator, cfg.surface, cfg.distribution, cfg.tolerance);
         Ok(Bsdf { cfg, model })
@@ -426,7 +321,7 @@ impl Bsdf {
     pub fn sample_with_order(&self, mat: &Material, wi: DVec3, sample1: f64, sample2: (f64, f64)) -> Option<(BsdfSample, u32)> {
         let wi = finite_unit(wi)?;
         let mat = &mat.usable(self.cfg.surface, self.cfg.channels)?;
-        let clamp01 = |u: f64| if u.is_finite() { u.clamp(0.0, 1.0 - f64::EPSILON / 2.0) } else { 0.5 };
+        let clamp01 = |u: f64| unit_interval(u).unwrap_or(0.5);
         let (s1, u1, u2) = (clamp01(sample1), clamp01(sample2.0), clamp01(sample2.1));
         let words = [s1.to_bits(), u1.to_bits(), u2.to_bits(), wi.x.to_bits(), wi.z.to_bits()];
         let call = self.call(mat, (1, u32::MAX), &words);

@@ -7,6 +7,8 @@
 
 /// cbindgen:ignore
 pub mod bsdf;
+/// cbindgen:ignore
+pub mod config;
 pub mod ffi;
 /// cbindgen:ignore
 pub mod microfacet;
@@ -23,6 +25,7 @@ pub mod tables;
 /// cbindgen:ignore
 pub mod walk;
 
-pub use bsdf::{Bsdf, BsdfSample, Config, Estimator, Material, Model, ParamError, Surface};
-pub use microfacet::{Distribution, Microfacet};
+pub use bsdf::{Bsdf, BsdfSample, Material};
+pub use config::{Config, Distribution, Estimator, Model, ParamError, Surface};
+pub use microfacet::Microfacet;
 pub use spectrum::Spectrum;

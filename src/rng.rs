@@ -5,6 +5,14 @@
 use rand::{Rng, RngCore};
 use rand_pcg::Pcg64Mcg;
 
+/// A uniform number made safe for a sampler: clamped into [0, 1) (its largest
+/// value the largest f64 below 1), None when it is not finite (the caller
+/// chooses the replacement).
+#[inline]
+pub fn unit_interval(u: f64) -> Option<f64> {
+    u.is_finite().then(|| u.clamp(0.0, 1.0 - f64::EPSILON / 2.0))
+}
+
 /// SplitMix64 finaliser: a bijective 64-bit mixer.
 #[inline]
 pub fn mix64(mut z: u64) -> u64 {

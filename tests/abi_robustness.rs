@@ -53,8 +53,6 @@ fn no_panic<T>(what: &str, f: impl FnOnce() -> T) -> T {
     out
 }
 
-
-
 // ------------------------------------------------------------ helpers
 
 const MODELS: [u32; 3] = [MSX_MODEL_SINGLE, MSX_MODEL_UNCORRELATED, MSX_MODEL_CORRELATED];
@@ -463,10 +461,7 @@ fn random_sweep_all_outputs_finite_and_nonnegative() {
                 let (eta, k) = match i % 3 {
                     0 => ([0.0; 4], [1.0; 4]),
                     1 => (CU_ETA, CU_K),
-                    _ => (
-                        std::array::from_fn(|_| rng.log_uniform(0.05, 5.0) as f32),
-                        std::array::from_fn(|_| rng.log_uniform(0.01, 10.0) as f32),
-                    ),
+                    _ => (std::array::from_fn(|_| rng.log_uniform(0.05, 5.0) as f32), std::array::from_fn(|_| rng.log_uniform(0.01, 10.0) as f32)),
                 };
                 let m = material(au as f32, av as f32, eta, k);
                 let max_theta = std::f64::consts::FRAC_PI_2 - 1e-6;
@@ -594,14 +589,7 @@ struct Lanes {
 
 impl Lanes {
     fn random(n: usize, rng: &mut Rng, with_bad: bool) -> Lanes {
-        let mut l = Lanes {
-            wi: Default::default(),
-            wo: Default::default(),
-            s1: vec![],
-            s2: Default::default(),
-            alpha_u: vec![],
-            alpha_v: vec![],
-        };
+        let mut l = Lanes { wi: Default::default(), wo: Default::default(), s1: vec![], s2: Default::default(), alpha_u: vec![], alpha_v: vec![] };
         for i in 0..n {
             let mut wi = dir(rng.range(0.0, 1.5707), rng.range(0.0, 6.28));
             let wo = dir(rng.range(0.0, 1.5707), rng.range(0.0, 6.28));

@@ -1,4 +1,4 @@
-//! `model="auto"` (models/auto.rs, README.md, model table): it is exactly `correlated`,
+//! `model="auto"` (src/models/auto/, README.md, model table): it is exactly `correlated`,
 //! with one bounce where the table finds order 1 alone within the tolerance;
 //! the energy it omits stays within the tolerance, measured independently
 //! (full random walks, off-grid points, real materials: copper, albedo 0.5,
@@ -65,11 +65,19 @@ fn auto_is_truncated_correlated() {
                 let below = surface == Surface::Dielectric && rng.next() < 0.5;
                 let wi = {
                     let d = dir(rng.next().acos().min(1.55), 0.0);
-                    if below { DVec3::new(d.x, d.y, -d.z) } else { d }
+                    if below {
+                        DVec3::new(d.x, d.y, -d.z)
+                    } else {
+                        d
+                    }
                 };
                 let wo = {
                     let d = dir(rng.next().acos().min(1.55), 2.0 * PI * rng.next());
-                    if surface == Surface::Dielectric && rng.next() < 0.5 { DVec3::new(d.x, d.y, -d.z) } else { d }
+                    if surface == Surface::Dielectric && rng.next() < 0.5 {
+                        DVec3::new(d.x, d.y, -d.z)
+                    } else {
+                        d
+                    }
                 };
                 let k = cap(surface, dist, &m, wi, 0.01, 64);
                 *caps.entry(k).or_insert(0) += 1;
@@ -115,7 +123,11 @@ fn omitted_energy_within_tolerance() {
                         let m = material(surface, alpha, alpha, 1.5);
                         let wi = {
                             let d = dir(mu.acos(), 0.3);
-                            if below { DVec3::new(d.x, d.y, -d.z) } else { d }
+                            if below {
+                                DVec3::new(d.x, d.y, -d.z)
+                            } else {
+                                d
+                            }
                         };
                         let k = cap(surface, dist, &m, wi, tol, 64);
                         let full = bsdf(surface, dist, Model::Correlated, 64, 0.01);
@@ -181,7 +193,10 @@ fn smooth_surfaces_get_order_one() {
                 let v1 = a.eval(&m, wi, wo, 1).0;
                 let v2 = a.eval(&m, wi, wo, 2).0;
                 let order1 = c.eval_orders(&m, wi, wo, 3, (1, 1)).0;
-                ck.assert(&format!("{surface:?} {dist:?} wi={wi:.3} wo={wo:.3}: cap {k}, {v1:?} vs order 1 {order1:?}"), k == 1 && v1 == v2 && v1 == order1);
+                ck.assert(
+                    &format!("{surface:?} {dist:?} wi={wi:.3} wo={wo:.3}: cap {k}, {v1:?} vs order 1 {order1:?}"),
+                    k == 1 && v1 == v2 && v1 == order1,
+                );
             }
         }
     }
@@ -211,7 +226,10 @@ fn tolerance_is_validated() {
     let mut err = [0 as std::os::raw::c_char; 256];
     let rc = msx::ffi::msx_bsdf_new(&p, &mut out, err.as_mut_ptr(), err.len());
     let msg = unsafe { std::ffi::CStr::from_ptr(err.as_ptr()) }.to_string_lossy().into_owned();
-    ck.assert(&format!("auto_tolerance with model correlated: rc {rc}, '{msg}'"), rc == msx::ffi::MSX_ERR_INVALID_PARAMETER && msg.contains("auto_tolerance"));
+    ck.assert(
+        &format!("auto_tolerance with model correlated: rc {rc}, '{msg}'"),
+        rc == msx::ffi::MSX_ERR_INVALID_PARAMETER && msg.contains("auto_tolerance"),
+    );
     p.model = msx::ffi::MSX_MODEL_AUTO;
     let rc = msx::ffi::msx_bsdf_new(&p, &mut out, err.as_mut_ptr(), err.len());
     ck.assert("auto with auto_tolerance 0.05 accepted", rc == msx::ffi::MSX_OK && !out.is_null());

@@ -18,9 +18,9 @@
 mod common;
 
 use common::*;
-use msx::bsdf::{Config, Material, Model};
 use msx::rng::Sampler;
 use msx::{Bsdf, Distribution};
+use msx::{Config, Material, Model};
 
 // Issue 2 asks for {0.05, 0.3, 0.6, 1.0, 1.5}; the model-family issue adds 0.1 and 2.0.
 const ALPHAS: [f64; 7] = [0.05, 0.1, 0.3, 0.6, 1.0, 1.5, 2.0];

@@ -18,23 +18,8 @@ use common::Rng;
 use msx::ffi::*;
 use std::ptr;
 
-
-const SPECIAL: [f32; 14] = [
-    f32::NAN,
-    f32::INFINITY,
-    f32::NEG_INFINITY,
-    0.0,
-    -0.0,
-    -1.0,
-    1.0,
-    f32::MAX,
-    f32::MIN_POSITIVE,
-    1e-45,
-    1e30,
-    1e-30,
-    0.999_999_94,
-    1.000_000_1,
-];
+const SPECIAL: [f32; 14] =
+    [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 0.0, -0.0, -1.0, 1.0, f32::MAX, f32::MIN_POSITIVE, 1e-45, 1e30, 1e-30, 0.999_999_94, 1.000_000_1];
 
 /// A value that is usually plausible (log-uniform in [lo, hi]) and sometimes adversarial.
 fn value(rng: &mut Rng, lo: f64, hi: f64) -> f32 {

@@ -1,4 +1,4 @@
-//! The committed C header must equal a fresh cbindgen generation from src/ffi.rs.
+//! The committed C header must equal a fresh cbindgen generation from src/ffi/.
 //! Regenerate with `MSX_BLESS=1 cargo test --test header`.
 
 use std::path::PathBuf;
@@ -8,12 +8,7 @@ fn committed_header_matches_cbindgen() {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let config = cbindgen::Config::from_file(root.join("cbindgen.toml")).expect("cbindgen.toml");
     let mut generated = Vec::new();
-    cbindgen::Builder::new()
-        .with_crate(&root)
-        .with_config(config)
-        .generate()
-        .expect("cbindgen failed")
-        .write(&mut generated);
+    cbindgen::Builder::new().with_crate(&root).with_config(config).generate().expect("cbindgen failed").write(&mut generated);
     let generated = String::from_utf8(generated).unwrap();
     let path = root.join("include/msx.h");
     if std::env::var_os("MSX_BLESS").is_some() {

@@ -1,4 +1,4 @@
-//! Heitz et al. 2016 random walk (`msx::models::heitz`): the supplement's §4
+//! Heitz et al. 2016 random walk (`msx::walk::height`, model `msx::models::heitz`): the supplement's §4
 //! validation list on the full sphere — height sampling (§4.1), white furnace
 //! (§4.4.1), reciprocity (§4.4.2), single scattering (§4.4.3), importance
 //! sampling moments (§4.4.4) — plus per-order energies sample vs eval and the
@@ -17,16 +17,16 @@ mod common;
 use common::*;
 use glam::DVec3;
 use msx::microfacet::fresnel;
-use msx::models::posfree::Segments;
-use msx::models::{heitz, ConductorFresnel, Microsurface, WalkOptions};
+use msx::microfacet::{ConductorFresnel, Microsurface};
 use msx::rng::Sampler;
+use msx::walk::{height, WalkOptions};
 use msx::{Distribution, Microfacet, Spectrum};
 use std::f64::consts::PI;
 
 const DISTS: [Distribution; 2] = [Distribution::Ggx, Distribution::Beckmann];
 
 fn opts(max_bounces: u32, orders: (u32, u32)) -> WalkOptions {
-    WalkOptions { segments: Segments::Correlated, max_bounces, orders }
+    WalkOptions { max_bounces, orders }
 }
 
 /// All orders, a cap high enough that the truncated energy is negligible at α ≤ 2.
@@ -64,7 +64,6 @@ fn beta(a: f64, b: f64) -> f64 {
     (libm::lgamma(a) + libm::lgamma(b) - libm::lgamma(a + b)).exp()
 }
 
-
 // ---------------------------------------------------------------------------
 // Proposals for ω_o written here (densities computed independently of the walk).
 
@@ -81,10 +80,10 @@ fn eval_integral<S: Fn(&mut Sampler) -> Option<DVec3>, P: Fn(DVec3) -> f64, G: F
     g: G,
     channel: usize,
 ) -> (f64, f64) {
-    proposal_integral(n, seed, 0xabcd_ef01, sample, pdf, |wo, walk| heitz::eval(mf, surf, wi, wo, o, walk).0[channel] * g(wo))
+    proposal_integral(n, seed, 0xabcd_ef01, sample, pdf, |wo, walk| height::eval(mf, surf, wi, wo, o, walk).0[channel] * g(wo))
 }
 
-/// Mean of weight·g(ω_o) over `heitz::sample`, and the fraction of failed samples.
+/// Mean of weight·g(ω_o) over `height::sample`, and the fraction of failed samples.
 fn sample_integral<G: Fn(DVec3, u32) -> f64>(
     mf: &Microfacet,
     surf: &Microsurface,
@@ -102,7 +101,7 @@ fn sample_integral<G: Fn(DVec3, u32) -> f64>(
         let mut fails = 0usize;
         for _ in 0..n {
             let first = (rng.next(), rng.next(), rng.next());
-            let x = match heitz::sample(mf, surf, wi, first, o, &mut walk) {
+            let x = match height::sample(mf, surf, wi, first, o, &mut walk) {
                 Some((wo, w, k)) => {
                     assert!(wo.is_finite() && (wo.length() - 1.0).abs() < 1e-9, "non-unit ω_o {wo:?}");
                     assert!(w.is_finite() && w.0.iter().all(|&v| v >= 0.0), "bad weight {w:?}");
@@ -143,32 +142,26 @@ fn height_sampling_masking_shadowing() {
                 (Stat::default(), Stat::default(), Stat::default(), Stat::default(), Stat::default());
             for _ in 0..n {
                 let t = rand_t(&mut rng);
-                let ex_o = heitz::sample_height(&mf, wo, t, rng.next()).is_none();
-                let ex_i = heitz::sample_height(&mf, wi, t, rng.next()).is_none();
+                let ex_o = height::sample_height(&mf, wo, t, rng.next()).is_none();
+                let ex_i = height::sample_height(&mf, wi, t, rng.next()).is_none();
                 g1.push(ex_o as u8 as f64);
                 g2.push((ex_o && ex_i) as u8 as f64);
                 // Transmission: −ω_o leaves the flipped microsurface from the flipped height.
-                let ex_t = heitz::sample_height(&mf, wo, heitz::flip_height(t), rng.next()).is_none();
+                let ex_t = height::sample_height(&mf, wo, height::flip_height(t), rng.next()).is_none();
                 g2t.push((ex_i && ex_t) as u8 as f64);
                 // Shadowing given masking: height of the first hit from ω_i (top start).
-                let h = heitz::sample_height(&mf, -wi, 0.0, rng.next()).unwrap();
-                cond.push(heitz::sample_height(&mf, wo, h, rng.next()).is_none() as u8 as f64);
-                condt.push(heitz::sample_height(&mf, wo, heitz::flip_height(h), rng.next()).is_none() as u8 as f64);
+                let h = height::sample_height(&mf, -wi, 0.0, rng.next()).unwrap();
+                cond.push(height::sample_height(&mf, wo, h, rng.next()).is_none() as u8 as f64);
+                condt.push(height::sample_height(&mf, wo, height::flip_height(h), rng.next()).is_none() as u8 as f64);
             }
             ck.close(&format!("{tag} G1(ωo)"), g1.est(), exact(1.0 / (1.0 + lo)), 0.0, 0.0);
             ck.close(&format!("{tag} G2(ωi,ωo)"), g2.est(), exact(1.0 / (1.0 + li + lo)), 0.0, 0.0);
             ck.close(&format!("{tag} G2 transmission B(1+Λi,1+Λ(−ωo'))"), g2t.est(), exact(beta(1.0 + li, 1.0 + lo)), 0.0, 0.0);
             ck.close(&format!("{tag} G2/G1 given masking"), cond.est(), exact((1.0 + li) / (1.0 + li + lo)), 0.0, 0.0);
-            ck.close(
-                &format!("{tag} G2/G1 given masking, transmission"),
-                condt.est(),
-                exact((1.0 + li) * beta(1.0 + li, 1.0 + lo)),
-                0.0,
-                0.0,
-            );
+            ck.close(&format!("{tag} G2/G1 given masking, transmission"), condt.est(), exact((1.0 + li) * beta(1.0 + li, 1.0 + lo)), 0.0, 0.0);
             // Deterministic: masking_at is C¹^Λ.
             let t = -0.7;
-            ck.assert(&format!("{tag} masking_at"), (heitz::masking_at(&mf, wo, t) - (lo * t).exp()).abs() < 1e-14);
+            ck.assert(&format!("{tag} masking_at"), (height::masking_at(&mf, wo, t) - (lo * t).exp()).abs() < 1e-14);
         }
     }
     ck.finish();
@@ -272,13 +265,12 @@ fn furnace_dielectric() {
 // ---------------------------------------------------------------------------
 // §4.4.3 Order 1 = single scattering with the height-correlated G2.
 
-
 fn mean_eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, o: &WalkOptions, n: usize, seed: u64, channel: usize) -> (f64, f64) {
     let run = |seed: u64| {
         let mut rng = Sampler::new(seed);
         let mut st = Stat::default();
         for _ in 0..n {
-            st.push(heitz::eval(mf, surf, wi, wo, o, &mut rng).0[channel]);
+            st.push(height::eval(mf, surf, wi, wo, o, &mut rng).0[channel]);
         }
         st
     };
@@ -416,7 +408,13 @@ fn reciprocity() {
                     let a = mean_eval(&mf, &surf, wi, wo, &o, n, seed, 0);
                     let b = mean_eval(&mf, &surf, wo, wi, &o, n, seed + 1, 0);
                     let (x, y) = dielectric_reciprocal_pair(a, b, wi, wo, eta, radiance);
-                    ck.close(&format!("{dist:?} α=({ax},{ay}) dielectric {name} {}", if radiance { "radiance" } else { "importance" }), x, y, 0.0, 0.0);
+                    ck.close(
+                        &format!("{dist:?} α=({ax},{ay}) dielectric {name} {}", if radiance { "radiance" } else { "importance" }),
+                        x,
+                        y,
+                        0.0,
+                        0.0,
+                    );
                 }
             }
         }
@@ -440,13 +438,43 @@ fn sampling_cases() -> Vec<Case> {
     vec![
         Case { name: "copper GGX α=1 θi=1.0", mf: iso(Distribution::Ggx, 1.0), surf: copper(), wi: dir(1.0, 0.7), channel: 0 },
         Case { name: "mirror Beckmann α=0.5 θi=1.45", mf: iso(Distribution::Beckmann, 0.5), surf: mirror(), wi: dir(1.45, 0.7), channel: 0 },
-        Case { name: "mirror GGX α=(0.3,1.0) θi=0.8", mf: Microfacet::new(Distribution::Ggx, 0.3, 1.0), surf: mirror(), wi: dir(0.8, 0.7), channel: 0 },
+        Case {
+            name: "mirror GGX α=(0.3,1.0) θi=0.8",
+            mf: Microfacet::new(Distribution::Ggx, 0.3, 1.0),
+            surf: mirror(),
+            wi: dir(0.8, 0.7),
+            channel: 0,
+        },
         Case { name: "diffuse 0.8 GGX α=0.5 θi=0", mf: iso(Distribution::Ggx, 0.5), surf: diffuse(0.8), wi: dir(0.0, 0.0), channel: 0 },
         Case { name: "diffuse 0.8 Beckmann α=1.5 θi=1.2", mf: iso(Distribution::Beckmann, 1.5), surf: diffuse(0.8), wi: dir(1.2, 0.7), channel: 0 },
-        Case { name: "dielectric 1.5 GGX α=0.5 θi=1.0 outside", mf: iso(Distribution::Ggx, 0.5), surf: dielectric(1.5, false), wi: side_dir(1.0, 0.7, true), channel: 0 },
-        Case { name: "dielectric 1.5 Beckmann α=1 θi=0.5 inside", mf: iso(Distribution::Beckmann, 1.0), surf: dielectric(1.5, false), wi: side_dir(0.5, 0.7, false), channel: 0 },
-        Case { name: "dielectric 1.5 GGX α=0.7 θi=0.8 outside, radiance", mf: iso(Distribution::Ggx, 0.7), surf: dielectric(1.5, true), wi: side_dir(0.8, 0.7, true), channel: 0 },
-        Case { name: "dielectric 2.4 GGX α=1 θi=0.3 inside, radiance", mf: iso(Distribution::Ggx, 1.0), surf: dielectric(2.4, true), wi: side_dir(0.3, 0.7, false), channel: 0 },
+        Case {
+            name: "dielectric 1.5 GGX α=0.5 θi=1.0 outside",
+            mf: iso(Distribution::Ggx, 0.5),
+            surf: dielectric(1.5, false),
+            wi: side_dir(1.0, 0.7, true),
+            channel: 0,
+        },
+        Case {
+            name: "dielectric 1.5 Beckmann α=1 θi=0.5 inside",
+            mf: iso(Distribution::Beckmann, 1.0),
+            surf: dielectric(1.5, false),
+            wi: side_dir(0.5, 0.7, false),
+            channel: 0,
+        },
+        Case {
+            name: "dielectric 1.5 GGX α=0.7 θi=0.8 outside, radiance",
+            mf: iso(Distribution::Ggx, 0.7),
+            surf: dielectric(1.5, true),
+            wi: side_dir(0.8, 0.7, true),
+            channel: 0,
+        },
+        Case {
+            name: "dielectric 2.4 GGX α=1 θi=0.3 inside, radiance",
+            mf: iso(Distribution::Ggx, 1.0),
+            surf: dielectric(2.4, true),
+            wi: side_dir(0.3, 0.7, false),
+            channel: 0,
+        },
     ]
 }
 
@@ -482,15 +510,8 @@ fn sampling_moments() {
     let mut ck = Checker::new("§4.4.4 moments of f·cos: sample (mean weight·g) vs eval integration");
     let o = all_orders();
     let n = 40_000;
-    let moments: [(&str, fn(DVec3) -> f64); 7] = [
-        ("1", |_| 1.0),
-        ("x", |w| w.x),
-        ("y", |w| w.y),
-        ("z", |w| w.z),
-        ("x²", |w| w.x * w.x),
-        ("y²", |w| w.y * w.y),
-        ("z²", |w| w.z * w.z),
-    ];
+    let moments: [(&str, fn(DVec3) -> f64); 7] =
+        [("1", |_| 1.0), ("x", |w| w.x), ("y", |w| w.y), ("z", |w| w.z), ("x²", |w| w.x * w.x), ("y²", |w| w.y * w.y), ("z²", |w| w.z * w.z)];
     for (ci, c) in sampling_cases().iter().enumerate() {
         let prop = Prop::of(c);
         for (mi, (mname, g)) in moments.iter().enumerate() {
@@ -517,16 +538,8 @@ fn per_order_energy() {
             let s = 5000 + 100 * ci as u64 + 10 * bi as u64;
             let e = eval_integral(&c.mf, &c.surf, c.wi, &o, n, s, |r| prop.sample(r), |w| prop.pdf(w), |_| 1.0, c.channel);
             // Sample with all orders, binned by the returned order.
-            let (m, _) = sample_integral(
-                &c.mf,
-                &c.surf,
-                c.wi,
-                &all_orders(),
-                n,
-                s + 1,
-                |_, k| (k >= orders.0 && k <= orders.1) as u8 as f64,
-                c.channel,
-            );
+            let (m, _) =
+                sample_integral(&c.mf, &c.surf, c.wi, &all_orders(), n, s + 1, |_, k| (k >= orders.0 && k <= orders.1) as u8 as f64, c.channel);
             // And `sample` restricted to the same orders must give the same energy.
             let (mr, _) = sample_integral(&c.mf, &c.surf, c.wi, &o, n, s + 2, |_, _| 1.0, c.channel);
             let lab = if orders.1 == u32::MAX { "4+".to_string() } else { orders.0.to_string() };
@@ -570,7 +583,7 @@ fn degenerate_cases_are_finite() {
                 for &wi in &dirs {
                     for &wo in &dirs {
                         for _ in 0..4 {
-                            let v = heitz::eval(&mf, surf, wi, wo, &o, &mut rng);
+                            let v = height::eval(&mf, surf, wi, wo, &o, &mut rng);
                             calls += 1;
                             if !(v.is_finite() && v.0.iter().all(|&x| x >= 0.0)) {
                                 bad += 1;
@@ -581,7 +594,7 @@ fn degenerate_cases_are_finite() {
                     for _ in 0..16 {
                         let first = (rng.next(), rng.next(), rng.next());
                         calls += 1;
-                        if let Some((w, s, k)) = heitz::sample(&mf, surf, wi, first, &o, &mut rng) {
+                        if let Some((w, s, k)) = height::sample(&mf, surf, wi, first, &o, &mut rng) {
                             if !(w.is_finite() && (w.length() - 1.0).abs() < 1e-9 && s.is_finite() && s.0.iter().all(|&x| x >= 0.0) && k >= 1) {
                                 bad += 1;
                                 println!("sample {dist:?} α={alpha} {surf:?} wi={wi}: {w} {s:?} {k}");
@@ -591,7 +604,7 @@ fn degenerate_cases_are_finite() {
                     // Boundary random numbers.
                     for first in [(0.0, 0.0, 0.0), (1.0, 1.0, 1.0), (f64::NAN, 0.5, 1.0 - 1e-17)] {
                         calls += 1;
-                        if let Some((w, s, _)) = heitz::sample(&mf, surf, wi, first, &o, &mut rng) {
+                        if let Some((w, s, _)) = height::sample(&mf, surf, wi, first, &o, &mut rng) {
                             if !(w.is_finite() && s.is_finite() && s.0.iter().all(|&x| x >= 0.0)) {
                                 bad += 1;
                             }
@@ -607,9 +620,9 @@ fn degenerate_cases_are_finite() {
     let mf = Microfacet::new(Distribution::Ggx, 0.5, 0.5);
     let (up, down) = (DVec3::new(0.6, 0.0, 0.8), DVec3::new(0.6, 0.0, -0.8));
     for surf in [copper(), diffuse(0.5)] {
-        ck.assert("below the horizon gives zero", heitz::eval(&mf, &surf, up, down, &o, &mut rng) == Spectrum::ZERO);
-        ck.assert("below the horizon gives zero (wi)", heitz::eval(&mf, &surf, down, up, &o, &mut rng) == Spectrum::ZERO);
-        ck.assert("no sample from below", heitz::sample(&mf, &surf, down, (0.3, 0.3, 0.3), &o, &mut rng).is_none());
+        ck.assert("below the horizon gives zero", height::eval(&mf, &surf, up, down, &o, &mut rng) == Spectrum::ZERO);
+        ck.assert("below the horizon gives zero (wi)", height::eval(&mf, &surf, down, up, &o, &mut rng) == Spectrum::ZERO);
+        ck.assert("no sample from below", height::sample(&mf, &surf, down, (0.3, 0.3, 0.3), &o, &mut rng).is_none());
     }
     ck.finish();
 }

@@ -197,7 +197,11 @@ fn vndf_suite(dist: Distribution, seed: u64) {
             }
             let ess = ess.get();
             if ess < MIN_ESS {
-                println!("{tag}: A(ω) = {area:.3e}, integration ESS = {ess:.0} < {MIN_ESS}: unresolved, not asserted (∫⟨ω,m⟩D = {:.3e} ± {:.1e})", s_area.mean(), s_area.se());
+                println!(
+                    "{tag}: A(ω) = {area:.3e}, integration ESS = {ess:.0} < {MIN_ESS}: unresolved, not asserted (∫⟨ω,m⟩D = {:.3e} ± {:.1e})",
+                    s_area.mean(),
+                    s_area.se()
+                );
                 unresolved.push(tag.clone());
             } else {
                 ck.close(&format!("{tag}: ∫⟨ω,m⟩₊D(m)dm = A(ω)"), s_area.est(), exact(area), 0.0, 0.0);
@@ -312,7 +316,11 @@ fn phase_suite(dist: Distribution, seed: u64) {
                     // Below 1e-300 the values are subnormal and lose relative precision.
                     let e = ((a - b).abs() - 1e-300).max(0.0) / scale;
                     if e > worst && e > 1e-12 {
-                        println!("reciprocity deviation {e:.3e} at α=({ax},{ay}) wi={wi:?} wo={wo:?}: A(wi)={:e} A(wo)={:e} a={a:e} b={b:e}", mf.projected_area(wi), mf.projected_area(wo));
+                        println!(
+                            "reciprocity deviation {e:.3e} at α=({ax},{ay}) wi={wi:?} wo={wo:?}: A(wi)={:e} A(wo)={:e} a={a:e} b={b:e}",
+                            mf.projected_area(wi),
+                            mf.projected_area(wo)
+                        );
                     }
                     worst = worst.max(e);
                 }
@@ -346,7 +354,12 @@ fn phase_suite(dist: Distribution, seed: u64) {
             }
             let ess = ess.get();
             if ess < MIN_ESS || mf.projected_area(wi) <= 0.0 {
-                println!("{tag}: A(ω_i) = {:.3e}, ESS = {ess:.0}: unresolved, not asserted (∫p = {:.4} ± {:.1e})", mf.projected_area(wi), s_norm.mean(), s_norm.se());
+                println!(
+                    "{tag}: A(ω_i) = {:.3e}, ESS = {ess:.0}: unresolved, not asserted (∫p = {:.4} ± {:.1e})",
+                    mf.projected_area(wi),
+                    s_norm.mean(),
+                    s_norm.se()
+                );
                 unresolved.push(tag.clone());
                 continue;
             }

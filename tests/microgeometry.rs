@@ -14,7 +14,7 @@ mod common;
 
 use common::family_sigmas;
 use glam::DVec3;
-use msx::microgeometry::{Facet, HeightField, SimConfig, Side, Simulation, SurfaceParams, Trace};
+use msx::microgeometry::{Facet, HeightField, Side, SimConfig, Simulation, SurfaceParams, Trace};
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet};
 use std::f64::consts::PI;
@@ -88,13 +88,25 @@ impl Family {
         for (label, m, se, e) in &self.checks {
             // A statistic without spread (every probe gave the same value) must
             // equal the expectation to rounding.
-            let t = if *se > 0.0 { (m - e) / se } else if (m - e).abs() <= 1e-6 * e.abs().max(1.0) { 0.0 } else { f64::INFINITY };
+            let t = if *se > 0.0 {
+                (m - e) / se
+            } else if (m - e).abs() <= 1e-6 * e.abs().max(1.0) {
+                0.0
+            } else {
+                f64::INFINITY
+            };
             println!("{label}: measured {m:.6} ± {se:.6}, expected {e:.6}, t = {t:+.2}");
             if !(t.abs() <= thr) {
                 fails.push(label.clone());
             }
         }
-        println!("=== {}: {} checks, K = {} realisations, threshold |t| ≤ {thr:.2}; {} failed ===", self.name, self.checks.len(), self.k, fails.len());
+        println!(
+            "=== {}: {} checks, K = {} realisations, threshold |t| ≤ {thr:.2}; {} failed ===",
+            self.name,
+            self.checks.len(),
+            self.k,
+            fails.len()
+        );
         assert!(fails.is_empty(), "{}: {:?}", self.name, fails);
     }
 }
@@ -250,7 +262,10 @@ fn masking_matches_smith_g1_of_beckmann() {
             fam.add(format!("{tag} visible area / cos θ"), &vis, 1.0);
             fam.add(format!("{tag} front-facing area / (cos θ (1+Λ))"), &area, 1.0);
             fam.add(format!("{tag} G1 (Λ = {lambda:.4})"), &g1, 1.0 / (1.0 + lambda));
-            let diag: Vec<String> = (0..nb).filter(|&b| hn[b] > 100.0).map(|b| format!("h≈{:+.1}: {:.3} vs {:.3}", -3.0 + (b as f64 + 0.5), hv[b] / hn[b], hs[b] / hn[b])).collect();
+            let diag: Vec<String> = (0..nb)
+                .filter(|&b| hn[b] > 100.0)
+                .map(|b| format!("h≈{:+.1}: {:.3} vs {:.3}", -3.0 + (b as f64 + 0.5), hv[b] / hn[b], hs[b] / hn[b]))
+                .collect();
             println!("{tag}: P(visible | height), measured vs Smith C1(h)^Λ (diagnostic, not tested): {}", diag.join(", "));
         }
         fam.finish();
@@ -379,7 +394,9 @@ fn point_sampled_order1(s: &Simulation, points: usize) -> Vec<Vec<f64>> {
                     }
                 };
                 match cfg.facet {
-                    Facet::Conductor { eta, k } => out(msx::microfacet::reflect(wi, n), Side::Outside, msx::microfacet::fresnel::conductor(c, eta, k)),
+                    Facet::Conductor { eta, k } => {
+                        out(msx::microfacet::reflect(wi, n), Side::Outside, msx::microfacet::fresnel::conductor(c, eta, k))
+                    }
                     Facet::Dielectric { ior } => {
                         let (fr, cos_t, _, eta_ti) = msx::microfacet::fresnel::dielectric_full(c, ior);
                         out(msx::microfacet::reflect(wi, n), Side::Outside, fr);

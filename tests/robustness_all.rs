@@ -30,7 +30,15 @@ fn combos() -> Vec<(u32, u32, u32, u32)> {
         }
         v.push((MSX_SURFACE_CONDUCTOR, dist, MSX_MODEL_UNCORRELATED, MSX_ESTIMATOR_BDPT));
         v.push((MSX_SURFACE_CONDUCTOR, dist, MSX_MODEL_CORRELATED, MSX_ESTIMATOR_BDPT));
-        for model in [MSX_MODEL_SINGLE, MSX_MODEL_UNCORRELATED, MSX_MODEL_CORRELATED, MSX_MODEL_HEITZ, MSX_MODEL_INVARIANCE, MSX_MODEL_COMPENSATED, MSX_MODEL_AUTO] {
+        for model in [
+            MSX_MODEL_SINGLE,
+            MSX_MODEL_UNCORRELATED,
+            MSX_MODEL_CORRELATED,
+            MSX_MODEL_HEITZ,
+            MSX_MODEL_INVARIANCE,
+            MSX_MODEL_COMPENSATED,
+            MSX_MODEL_AUTO,
+        ] {
             v.push((MSX_SURFACE_DIELECTRIC, dist, model, MSX_ESTIMATOR_PT));
         }
         v.push((MSX_SURFACE_CONDUCTOR, dist, MSX_MODEL_AUTO, MSX_ESTIMATOR_BDPT));
@@ -69,7 +77,8 @@ fn every_model_surface_distribution_is_total() {
             let a = (rng.gen_range((1e-4f64).ln(), (4.0f64).ln())).exp();
             let ratio = if rng.next() < 0.5 { 1.0 } else { (rng.gen_range(0.0, (100.0f64).ln())).exp() };
             let eta = if rng.next() < 0.5 { rng.gen_range(1.0001, 3.0) } else { rng.gen_range(0.33, 0.9999) };
-            let mut theta = if rng.next() < 0.3 { std::f64::consts::FRAC_PI_2 - (rng.gen_range((1e-6f64).ln(), 0.0)).exp() } else { rng.gen_range(0.0, 1.5707) };
+            let mut theta =
+                if rng.next() < 0.3 { std::f64::consts::FRAC_PI_2 - (rng.gen_range((1e-6f64).ln(), 0.0)).exp() } else { rng.gen_range(0.0, 1.5707) };
             if surface == MSX_SURFACE_DIELECTRIC && rng.next() < 0.5 {
                 theta = std::f64::consts::PI - theta; // from inside
             }

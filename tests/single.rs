@@ -158,4 +158,3 @@ fn single_dielectric_sampling() {
     ck.assert(&format!("sample pdf = pdf() ({worst_p:.2e} ≤ 1e-9)"), worst_p <= 1e-9);
     ck.finish();
 }
-

@@ -133,7 +133,13 @@ mod tests {
                 let integ = |a: f64, b: f64| {
                     let n = 40000;
                     let h = (b - a) / n as f64;
-                    (0..n).map(|k| { let y = a + (k as f64 + 0.5) * h; (c - y * s) * (-y * y).exp() }).sum::<f64>() * h
+                    (0..n)
+                        .map(|k| {
+                            let y = a + (k as f64 + 0.5) * h;
+                            (c - y * s) * (-y * y).exp()
+                        })
+                        .sum::<f64>()
+                        * h
                 };
                 let lo = if t < 0.0 { t - 14.0 / (1.0 + t.abs()) } else { -12.0 };
                 let cdf = integ(lo, x) / integ(lo, t);

@@ -7,11 +7,10 @@
 //! `single` must reproduce bit for bit and the position-free walks use,
 //! [`reflect_or_refract`]) and the unit-vector form of the height-based walks
 //! of Heitz 2016 and Cui 2023 (`fresnel::dielectric`, [`refract_unit`]).
-//! Moving those walks to Mitsuba's form was tried: it changes their random
-//! streams (a rounding difference flips rare decisions), and two statistical
-//! checks whose estimators are heavy-tailed then failed at 4.4σ at their fixed
-//! seeds while passing (z ≤ 3.6) at three other seeds — the forms are
-//! equivalent, the checks marginal; see docs/testing.md.
+//! The forms are equivalent but round differently: a walk moved from one to
+//! the other draws a different random stream (a rounding difference flips rare
+//! decisions), which the fixed-seed checks of heavy-tailed estimators notice
+//! (docs/testing.md, "Heavy-tailed estimators and fixed seeds").
 
 use super::fresnel::dielectric_full;
 use super::{reflect, refract};

@@ -43,11 +43,7 @@ pub fn smith_g1(mf: &Microfacet, v: DVec3, m: DVec3) -> f64 {
 pub fn sample_visible(mf: &Microfacet, wi: DVec3, u1: f64, u2: f64) -> DVec3 {
     let wp = DVec3::new(mf.alpha_u * wi.x, mf.alpha_v * wi.y, wi.z).normalize();
     let st = (wp.x * wp.x + wp.y * wp.y).sqrt();
-    let (sin_phi, cos_phi) = if st > 0.0 {
-        ((wp.y / st).clamp(-1.0, 1.0), (wp.x / st).clamp(-1.0, 1.0))
-    } else {
-        (0.0, 1.0)
-    };
+    let (sin_phi, cos_phi) = if st > 0.0 { ((wp.y / st).clamp(-1.0, 1.0), (wp.x / st).clamp(-1.0, 1.0)) } else { (0.0, 1.0) };
     let (sx, sy) = sample_visible_11(mf.dist, wp.z, u1, u2);
     let slope_x = (cos_phi * sx - sin_phi * sy) * mf.alpha_u;
     let slope_y = (sin_phi * sx + cos_phi * sy) * mf.alpha_v;
@@ -93,11 +89,7 @@ fn square_to_disk_concentric(u1: f64, u2: f64) -> (f64, f64) {
     if x == 0.0 && y == 0.0 {
         return (0.0, 0.0);
     }
-    let (r, phi) = if x.abs() > y.abs() {
-        (x, (PI / 4.0) * (y / x))
-    } else {
-        (y, PI / 2.0 - (PI / 4.0) * (x / y))
-    };
+    let (r, phi) = if x.abs() > y.abs() { (x, (PI / 4.0) * (y / x)) } else { (y, PI / 2.0 - (PI / 4.0) * (x / y)) };
     let (s, c) = phi.sin_cos();
     (r * c, r * s)
 }

@@ -13,18 +13,17 @@ pub mod ggx;
 pub mod mitsuba;
 pub mod special;
 
+mod microsurface;
+
+pub use microsurface::{ConductorFresnel, Microsurface};
+
+use crate::config::Distribution;
 use glam::DVec3;
 
 /// Smallest and largest roughness the core works with. Mitsuba clamps α to
 /// ≥ 1e-4 as well; the upper bound keeps Λ, D and the walk lengths finite.
 pub const ALPHA_MIN: f64 = 1e-4;
 pub const ALPHA_MAX: f64 = 1e4;
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Distribution {
-    Beckmann,
-    Ggx,
-}
 
 /// An anisotropic microfacet distribution (α_u along x, α_v along y).
 #[derive(Clone, Copy, Debug)]

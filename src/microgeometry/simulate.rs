@@ -166,7 +166,11 @@ impl Tally {
 #[derive(Clone, Copy, Debug)]
 pub enum RayOutcome {
     /// Left the surface along `dir` after `bounces` facet events with `weight`.
-    Left { dir: DVec3, weight: f64, bounces: u32 },
+    Left {
+        dir: DVec3,
+        weight: f64,
+        bounces: u32,
+    },
     Lost,
     Capped,
 }
@@ -290,9 +294,7 @@ impl Simulation {
         let cfg = self.cfg;
         let start = self.done;
         let items: Vec<(usize, u64, u64)> = (0..cfg.surfaces)
-            .flat_map(|s| {
-                (0..rays_per_surface.div_ceil(CHUNK)).map(move |c| (s, start + c * CHUNK, start + ((c + 1) * CHUNK).min(rays_per_surface)))
-            })
+            .flat_map(|s| (0..rays_per_surface.div_ceil(CHUNK)).map(move |c| (s, start + c * CHUNK, start + ((c + 1) * CHUNK).min(rays_per_surface))))
             .collect();
         let next = AtomicUsize::new(0);
         let fields = &self.fields;

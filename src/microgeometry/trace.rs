@@ -118,7 +118,13 @@ impl IndexRay {
     fn z(&self, t: f64) -> f64 {
         if t.is_infinite() {
             // Only for rays without horizontal motion.
-            return if self.d[2] > 0.0 { f64::INFINITY } else if self.d[2] < 0.0 { f64::NEG_INFINITY } else { self.o[2] };
+            return if self.d[2] > 0.0 {
+                f64::INFINITY
+            } else if self.d[2] < 0.0 {
+                f64::NEG_INFINITY
+            } else {
+                self.o[2]
+            };
         }
         self.o[2] + t * self.d[2]
     }

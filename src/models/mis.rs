@@ -6,9 +6,10 @@
 //! the walk can go; the sample weights stay the walk's own, so any positive
 //! density keeps the estimates unbiased (docs/conventions.md).
 
-use super::{Call, Microsurface};
-use crate::microfacet::Microfacet;
 use super::single::dielectric::pdf as single_dielectric_pdf;
+use super::Call;
+use crate::microfacet::Microfacet;
+use crate::microfacet::Microsurface;
 use crate::tables::albedo::AlbedoTable;
 use glam::DVec3;
 use std::f64::consts::FRAC_1_PI;
@@ -124,7 +125,7 @@ pub fn diffuse_fraction(mf: &Microfacet) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::microfacet::Distribution;
+    use crate::config::Distribution;
 
     /// The per-thread memo of `order_one_of` never returns another call's
     /// values: densities asked in an interleaved order equal the direct formula.
@@ -136,7 +137,11 @@ mod tests {
             (st >> 11) as f64 / (1u64 << 53) as f64
         };
         let dirs: Vec<DVec3> = (0..6).map(|_| DVec3::new(rnd() - 0.5, rnd() - 0.5, 0.05 + rnd()).normalize()).collect();
-        let mfs = [Microfacet::new(Distribution::Ggx, 0.3, 0.3), Microfacet::new(Distribution::Ggx, 0.3, 0.9), Microfacet::new(Distribution::Beckmann, 0.3, 0.3)];
+        let mfs = [
+            Microfacet::new(Distribution::Ggx, 0.3, 0.3),
+            Microfacet::new(Distribution::Ggx, 0.3, 0.9),
+            Microfacet::new(Distribution::Beckmann, 0.3, 0.3),
+        ];
         for _ in 0..3000 {
             let mf = &mfs[(rnd() * 3.0) as usize];
             let exit = if rnd() < 0.5 { OrderOneExit::Separable } else { OrderOneExit::HeightCorrelated };

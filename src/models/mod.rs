@@ -8,7 +8,7 @@
 //! | `heitz/` | Heitz 2016 random walk | ✓ | ✓ | ✓ |
 //! | `invariance/` | Cui 2023 invariance principle, PT and BDPT | ✓ | ✓ | ✓ |
 //! | `analytic/` | Fast-MSX (Rosales 2023), energy compensation (Turquin 2019) | ✓ | compensation | |
-//! | `auto.rs` | `correlated`, reduced to order 1 where a table says it suffices | ✓ | ✓ | ✓ |
+//! | `auto/` | `correlated`, reduced to order 1 where its table (`auto/table.rs`) says it suffices | ✓ | ✓ | ✓ |
 //!
 //! A model sees one call at a time ([`Call`]): the microfacet statistics, the
 //! microsurface's material, the orders to count and a random stream derived
@@ -23,10 +23,11 @@ pub mod mis;
 pub mod posfree;
 pub mod single;
 
-use crate::bsdf::{Estimator, Surface};
-use crate::microfacet::{fresnel, Microfacet};
+use crate::config::{Estimator, Surface};
+use crate::microfacet::{Microfacet, Microsurface};
 use crate::rng::{hash_words, Sampler};
-use crate::spectrum::{ChannelMask, Spectrum};
+use crate::spectrum::Spectrum;
+use crate::walk::WalkOptions;
 use glam::DVec3;
 
 /// What one BSDF call gives a model: unit directions and a usable material
@@ -71,11 +72,10 @@ impl Call {
         Sampler::new(hash_words(&[st.seed, hash_words(&st.words[..st.len])]))
     }
 
-    /// Walk options with the given segment model (ignored by the walks
-    /// that are not position-free).
+    /// The call's bounce cap and orders, as the walks take them.
     #[inline]
-    pub fn walk(&self, segments: posfree::Segments) -> WalkOptions {
-        WalkOptions { segments, max_bounces: self.max_bounces, orders: self.orders }
+    pub fn walk(&self) -> WalkOptions {
+        WalkOptions { max_bounces: self.max_bounces, orders: self.orders }
     }
 
     /// Whether order 1 is counted (the analytic models have no other order).
@@ -119,71 +119,4 @@ pub trait ScatteringModel: Send + Sync + std::fmt::Debug {
     /// Samples ω_o; `first` = (sample1, u1, u2) of the caller drives the
     /// first vertex, the call's stream the rest.
     fn sample(&self, call: &Call, wi: DVec3, first: (f64, f64, f64)) -> Option<Sampled>;
-}
-
-/// Options of one evaluation.
-#[derive(Clone, Copy, Debug)]
-pub struct WalkOptions {
-    pub segments: posfree::Segments,
-    /// Maximum number of scattering events (vertices).
-    pub max_bounces: u32,
-    /// Scattering orders counted, 1-based inclusive (k = 1 is single scattering).
-    pub orders: (u32, u32),
-}
-
-impl WalkOptions {
-    /// The order of the last vertex a walk may reach, min(orders.1,
-    /// max_bounces); None when that leaves no order to count.
-    #[inline]
-    pub fn last_order(&self) -> Option<u32> {
-        let last = self.orders.1.min(self.max_bounces);
-        (last > 0 && self.orders.0 <= last).then_some(last)
-    }
-
-    /// The orders counted, from 1 and within the bounce cap (may be empty).
-    #[inline]
-    pub fn clamped_orders(&self) -> (u32, u32) {
-        (self.orders.0.max(1), self.orders.1.min(self.max_bounces))
-    }
-}
-
-/// What a microfacet does to light (Heitz 2016 §3.2–3.4): the microsurface's
-/// material, shared by every multiple-scattering model.
-#[derive(Clone, Copy, Debug)]
-pub enum Microsurface {
-    /// Specular conductor facets, complex Fresnel per channel.
-    Conductor(ConductorFresnel),
-    /// Specular dielectric facets. `eta` = η_int/η_ext (> 0) of the interface;
-    /// directions with z < 0 are inside (Mitsuba's roughdielectric convention).
-    /// `radiance`: scale transmission by 1/η² as Mitsuba's Radiance mode does.
-    Dielectric { eta: f64, radiance: bool },
-    /// Lambertian facets with the given albedo (Heitz 2016 §3.3).
-    Diffuse { albedo: Spectrum },
-}
-
-/// Per-channel Fresnel factor of a conductor (F = 1 fast path for the
-/// perfect mirror, Mitsuba's `material="none"`).
-#[derive(Clone, Copy, Debug)]
-pub struct ConductorFresnel {
-    pub eta: Spectrum,
-    pub k: Spectrum,
-    pub channels: usize,
-    pub mirror: bool,
-    keep: ChannelMask,
-}
-
-impl ConductorFresnel {
-    pub fn new(eta: Spectrum, k: Spectrum, channels: usize) -> Self {
-        let channels = channels.clamp(1, crate::spectrum::MAX_CHANNELS);
-        let mirror = (0..channels).all(|c| eta.0[c] == 0.0 && k.0[c] == 1.0);
-        ConductorFresnel { eta, k, channels, mirror, keep: ChannelMask::first(channels) }
-    }
-
-    #[inline]
-    pub fn eval(&self, cos_i: f64) -> Spectrum {
-        if self.mirror {
-            return Spectrum::ONE;
-        }
-        Spectrum(fresnel::conductor4(cos_i, &self.eta.0, &self.k.0)).masked(self.keep)
-    }
 }

@@ -4,7 +4,8 @@
 //! albedos of the multiple-scattering models (for the MIS density).
 
 use super::{Axis, Grid, Warp};
-use crate::microfacet::{mitsuba, reflect, Distribution, Microfacet};
+use crate::config::Distribution;
+use crate::microfacet::{mitsuba, reflect, Microfacet};
 use crate::tables;
 use glam::DVec3;
 use std::sync::OnceLock;
@@ -82,7 +83,8 @@ impl AlbedoTable {
             }
             row[3 * MU.n] = avg;
         });
-        let part = |k: usize| Grid { axes: [ALPHA, MU], values: rows.chunks(3 * MU.n + 1).flat_map(|r| r[k * MU.n..(k + 1) * MU.n].to_vec()).collect() };
+        let part =
+            |k: usize| Grid { axes: [ALPHA, MU], values: rows.chunks(3 * MU.n + 1).flat_map(|r| r[k * MU.n..(k + 1) * MU.n].to_vec()).collect() };
         let e_avg = Grid { axes: [ALPHA], values: rows.chunks(3 * MU.n + 1).map(|r| r[3 * MU.n]).collect() };
         AlbedoTable { e: part(0), e1_uncorr: part(1), e1_corr: part(2), e_avg }
     }

@@ -4,15 +4,17 @@
 //! interpolates multilinearly between them, and [`build`] fills the rows of a
 //! table over the available threads (the values do not depend on the split).
 //!
+//! This module depends on `microfacet/` (and the leaves `config`, `rng`,
+//! `spectrum`) only. It holds the grid machinery and the tables more than one
+//! model reads; a table that one model alone reads lives beside that model
+//! (`models/auto/table.rs`, `models/analytic/dielectric_albedo.rs`) and uses
+//! the machinery from here (docs/architecture.md).
+//!
 //! | file | table | used by |
 //! |---|---|---|
-//! | `src/tables/albedo.rs` | conductor albedos with F = 1 over (α, μ): `single`, order 1 of the walks | `compensated`, the MIS density of the conductor walks |
-//! | `dielectric_albedo.rs` | E_r + E_t of `single` on a dielectric over (α, η, μ), both sides | `compensated` on dielectrics |
-//! | `multiple_scattering.rs` | the multiply scattered fraction T₁ of `correlated` over (η, α, μ) | `auto` |
+//! | `albedo.rs` | conductor albedos with F = 1 over (α, μ): `single`, order 1 of the walks | `compensated`, the MIS density of the conductor walks |
 
 pub mod albedo;
-pub mod dielectric_albedo;
-pub mod multiple_scattering;
 
 /// The coordinate in which an axis places its nodes uniformly.
 #[derive(Clone, Copy, Debug, PartialEq)]

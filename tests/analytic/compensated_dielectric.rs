@@ -16,13 +16,12 @@
 //! comparable grid). The deterministic part of the table error (table vs the
 //! same quadrature with 64² normals at the query point) is printed.
 
-
 use crate::common::{Checker, Stat, UNIFORM_SPHERE_PDF};
 use glam::DVec3;
 use msx::microfacet::fresnel::dielectric_full;
 use msx::microfacet::{reflect, refract};
 use msx::models::analytic::compensated_dielectric as cd;
-use msx::tables::dielectric_albedo::{self as table, DielectricAlbedoTable};
+use msx::models::analytic::dielectric_albedo::{self as table, DielectricAlbedoTable};
 use msx::models::single::dielectric as single_dielectric;
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet};
@@ -143,7 +142,15 @@ fn table_cost() {
         let t0 = Instant::now();
         let table = DielectricAlbedoTable::compute(dist);
         let dt = t0.elapsed().as_secs_f64();
-        println!("{dist:?}: table of {}×{}×{}×2 entries ({}² normals each (μ, α)) computed in {dt:.3} s (threads: {:?}); E(1, 0.5, 1.5) = {:.5}", table::MU.n, table::ALPHA.n, table::N_ETA, table::GRID, std::thread::available_parallelism().map(|n| n.get()).ok(), table.e(0.5, 1.0, 1.5));
+        println!(
+            "{dist:?}: table of {}×{}×{}×2 entries ({}² normals each (μ, α)) computed in {dt:.3} s (threads: {:?}); E(1, 0.5, 1.5) = {:.5}",
+            table::MU.n,
+            table::ALPHA.n,
+            table::N_ETA,
+            table::GRID,
+            std::thread::available_parallelism().map(|n| n.get()).ok(),
+            table.e(0.5, 1.0, 1.5)
+        );
     }
 }
 
@@ -243,7 +250,10 @@ fn compensated_at_least_single_and_weight_is_eval_over_pdf() {
                             let rel_p = (p - pdf).abs() / pdf.max(1e-300);
                             let rel_w = if w > 0.0 { (e / p - w).abs() / w } else { e.abs() };
                             worst_w = worst_w.max(rel_w).max(rel_p);
-                            ck.assert(&format!("{dist:?} η={eta} α={alpha} wi={wi}: weight {w} vs eval/pdf {} (pdf {pdf} vs {p})", e / p), rel_w < 1e-6 && rel_p < 1e-6);
+                            ck.assert(
+                                &format!("{dist:?} η={eta} α={alpha} wi={wi}: weight {w} vs eval/pdf {} (pdf {pdf} vs {p})", e / p),
+                                rel_w < 1e-6 && rel_p < 1e-6,
+                            );
                             n_w += 1;
                         }
                     }
@@ -283,7 +293,10 @@ fn robustness() {
                         ck.assert(&format!("{dist:?} η={eta} α={alpha} eval {v} pdf {p}"), v.is_finite() && v >= 0.0 && p.is_finite() && p >= 0.0);
                         let (s1, u1, u2) = (rng.next(), rng.next(), rng.next());
                         if let Some((wo, pdf, w)) = cd::sample(&mf, eta, wi, s1, u1, u2, radiance) {
-                            ck.assert(&format!("{dist:?} η={eta} α={alpha} sample {wo} {pdf} {w}"), wo.is_finite() && pdf.is_finite() && pdf > 0.0 && w.is_finite() && w >= 0.0);
+                            ck.assert(
+                                &format!("{dist:?} η={eta} α={alpha} sample {wo} {pdf} {w}"),
+                                wo.is_finite() && pdf.is_finite() && pdf > 0.0 && w.is_finite() && w >= 0.0,
+                            );
                         }
                         count += 1;
                     }
@@ -298,5 +311,3 @@ fn robustness() {
     println!("{count} evaluations; largest compensation factor {max_scale:.3}");
     ck.finish();
 }
-
-

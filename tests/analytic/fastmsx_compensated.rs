@@ -11,7 +11,6 @@
 // Lints relaxed for this test file: angles near 2π on purpose.
 #![allow(clippy::approx_constant)]
 
-
 use crate::common::{Checker, Stat, VndfOutProposal};
 use glam::DVec3;
 use msx::models::analytic::compensated::{self, AlbedoTable};
@@ -133,7 +132,7 @@ fn compensation_table_matches_monte_carlo_and_restores_energy() {
             }
         }
     }
-    let f_avg = compensated::fresnel_average(&msx::models::ConductorFresnel::new(copper(0.5).eta, copper(0.5).k, 3));
+    let f_avg = compensated::fresnel_average(&msx::microfacet::ConductorFresnel::new(copper(0.5).eta, copper(0.5).k, 3));
     println!("copper F_avg (RGB) = {:.4} {:.4} {:.4}", f_avg.0[0], f_avg.0[1], f_avg.0[2]);
     c.assert("F_avg in (0, 1]", (0..3).all(|k| f_avg.0[k] > 0.0 && f_avg.0[k] <= 1.0));
     c.finish();

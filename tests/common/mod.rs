@@ -670,10 +670,7 @@ pub fn walter_transmission(mf: &Microfacet, wi_l: DVec3, wo_l: DVec3, e: f64, g:
 pub fn assert_no_raw_defects(before: msx::ffi::MsxDiagnostics, what: &str) {
     let after = msx::ffi::msx_diagnostics();
     let (nf, neg, pan) = (after.nonfinite - before.nonfinite, after.negative - before.negative, after.panics - before.panics);
-    assert!(
-        nf == 0 && neg == 0 && pan == 0,
-        "{what}: the C ABI cleaned {nf} non-finite and {neg} negative raw values and caught {pan} panics"
-    );
+    assert!(nf == 0 && neg == 0 && pan == 0, "{what}: the C ABI cleaned {nf} non-finite and {neg} negative raw values and caught {pan} panics");
 }
 
 /// SplitMix64: a tiny fixed-seed generator for sweeps and fuzzing,

@@ -12,12 +12,13 @@
 // Lints relaxed for this test file: test helpers take every configuration axis.
 #![allow(clippy::too_many_arguments, clippy::type_complexity)]
 
-
 use crate::common::*;
 use glam::DVec3;
+use msx::microfacet::{ConductorFresnel, Microsurface};
+use msx::models::invariance;
 use msx::models::posfree::{self, Segments};
-use msx::models::{heitz, invariance, ConductorFresnel, Microsurface, WalkOptions};
 use msx::rng::Sampler;
+use msx::walk::{height, WalkOptions};
 use msx::{Distribution, Microfacet, Spectrum};
 use std::f64::consts::PI;
 use std::time::Instant;
@@ -33,7 +34,7 @@ fn copper() -> ConductorFresnel {
 }
 
 fn opts(max_bounces: u32, orders: (u32, u32)) -> WalkOptions {
-    WalkOptions { segments: Segments::Correlated, max_bounces, orders }
+    WalkOptions { max_bounces, orders }
 }
 
 const MAXB: u32 = 1024;
@@ -366,12 +367,21 @@ fn inv_eval(mf: Microfacet, fr: ConductorFresnel, o: WalkOptions) -> impl Fn(DVe
 }
 
 fn heitz_eval(mf: Microfacet, fr: ConductorFresnel, o: WalkOptions) -> impl Fn(DVec3, DVec3, &mut Sampler) -> Spectrum {
-    move |wi, wo, rng| heitz::eval(&mf, &Microsurface::Conductor(fr), wi, wo, &o, rng)
+    move |wi, wo, rng| height::eval(&mf, &Microsurface::Conductor(fr), wi, wo, &o, rng)
 }
 
 /// Mean of weight·g over `n` samples (failed samples count as 0), channel c;
 /// also the mean sampled order.
-fn sample_mean(mf: Microfacet, fr: ConductorFresnel, wi: DVec3, o: WalkOptions, n: usize, seed: u64, c: usize, g: &dyn Fn(DVec3) -> f64) -> (f64, f64) {
+fn sample_mean(
+    mf: Microfacet,
+    fr: ConductorFresnel,
+    wi: DVec3,
+    o: WalkOptions,
+    n: usize,
+    seed: u64,
+    c: usize,
+    g: &dyn Fn(DVec3) -> f64,
+) -> (f64, f64) {
     let mut rng = Sampler::new(seed);
     let mut st = Stat::default();
     for _ in 0..n {
@@ -441,14 +451,8 @@ fn reciprocity() {
 #[test]
 fn sampled_moments_match_eval() {
     let mut ck = Checker::new("sampled-direction moments = eval integration within 3σ");
-    let moments: [(&str, fn(DVec3) -> f64); 6] = [
-        ("1", |_| 1.0),
-        ("x", |w| w.x),
-        ("y", |w| w.y),
-        ("z", |w| w.z),
-        ("x²", |w| w.x * w.x),
-        ("xz", |w| w.x * w.z),
-    ];
+    let moments: [(&str, fn(DVec3) -> f64); 6] =
+        [("1", |_| 1.0), ("x", |w| w.x), ("y", |w| w.y), ("z", |w| w.z), ("x²", |w| w.x * w.x), ("xz", |w| w.x * w.z)];
     let mut seed = 900;
     for dist in DISTS {
         for (alpha_u, alpha_v) in [(0.4, 0.4), (1.2, 1.2), (0.2, 0.9)] {
@@ -490,7 +494,7 @@ fn per_order_energy_and_heitz_agreement() {
             None => bins.push(None, 0.0),
         }
         let first = (hrng.next(), hrng.next(), hrng.next());
-        match heitz::sample(&mf, &Microsurface::Conductor(mirror()), wi, first, &all_orders(), &mut hrng) {
+        match height::sample(&mf, &Microsurface::Conductor(mirror()), wi, first, &all_orders(), &mut hrng) {
             Some((_, w, k)) => hbins.push(Some((k.min(4) - 1) as usize), w.0[0]),
             None => hbins.push(None, 0.0),
         }
@@ -501,7 +505,17 @@ fn per_order_energy_and_heitz_agreement() {
         seed += 3;
         let inv = eval_integral(&inv_eval(mf, mirror(), opts(MAXB, (lo, hi))), mf, wi, 80_000, seed, 0, &one);
         let hz = eval_integral(&heitz_eval(mf, mirror(), opts(MAXB, (lo, hi))), mf, wi, 80_000, seed + 1, 0, &one);
-        println!("order {name}: invariance eval ∫ {:.5} ± {:.5}, sample {:.5} ± {:.5}; Heitz eval ∫ {:.5} ± {:.5}, sample {:.5} ± {:.5}", inv.0, inv.1, bins.est(b).0, bins.est(b).1, hz.0, hz.1, hbins.est(b).0, hbins.est(b).1);
+        println!(
+            "order {name}: invariance eval ∫ {:.5} ± {:.5}, sample {:.5} ± {:.5}; Heitz eval ∫ {:.5} ± {:.5}, sample {:.5} ± {:.5}",
+            inv.0,
+            inv.1,
+            bins.est(b).0,
+            bins.est(b).1,
+            hz.0,
+            hz.1,
+            hbins.est(b).0,
+            hbins.est(b).1
+        );
         ck.close(&format!("order {name}: invariance sample histogram vs eval ∫"), bins.est(b), inv, 0.0, 0.0);
         ck.close(&format!("order {name}: invariance eval ∫ vs Heitz eval ∫"), inv, hz, 0.0, 0.0);
         ck.close(&format!("order {name}: invariance sample vs Heitz sample"), bins.est(b), hbins.est(b), 0.0, 0.0);
@@ -532,9 +546,15 @@ fn per_order_energy_and_heitz_agreement() {
             seed += 2;
             for _ in 0..100_000 {
                 a.push(invariance::conductor::eval(&mf, &mirror(), wi, wo, &o, &mut r1).0[0]);
-                b.push(heitz::eval(&mf, &Microsurface::Conductor(mirror()), wi, wo, &o, &mut r2).0[0]);
+                b.push(height::eval(&mf, &Microsurface::Conductor(mirror()), wi, wo, &o, &mut r2).0[0]);
             }
-            ck.close(&format!("{dist:?} α=0.8 θi={ti} θo={to} Δφ={:.2} multiple-scattering f·cos: invariance vs Heitz", po - pi), a.est(), b.est(), 0.0, 0.0);
+            ck.close(
+                &format!("{dist:?} α=0.8 θi={ti} θo={to} Δφ={:.2} multiple-scattering f·cos: invariance vs Heitz", po - pi),
+                a.est(),
+                b.est(),
+                0.0,
+                0.0,
+            );
         }
     }
     ck.finish();
@@ -547,7 +567,11 @@ fn per_order_energy_and_heitz_agreement() {
 #[test]
 fn variance_and_time_per_call() {
     let mut ck = Checker::new("variance and ns per call, off-specular (printed)");
-    let cases = [(Distribution::Ggx, 0.5, (0.8, 0.0), (0.6, 2.5)), (Distribution::Ggx, 1.0, (0.3, 0.0), (1.2, 2.0)), (Distribution::Beckmann, 0.5, (0.8, 0.0), (0.6, 2.5))];
+    let cases = [
+        (Distribution::Ggx, 0.5, (0.8, 0.0), (0.6, 2.5)),
+        (Distribution::Ggx, 1.0, (0.3, 0.0), (1.2, 2.0)),
+        (Distribution::Beckmann, 0.5, (0.8, 0.0), (0.6, 2.5)),
+    ];
     for &(dist, alpha, (ti, pi), (to, po)) in &cases {
         let mf = Microfacet::new(dist, alpha, alpha);
         let (wi, wo) = (dir(ti, pi), dir(to, po));
@@ -558,8 +582,8 @@ fn variance_and_time_per_call() {
             // concurrent work; the time per call is the median block time.
             let fs: [&dyn Fn(&mut Sampler) -> Spectrum; 3] = [
                 &|r| invariance::conductor::eval(&mf, &fr, wi, wo, &o, r),
-                &|r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r),
-                &|r| heitz::eval(&mf, &Microsurface::Conductor(fr), wi, wo, &o, r),
+                &|r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &posfree::Options { segments: Segments::Correlated, walk: o }, r),
+                &|r| height::eval(&mf, &Microsurface::Conductor(fr), wi, wo, &o, r),
             ];
             let mut rngs = [Sampler::new(1), Sampler::new(2), Sampler::new(3)];
             let mut stats = [Stat::default(); 3];
@@ -654,7 +678,11 @@ fn bdpt_furnace_agreement_and_variance() {
         ck.close(&format!("orders {lo}..{hi}: BDPT ∫ vs Heitz ∫"), bd, hz, 0.0, 0.0);
     }
     // f·cos θ_o at fixed pairs, orders ≥ 2, against PT; and the variance per call off-specular.
-    let pairs = [(Distribution::Ggx, 0.5, (0.6, 0.0), (1.1, 2.1)), (Distribution::Ggx, 1.0, (0.6, 0.0), (1.1, 2.1)), (Distribution::Beckmann, 0.8, (0.5, 0.0), (0.9, 2.5))];
+    let pairs = [
+        (Distribution::Ggx, 0.5, (0.6, 0.0), (1.1, 2.1)),
+        (Distribution::Ggx, 1.0, (0.6, 0.0), (1.1, 2.1)),
+        (Distribution::Beckmann, 0.8, (0.5, 0.0), (0.9, 2.5)),
+    ];
     for &(dist, alpha, (ti, pi), (to, po)) in &pairs {
         let mf = Microfacet::new(dist, alpha, alpha);
         let (wi, wo) = (dir(ti, pi), dir(to, po));

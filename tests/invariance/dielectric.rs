@@ -10,14 +10,14 @@
 //! combined Monte Carlo standard error, z the family-wise 3σ level of
 //! `crate::common::family_sigmas`. Run with `--nocapture` for the measured values.
 
-
 use crate::common::*;
 use glam::DVec3;
 use msx::microfacet::fresnel;
+use msx::microfacet::Microsurface;
+use msx::models::invariance;
 use msx::models::invariance::dielectric::{self as idl, PieceChain};
-use msx::models::posfree::Segments;
-use msx::models::{heitz, invariance, Microsurface, WalkOptions};
 use msx::rng::Sampler;
+use msx::walk::{height, WalkOptions};
 use msx::{Distribution, Microfacet};
 use std::f64::consts::PI;
 
@@ -25,7 +25,7 @@ const DISTS: [Distribution; 2] = [Distribution::Ggx, Distribution::Beckmann];
 const MAXB: u32 = 1024;
 
 fn opts(max_bounces: u32, orders: (u32, u32)) -> WalkOptions {
-    WalkOptions { segments: Segments::Correlated, max_bounces, orders }
+    WalkOptions { max_bounces, orders }
 }
 
 fn all_orders() -> WalkOptions {
@@ -41,7 +41,6 @@ fn side_dir(theta: f64, phi: f64, outside: bool) -> DVec3 {
         DVec3::new(w.x, w.y, -w.z)
     }
 }
-
 
 fn random_dir(rng: &mut Sampler, up: bool) -> DVec3 {
     let theta = if rng.next() < 0.3 { 0.3 * rng.next() } else { rng.next().acos() };
@@ -103,7 +102,10 @@ fn piece_chain_equals_segment_term() {
                         if reference > 1e-280 {
                             worst = worst.max(r);
                         }
-                        ck.assert(&format!("{dist:?} α=({ax},{ay}) {downs}↓{ups}↑: {got:e} vs {reference:e}"), got.is_finite() && (r < 1e-10 || reference < 1e-280));
+                        ck.assert(
+                            &format!("{dist:?} α=({ax},{ay}) {downs}↓{ups}↑: {got:e} vs {reference:e}"),
+                            got.is_finite() && (r < 1e-10 || reference < 1e-280),
+                        );
                         // H_m from the segment term with a vertical last direction (Λ = 0).
                         let mut h_prev = 1.0;
                         for m in 1..dirs.len() {
@@ -241,7 +243,10 @@ fn order1_is_walter_with_beta_g2_exactly() {
                     if reference > 1e-300 {
                         worst = worst.max(r);
                     }
-                    ck.assert(&format!("{dist:?} α={alpha} η={eta} wi={wi:.3} wo={wo:.3}: {a:e} vs {reference:e}"), a == b && (r < 1e-11 || reference < 1e-300 && a < 1e-290));
+                    ck.assert(
+                        &format!("{dist:?} α={alpha} η={eta} wi={wi:.3} wo={wo:.3}: {a:e} vs {reference:e}"),
+                        a == b && (r < 1e-11 || reference < 1e-300 && a < 1e-290),
+                    );
                 }
             }
         }
@@ -252,7 +257,15 @@ fn order1_is_walter_with_beta_g2_exactly() {
 
 /// ∫ eval(ω_i, ·) g dω with the dielectric proposal of tests/common.
 #[allow(clippy::too_many_arguments)]
-fn eval_integral(f: &dyn Fn(DVec3, DVec3, &mut Sampler) -> f64, mf: Microfacet, eta: f64, wi: DVec3, n: usize, seed: u64, g: &dyn Fn(DVec3) -> f64) -> (f64, f64) {
+fn eval_integral(
+    f: &dyn Fn(DVec3, DVec3, &mut Sampler) -> f64,
+    mf: Microfacet,
+    eta: f64,
+    wi: DVec3,
+    n: usize,
+    seed: u64,
+    g: &dyn Fn(DVec3) -> f64,
+) -> (f64, f64) {
     let prop = DielectricProposal::new(mf, wi, eta);
     proposal_integral(n, seed, 0x5eed, |r| prop.sample(r), |w| prop.pdf(w), |wo, walk| f(wi, wo, walk) * g(wo))
 }
@@ -263,7 +276,7 @@ fn inv(mf: Microfacet, eta: f64, radiance: bool, o: WalkOptions) -> impl Fn(DVec
 
 fn heitz_eval(mf: Microfacet, eta: f64, radiance: bool, o: WalkOptions) -> impl Fn(DVec3, DVec3, &mut Sampler) -> f64 {
     let s = Microsurface::Dielectric { eta, radiance };
-    move |wi, wo, rng| heitz::eval(&mf, &s, wi, wo, &o, rng).0[0]
+    move |wi, wo, rng| height::eval(&mf, &s, wi, wo, &o, rng).0[0]
 }
 
 /// Mean of weight·g(ω_o) over `invariance_dielectric::sample`.

@@ -9,13 +9,13 @@
 //! combined Monte Carlo standard error, z the family-wise 3σ level of
 //! `crate::common::family_sigmas`. Run with `--nocapture` for the measured values.
 
-
 use crate::common::*;
 use glam::DVec3;
+use msx::microfacet::Microsurface;
+use msx::models::invariance;
 use msx::models::invariance::general as ig;
-use msx::models::posfree::Segments;
-use msx::models::{heitz, invariance, Microsurface, WalkOptions};
 use msx::rng::Sampler;
+use msx::walk::{height, WalkOptions};
 use msx::{Distribution, Microfacet, Spectrum};
 use std::f64::consts::PI;
 use std::time::Instant;
@@ -24,7 +24,7 @@ const DISTS: [Distribution; 2] = [Distribution::Ggx, Distribution::Beckmann];
 const MAXB: u32 = 1024;
 
 fn opts(max_bounces: u32, orders: (u32, u32)) -> WalkOptions {
-    WalkOptions { segments: Segments::Correlated, max_bounces, orders }
+    WalkOptions { max_bounces, orders }
 }
 
 fn all_orders() -> WalkOptions {
@@ -73,7 +73,10 @@ fn exit_table_matches_complete_recursion() {
                         if reference > 1e-300 {
                             worst = worst.max(r);
                         }
-                        ck.assert(&format!("{dist:?} α=({ax},{ay}) k={k} pattern={pattern:b}: {got} vs {reference}"), got.is_finite() && (reference == 0.0 && got == 0.0 || r < 1e-10));
+                        ck.assert(
+                            &format!("{dist:?} α=({ax},{ay}) k={k} pattern={pattern:b}: {got} vs {reference}"),
+                            got.is_finite() && (reference == 0.0 && got == 0.0 || r < 1e-10),
+                        );
                         ck.assert("p_exit ≤ 1", got <= 1.0 + 1e-12);
                         // Continuation of downward directions is 1.
                         let mut t = ig::ExitTable::new(mf.abs_lambda(dirs[0]));
@@ -122,7 +125,7 @@ fn inv_eval(mf: Microfacet, s: Microsurface, o: WalkOptions) -> impl Fn(DVec3, D
 }
 
 fn heitz_eval(mf: Microfacet, s: Microsurface, o: WalkOptions) -> impl Fn(DVec3, DVec3, &mut Sampler) -> Spectrum {
-    move |wi, wo, rng| heitz::eval(&mf, &s, wi, wo, &o, rng)
+    move |wi, wo, rng| height::eval(&mf, &s, wi, wo, &o, rng)
 }
 
 fn sample_mean(mf: Microfacet, s: Microsurface, wi: DVec3, o: WalkOptions, n: usize, seed: u64, g: &dyn Fn(DVec3) -> f64) -> (f64, f64) {
@@ -153,7 +156,7 @@ fn conductor_and_dielectric_are_not_handled() {
     let mf = Microfacet::new(Distribution::Ggx, 0.5, 0.5);
     let mut rng = Sampler::new(1);
     let (wi, wo) = (dir(0.5, 0.0), dir(0.7, 2.0));
-    let cond = Microsurface::Conductor(msx::models::ConductorFresnel::new(Spectrum::splat(0.0), Spectrum::splat(1.0), 3));
+    let cond = Microsurface::Conductor(msx::microfacet::ConductorFresnel::new(Spectrum::splat(0.0), Spectrum::splat(1.0), 3));
     let diel = Microsurface::Dielectric { eta: 1.5, radiance: false };
     for s in [cond, diel] {
         ck.assert("eval zero", ig::eval(&mf, &s, wi, wo, &all_orders(), &mut rng).max_value() == 0.0);
@@ -192,7 +195,8 @@ fn heitz_agreement() {
     let one = |_: DVec3| 1.0;
     let s = diffuse(0.8);
     let mut seed = 500;
-    let configs = [(Distribution::Ggx, 0.5, 1.0), (Distribution::Ggx, 1.0, 0.4), (Distribution::Beckmann, 1.0, 1.0), (Distribution::Beckmann, 2.0, 0.2)];
+    let configs =
+        [(Distribution::Ggx, 0.5, 1.0), (Distribution::Ggx, 1.0, 0.4), (Distribution::Beckmann, 1.0, 1.0), (Distribution::Beckmann, 2.0, 0.2)];
     for &(dist, alpha, theta) in &configs {
         let mf = Microfacet::new(dist, alpha, alpha);
         let wi = dir(theta, 0.0);
@@ -238,7 +242,13 @@ fn reciprocity() {
                 seed += 2;
                 let a = point(&inv_eval(mf, s, o), wi, wo, 200_000, seed);
                 let b = point(&inv_eval(mf, s, o), wo, wi, 200_000, seed + 1);
-                ck.close(&format!("{dist:?} α={alpha} θi={ti} θo={to} {name}: f(i,o) vs f(o,i)"), (a.0 / wo.z, a.1 / wo.z), (b.0 / wi.z, b.1 / wi.z), 0.0, 0.0);
+                ck.close(
+                    &format!("{dist:?} α={alpha} θi={ti} θo={to} {name}: f(i,o) vs f(o,i)"),
+                    (a.0 / wo.z, a.1 / wo.z),
+                    (b.0 / wi.z, b.1 / wi.z),
+                    0.0,
+                    0.0,
+                );
             }
         }
     }
@@ -273,12 +283,16 @@ fn sampled_moments_match_eval() {
 fn variance_and_time_per_call() {
     let mut ck = Checker::new("diffuse: variance and ns per call vs heitz (printed)");
     let s = diffuse(0.8);
-    let cases = [(Distribution::Ggx, 0.5, (0.8, 0.0), (0.6, 2.5)), (Distribution::Ggx, 1.0, (0.3, 0.0), (1.2, 2.0)), (Distribution::Beckmann, 1.0, (0.8, 0.0), (0.6, 2.5))];
+    let cases = [
+        (Distribution::Ggx, 0.5, (0.8, 0.0), (0.6, 2.5)),
+        (Distribution::Ggx, 1.0, (0.3, 0.0), (1.2, 2.0)),
+        (Distribution::Beckmann, 1.0, (0.8, 0.0), (0.6, 2.5)),
+    ];
     for &(dist, alpha, (ti, pi), (to, po)) in &cases {
         let mf = Microfacet::new(dist, alpha, alpha);
         let (wi, wo) = (dir(ti, pi), dir(to, po));
         let o = opts(64, (1, 64));
-        let fs: [&dyn Fn(&mut Sampler) -> Spectrum; 2] = [&|r| ig::eval(&mf, &s, wi, wo, &o, r), &|r| heitz::eval(&mf, &s, wi, wo, &o, r)];
+        let fs: [&dyn Fn(&mut Sampler) -> Spectrum; 2] = [&|r| ig::eval(&mf, &s, wi, wo, &o, r), &|r| height::eval(&mf, &s, wi, wo, &o, r)];
         let mut rngs = [Sampler::new(1), Sampler::new(2)];
         let mut stats = [Stat::default(); 2];
         let mut blocks: [Vec<f64>; 2] = [Vec::new(), Vec::new()];

@@ -6,13 +6,12 @@
 //! combined Monte Carlo standard error, z the family-wise 3σ level of
 //! `crate::common::family_sigmas`. Run with `--nocapture` for the measured values.
 
-
 use crate::common::*;
 use glam::DVec3;
-use msx::bsdf::{Config, Material, Model};
 use msx::microfacet::{fresnel, mitsuba};
 use msx::rng::Sampler;
 use msx::{Bsdf, Distribution, Microfacet, Spectrum};
+use msx::{Config, Material, Model};
 use std::f64::consts::PI;
 
 fn bsdf(dist: Distribution, model: Model) -> Bsdf {
@@ -292,11 +291,20 @@ fn per_bounce_energy() {
                 }
             }
             let f = |st: &Stat| format!("{:.5} ± {:.5}", st.mean(), st.se());
-            println!("{:<13} {:>5} {:>18} {:>18} {:>18} {:>18} {:>18}", format!("{model:?}"), alpha, f(&s[0]), f(&s[1]), f(&s[2]), f(&s[3]), f(&s[4]));
+            println!(
+                "{:<13} {:>5} {:>18} {:>18} {:>18} {:>18} {:>18}",
+                format!("{model:?}"),
+                alpha,
+                f(&s[0]),
+                f(&s[1]),
+                f(&s[2]),
+                f(&s[3]),
+                f(&s[4])
+            );
         }
     }
     // Energy beyond the default bounce cap at α = 1.5.
-    println!("energy above the default cap ({} bounces), GGX α = 1.5, θ_i = 0:", msx::bsdf::DEFAULT_MAX_BOUNCES);
+    println!("energy above the default cap ({} bounces), GGX α = 1.5, θ_i = 0:", msx::config::DEFAULT_MAX_BOUNCES);
     for model in [Model::Uncorrelated, Model::Correlated] {
         let b = Bsdf::new(Config { distribution: Distribution::Ggx, model, max_bounces: 1024, ..Config::default() }).unwrap();
         let b_def = bsdf(Distribution::Ggx, model);
@@ -306,7 +314,11 @@ fn per_bounce_energy() {
         let mut s = Stat::default();
         for i in 0..n {
             let wo = prop.sample(&mut rng);
-            s.push(if wo.z > 0.0 { b.eval_orders(&mat, wi, wo, i as u64, (msx::bsdf::DEFAULT_MAX_BOUNCES + 1, 1024)).0[0] / prop.pdf(wo) } else { 0.0 });
+            s.push(if wo.z > 0.0 {
+                b.eval_orders(&mat, wi, wo, i as u64, (msx::config::DEFAULT_MAX_BOUNCES + 1, 1024)).0[0] / prop.pdf(wo)
+            } else {
+                0.0
+            });
         }
         // Random-walk sampler: fraction of walks that hit the cap (weight 1 each for a mirror).
         let mut lost = Stat::default();
@@ -377,7 +389,11 @@ fn pdf_sample_consistency() {
                             .filter(|wo| wo.z > 0.0)
                             .map(|wo| {
                                 let lo = mf.lambda(wo);
-                                if model == Model::Uncorrelated { 1.0 / (1.0 + lo) } else { l0 / (l0 + lo) }
+                                if model == Model::Uncorrelated {
+                                    1.0 / (1.0 + lo)
+                                } else {
+                                    l0 / (l0 + lo)
+                                }
                             })
                             .unwrap_or(0.0);
                         e1.push(v);
@@ -385,7 +401,12 @@ fn pdf_sample_consistency() {
                     let table = msx::tables::albedo::AlbedoTable::get(dist);
                     let e1_table = if model == Model::Uncorrelated { table.e1_uncorrelated(alpha, wi.z) } else { table.e1_correlated(alpha, wi.z) };
                     let expected = (e1.mean() + (1.0 - e1_table).max(1e-3), e1.se());
-                    println!("{tag}: ∫pdf dω_o over the hemisphere = {:.5} ± {:.5} (order-1 albedo {:.5} MC, {e1_table:.5} table)", s_int.mean(), s_int.se(), e1.mean());
+                    println!(
+                        "{tag}: ∫pdf dω_o over the hemisphere = {:.5} ± {:.5} (order-1 albedo {:.5} MC, {e1_table:.5} table)",
+                        s_int.mean(),
+                        s_int.se(),
+                        e1.mean()
+                    );
                     ck.close(&format!("{tag}: ∫pdf = E_1 + (1 − E_1,table)"), s_int.est(), expected, 0.0, 0.0);
                     ck.close(&format!("{tag}: ∫pdf ≈ 1"), s_int.est(), (1.0, 0.0), 0.01, 0.0);
                 }

@@ -10,14 +10,14 @@
 // Lints relaxed for this test file: per-channel statistics indexed by channel.
 #![allow(clippy::needless_range_loop)]
 
-
 use crate::common::*;
 use crate::shared::*;
-use msx::models::posfree::{self, Segments};
+use msx::microfacet::ConductorFresnel;
 use msx::models::posfree::conductor as posfree_bdpt;
-use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
-use msx::models::{ConductorFresnel, WalkOptions};
+use msx::models::posfree::{self, Options, Segments};
 use msx::rng::Sampler;
+use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
+use msx::walk::WalkOptions;
 use msx::{Distribution, Microfacet, Spectrum};
 
 const MAX_BOUNCES: u32 = 64;
@@ -30,8 +30,8 @@ fn mirror() -> ConductorFresnel {
     ConductorFresnel::new(Spectrum::ZERO, Spectrum::ONE, 3)
 }
 
-fn opts(segments: Segments, orders: (u32, u32)) -> WalkOptions {
-    WalkOptions { segments, max_bounces: MAX_BOUNCES, orders }
+fn opts(segments: Segments, orders: (u32, u32)) -> Options {
+    Options { segments, walk: WalkOptions { max_bounces: MAX_BOUNCES, orders } }
 }
 
 // ---------------------------------------------------------------------------
@@ -53,8 +53,7 @@ fn bdpt_equals_pt_per_order() {
                         let (pt, _) = run(n, |r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r), seed);
                         let (bd, _) = run(n, |r| posfree_bdpt::eval_bdpt(&mf, &fr, wi, wo, &o, r), seed + 1);
                         for c in 0..3 {
-                            let label =
-                                format!("{} {} α={alpha} {pname} orders {}..={} ch{c}", seg_name(seg), dist_name(dist), orders.0, orders.1);
+                            let label = format!("{} {} α={alpha} {pname} orders {}..={} ch{c}", seg_name(seg), dist_name(dist), orders.0, orders.1);
                             ck.close(&label, bd[c].est(), pt[c].est(), 0.0, 1e-12);
                         }
                     }

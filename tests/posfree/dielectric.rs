@@ -9,23 +9,22 @@
 // Lints relaxed for this test file: test helpers take every configuration axis; angles near π/2 on purpose.
 #![allow(clippy::too_many_arguments, clippy::approx_constant)]
 
-
 use crate::common::dielectric::*;
 use crate::common::*;
 use glam::DVec3;
 use msx::microfacet::fresnel;
-use msx::models::posfree::Segments;
 use msx::models::posfree::dielectric as pfd;
+use msx::models::posfree::{Options, Segments};
 use msx::models::single::dielectric as sd;
-use msx::models::WalkOptions;
 use msx::rng::Sampler;
+use msx::walk::WalkOptions;
 use msx::{Distribution, Microfacet};
 use std::f64::consts::PI;
 
 const DISTS: [Distribution; 2] = [Distribution::Ggx, Distribution::Beckmann];
 
-fn opts(segments: Segments, orders: (u32, u32)) -> WalkOptions {
-    WalkOptions { segments, max_bounces: 1000, orders }
+fn opts(segments: Segments, orders: (u32, u32)) -> Options {
+    Options { segments, walk: WalkOptions { max_bounces: 1000, orders } }
 }
 
 // ---------------------------------------------------------------------------
@@ -49,7 +48,13 @@ fn correlated_transmission_beta_form() {
                 let h = a + k as f64 * hstep;
                 let c = phi(h);
                 let g = c.powf(li) * (1.0 - c).powf(lo) * (-0.5 * h * h).exp() / (2.0 * PI).sqrt();
-                let wgt = if k == 0 || k == n { 1.0 } else if k % 2 == 1 { 4.0 } else { 2.0 };
+                let wgt = if k == 0 || k == n {
+                    1.0
+                } else if k % 2 == 1 {
+                    4.0
+                } else {
+                    2.0
+                };
                 s += wgt * g;
             }
             let integral = s * hstep / 3.0;
@@ -133,13 +138,16 @@ fn order1_is_single_scattering() {
                         ref_beta(1.0 + li, 1.0 + lo)
                     };
                     let mut dummy = Sampler::new(0);
-                    let (u, _) = pfd::eval_pt(&mf, eta, false, wi, wo, &opts(Segments::Uncorrelated, (1, 1)), &mut dummy);
-                    let (c, _) = pfd::eval_pt(&mf, eta, false, wi, wo, &opts(Segments::Correlated, (1, 1)), &mut dummy);
-                    let (ur, _) = pfd::eval_pt(&mf, eta, true, wi, wo, &opts(Segments::Uncorrelated, (1, 1)), &mut dummy);
+                    let u = pfd::eval_pt(&mf, eta, false, wi, wo, &opts(Segments::Uncorrelated, (1, 1)), &mut dummy);
+                    let c = pfd::eval_pt(&mf, eta, false, wi, wo, &opts(Segments::Correlated, (1, 1)), &mut dummy);
+                    let ur = pfd::eval_pt(&mf, eta, true, wi, wo, &opts(Segments::Uncorrelated, (1, 1)), &mut dummy);
                     let k = if refl { 0 } else { 1 };
                     counts[k] += 1;
 
-                    let (du, dc) = (rel(u, walter(dist, alpha, alpha, eta, wi, wo, g_unc, false)), rel(c, walter(dist, alpha, alpha, eta, wi, wo, g_cor, false)));
+                    let (du, dc) = (
+                        rel(u, walter(dist, alpha, alpha, eta, wi, wo, g_unc, false)),
+                        rel(c, walter(dist, alpha, alpha, eta, wi, wo, g_cor, false)),
+                    );
                     if well_conditioned(eta, wi, wo) {
                         worst[k] = worst[k].max(du);
                         worst[2 + k] = worst[2 + k].max(dc);
@@ -189,7 +197,17 @@ struct FurnaceResult {
     mean_order: f64,
 }
 
-fn furnace_config(dist: Distribution, seg: Segments, eta: f64, inside: bool, alpha: f64, theta: f64, seed: u64, n_eval: usize, n_sample: usize) -> FurnaceResult {
+fn furnace_config(
+    dist: Distribution,
+    seg: Segments,
+    eta: f64,
+    inside: bool,
+    alpha: f64,
+    theta: f64,
+    seed: u64,
+    n_eval: usize,
+    n_sample: usize,
+) -> FurnaceResult {
     let mf = Microfacet::new(dist, alpha, alpha);
     let mut wi = dir(theta, 0.7);
     if inside {
@@ -221,7 +239,8 @@ fn furnace_config(dist: Distribution, seg: Segments, eta: f64, inside: bool, alp
         if let Some(w) = prop.sample(&mut rng) {
             let q = prop.pdf(w);
             if q > 0.0 {
-                let (v, is_r) = pfd::eval_pt(&mf, eta, false, wi, w, &o, &mut rng);
+                let v = pfd::eval_pt(&mf, eta, false, wi, w, &o, &mut rng);
+                let is_r = wi.z * w.z > 0.0;
                 let x = v / q;
                 if is_r {
                     er = x;
@@ -261,10 +280,7 @@ fn furnace_config(dist: Distribution, seg: Segments, eta: f64, inside: bool, alp
         sm[2].push(ex);
         sm[3].push(ez);
     }
-    let tag = format!(
-        "{dist:?} {seg:?} η={eta} {} α={alpha} θ_i={theta}",
-        if inside { "inside" } else { "outside" }
-    );
+    let tag = format!("{dist:?} {seg:?} η={eta} {} α={alpha} θ_i={theta}", if inside { "inside" } else { "outside" });
     FurnaceResult {
         tag,
         ev: ev.map(|s| s.est()),
@@ -357,8 +373,8 @@ fn reciprocity() {
                         let (ni, no) = sides(eta, wi, wo);
                         // Order 1 is deterministic: generalised reciprocity to rounding.
                         let mut r0 = Sampler::new(0);
-                        let s_f = pfd::eval_pt(&mf, eta, false, wi, wo, &opts(seg, (1, 1)), &mut r0).0 / wo.z.abs() * ni * ni;
-                        let s_b = pfd::eval_pt(&mf, eta, false, wo, wi, &opts(seg, (1, 1)), &mut r0).0 / wi.z.abs() * no * no;
+                        let s_f = pfd::eval_pt(&mf, eta, false, wi, wo, &opts(seg, (1, 1)), &mut r0) / wo.z.abs() * ni * ni;
+                        let s_b = pfd::eval_pt(&mf, eta, false, wo, wi, &opts(seg, (1, 1)), &mut r0) / wi.z.abs() * no * no;
                         if seg == Segments::Uncorrelated {
                             worst_order1 = worst_order1.max(rel(s_f, s_b));
                         }
@@ -369,8 +385,8 @@ fn reciprocity() {
                         let (mut fwd, mut bwd) = (Stat::default(), Stat::default());
                         let (mut max_f, mut max_b) = (0.0f64, 0.0f64);
                         for _ in 0..n {
-                            let a = pfd::eval_pt(&mf, eta, false, wi, wo, &o, &mut rng).0 / wo.z.abs() * ni * ni;
-                            let b = pfd::eval_pt(&mf, eta, false, wo, wi, &o, &mut rng).0 / wi.z.abs() * no * no;
+                            let a = pfd::eval_pt(&mf, eta, false, wi, wo, &o, &mut rng) / wo.z.abs() * ni * ni;
+                            let b = pfd::eval_pt(&mf, eta, false, wo, wi, &o, &mut rng) / wi.z.abs() * no * no;
                             fwd.push(a);
                             bwd.push(b);
                             max_f = max_f.max(a);
@@ -427,7 +443,15 @@ fn robustness() {
     let mut bad = 0usize;
     let mut total = 0usize;
     let etas = [1.0, 1.0 + 1e-12, 1.0 - 1e-9, 1.0001, 0.5, 1.5, 4.0, 1e-3, 1e3];
-    let dirs = [DVec3::Z, -DVec3::Z, DVec3::new(1.0, 0.0, 1e-12).normalize(), DVec3::new(0.0, 1.0, -1e-12).normalize(), DVec3::new(1.0, 0.0, 0.0), dir(1.5707, 0.3), dir(PI - 1e-9, 0.3)];
+    let dirs = [
+        DVec3::Z,
+        -DVec3::Z,
+        DVec3::new(1.0, 0.0, 1e-12).normalize(),
+        DVec3::new(0.0, 1.0, -1e-12).normalize(),
+        DVec3::new(1.0, 0.0, 0.0),
+        dir(1.5707, 0.3),
+        dir(PI - 1e-9, 0.3),
+    ];
     for dist in DISTS {
         for &alpha in &[1e-4, 0.01, 0.5, 3.0, 50.0] {
             let mf = Microfacet::new(dist, alpha, alpha);
@@ -436,8 +460,8 @@ fn robustness() {
                     let wi = if k < dirs.len() { dirs[k] } else { sphere_dir(&mut rng, 0.0) };
                     let wo = if k < dirs.len() { dirs[(k + 3) % dirs.len()] } else { sphere_dir(&mut rng, 0.0) };
                     for seg in [Segments::Uncorrelated, Segments::Correlated] {
-                        let o = WalkOptions { segments: seg, max_bounces: 64, orders: (1, u32::MAX) };
-                        let (v, _) = pfd::eval_pt(&mf, eta, true, wi, wo, &o, &mut rng);
+                        let o = Options { segments: seg, walk: WalkOptions { max_bounces: 64, orders: (1, u32::MAX) } };
+                        let v = pfd::eval_pt(&mf, eta, true, wi, wo, &o, &mut rng);
                         total += 1;
                         if !(v.is_finite() && v >= 0.0) {
                             bad += 1;

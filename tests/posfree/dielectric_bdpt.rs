@@ -8,17 +8,16 @@
 //! combined Monte Carlo standard error, z the family-wise 3σ level of
 //! `crate::common::family_sigmas`. Run with `--nocapture` for the measured values.
 
-
 use crate::common::*;
 use crate::shared::*;
 use glam::DVec3;
 use msx::microfacet::fresnel::dielectric_full;
-use msx::models::posfree::Segments;
 use msx::models::posfree::dielectric as bd;
-use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
 use msx::models::posfree::dielectric as pfd;
-use msx::models::WalkOptions;
+use msx::models::posfree::{Options, Segments};
 use msx::rng::Sampler;
+use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
+use msx::walk::WalkOptions;
 use msx::{Distribution, Microfacet};
 use std::f64::consts::PI;
 use std::time::Instant;
@@ -26,8 +25,8 @@ use std::time::Instant;
 const MAX_BOUNCES: u32 = 64;
 const ETA: f64 = 1.5;
 
-fn opts(segments: Segments, orders: (u32, u32)) -> WalkOptions {
-    WalkOptions { segments, max_bounces: MAX_BOUNCES, orders }
+fn opts(segments: Segments, orders: (u32, u32)) -> Options {
+    Options { segments, walk: WalkOptions { max_bounces: MAX_BOUNCES, orders } }
 }
 
 fn flip(d: DVec3) -> DVec3 {
@@ -72,7 +71,7 @@ fn bdpt_equals_pt_per_order() {
                         }
                         let o = opts(seg, orders);
                         seed += 2;
-                        let (pt, _) = run(n, |r| pfd::eval_pt(&mf, ETA, radiance, wi, wo, &o, r).0, seed);
+                        let (pt, _) = run(n, |r| pfd::eval_pt(&mf, ETA, radiance, wi, wo, &o, r), seed);
                         let (b, _) = run(n, |r| bd::eval_bdpt(&mf, ETA, radiance, wi, wo, &o, r), seed + 1);
                         let label = format!(
                             "{} ggx α={alpha} {pname} orders {}..={}{}",
@@ -103,7 +102,7 @@ fn bdpt_tail_and_kb_agree() {
                 for orders in [(1, MAX_BOUNCES), (3, 6)] {
                     let o = opts(seg, orders);
                     seed += 2;
-                    let (pt, _) = run(n, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r).0, seed);
+                    let (pt, _) = run(n, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r), seed);
                     let (b, _) = run(n, |r| bd::eval_bdpt_with(&mf, ETA, false, wi, wo, &o, kb, r), seed + 1);
                     let label = format!("{} ggx α=1 {pname} K_b={kb} orders {}..={}", seg_name(seg), orders.0, orders.1);
                     ck.close(&label, b.est(), pt.est(), 0.0, 1e-12);
@@ -193,12 +192,7 @@ fn bdpt_furnace() {
                     }
                     st.push(v);
                 }
-                let label = format!(
-                    "{} ggx α={alpha} {side} θ_i={theta} (E_r {:.4}, E_t {:.4})",
-                    seg_name(seg),
-                    er / n as f64,
-                    et / n as f64
-                );
+                let label = format!("{} ggx α={alpha} {side} θ_i={theta} (E_r {:.4}, E_t {:.4})", seg_name(seg), er / n as f64, et / n as f64);
                 ck.close(&label, st.est(), exact(1.0), 0.003, 0.0);
             }
         }
@@ -210,10 +204,7 @@ fn bdpt_furnace() {
 #[test]
 fn bdpt_vs_pt_variance_and_time() {
     println!("=== dielectric η = 1.5, GGX, all orders: variance and ns per call, pt vs bdpt (K_b = {}) ===", DEFAULT_BDPT_ORDERS);
-    println!(
-        "{:<4} {:>4} {:<12} {:>11} {:>11} {:>7} {:>7} {:>6} {:>6}",
-        "seg", "α", "pair", "var pt", "var bdpt", "ns pt", "ns bd", "var×", "eff×"
-    );
+    println!("{:<4} {:>4} {:<12} {:>11} {:>11} {:>7} {:>7} {:>6} {:>6}", "seg", "α", "pair", "var pt", "var bdpt", "ns pt", "ns bd", "var×", "eff×");
     let n = 40_000;
     let mut seed = 7000u64;
     for seg in [Segments::Uncorrelated, Segments::Correlated] {
@@ -222,8 +213,8 @@ fn bdpt_vs_pt_variance_and_time() {
             for (pname, wi, wo) in [pairs()[0], pairs()[1], pairs()[3]] {
                 let o = opts(seg, (1, MAX_BOUNCES));
                 seed += 2;
-                let _ = run(2000, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r).0, seed + 77);
-                let (pt, t_pt) = run(n, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r).0, seed);
+                let _ = run(2000, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r), seed + 77);
+                let (pt, t_pt) = run(n, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r), seed);
                 let (b, t_bd) = run(n, |r| bd::eval_bdpt(&mf, ETA, false, wi, wo, &o, r), seed + 1);
                 let (vp, vb) = (pt.var(), b.var());
                 println!(

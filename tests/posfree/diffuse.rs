@@ -12,21 +12,20 @@
 // Lints relaxed for this test file: per-channel statistics indexed by channel.
 #![allow(clippy::needless_range_loop)]
 
-
 use crate::common::*;
 use crate::shared::*;
 use glam::DVec3;
-use msx::models::posfree::Segments;
 use msx::models::posfree::diffuse::{eval_pt, sample_walk};
-use msx::models::WalkOptions;
+use msx::models::posfree::{Options, Segments};
 use msx::rng::Sampler;
+use msx::walk::WalkOptions;
 use msx::{Distribution, Microfacet, Spectrum};
 use std::f64::consts::PI;
 
 const MAX_BOUNCES: u32 = 1024;
 
-fn opts(segments: Segments, orders: (u32, u32)) -> WalkOptions {
-    WalkOptions { segments, max_bounces: MAX_BOUNCES, orders }
+fn opts(segments: Segments, orders: (u32, u32)) -> Options {
+    Options { segments, walk: WalkOptions { max_bounces: MAX_BOUNCES, orders } }
 }
 
 const SEGS: [Segments; 2] = [Segments::Uncorrelated, Segments::Correlated];
@@ -34,15 +33,7 @@ const DISTS: [Distribution; 2] = [Distribution::Ggx, Distribution::Beckmann];
 
 /// Mean sample weight per channel (a failed walk counts 0) and the moments
 /// E[w·g(ω_o)] for g in `moments`.
-fn sample_stats(
-    mf: &Microfacet,
-    albedo: Spectrum,
-    wi: DVec3,
-    o: &WalkOptions,
-    n: usize,
-    seed: u64,
-    moments: &[fn(DVec3) -> f64],
-) -> Vec<[Stat; 3]> {
+fn sample_stats(mf: &Microfacet, albedo: Spectrum, wi: DVec3, o: &Options, n: usize, seed: u64, moments: &[fn(DVec3) -> f64]) -> Vec<[Stat; 3]> {
     let mut rng = Sampler::new(seed);
     let mut st = vec![[Stat::default(); 3]; moments.len()];
     for _ in 0..n {
@@ -65,15 +56,7 @@ fn sample_stats(
 /// the uniform hemisphere (the uniform part bounds eval/pdf at grazing ω_o,
 /// where the correlated model's later orders do not vanish like cos θ_o and a
 /// pure cosine proposal gives heavy tails), per channel.
-fn eval_stats(
-    mf: &Microfacet,
-    albedo: Spectrum,
-    wi: DVec3,
-    o: &WalkOptions,
-    n: usize,
-    seed: u64,
-    moments: &[fn(DVec3) -> f64],
-) -> Vec<[Stat; 3]> {
+fn eval_stats(mf: &Microfacet, albedo: Spectrum, wi: DVec3, o: &Options, n: usize, seed: u64, moments: &[fn(DVec3) -> f64]) -> Vec<[Stat; 3]> {
     let mut rng = Sampler::new(seed);
     let mut st = vec![[Stat::default(); 3]; moments.len()];
     for _ in 0..n {
@@ -121,8 +104,7 @@ fn diffuse_reciprocity_uncorrelated() {
     let mut ck = Checker::new("diffuse, uncorrelated: f(ω_i, ω_o) = f(ω_o, ω_i)");
     let n = 60_000;
     let albedo = Spectrum([0.9, 0.6, 0.3, 1.0]);
-    let pairs =
-        [(dir(0.2, 0.0), dir(1.2, 2.5)), (dir(0.7, 0.0), dir(0.7, PI)), (dir(1.4, 0.0), dir(0.4, 1.0)), (dir(1.0, 0.5), dir(1.45, -2.0))];
+    let pairs = [(dir(0.2, 0.0), dir(1.2, 2.5)), (dir(0.7, 0.0), dir(0.7, PI)), (dir(1.4, 0.0), dir(0.4, 1.0)), (dir(1.0, 0.5), dir(1.45, -2.0))];
     let mut seed = 300u64;
     let mut cor_asym = 0.0f64;
     for dist in DISTS {
@@ -245,13 +227,7 @@ fn diffuse_order1_is_single_scattering() {
             let w_area = diffuse_integral_proj(dist, alpha, w);
             let lam = ref_lambda(dist, alpha, alpha, w);
             ck.close(&format!("quadrature ∫cos θ_m D dm = 1 ({} α={alpha})", dist_name(dist)), exact(z_area), exact(1.0), 1e-5, 0.0);
-            ck.close(
-                &format!("quadrature A(ω) = cos θ(1+Λ) ({} α={alpha})", dist_name(dist)),
-                exact(w_area),
-                exact(w.z * (1.0 + lam)),
-                1e-4,
-                0.0,
-            );
+            ck.close(&format!("quadrature A(ω) = cos θ(1+Λ) ({} α={alpha})", dist_name(dist)), exact(w_area), exact(w.z * (1.0 + lam)), 1e-4, 0.0);
         }
     }
     for seg in SEGS {

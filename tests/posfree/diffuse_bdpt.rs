@@ -10,22 +10,21 @@
 // Lints relaxed for this test file: per-channel statistics indexed by channel.
 #![allow(clippy::needless_range_loop)]
 
-
 use crate::common::*;
 use crate::shared::*;
-use msx::models::posfree::Segments;
 use msx::models::posfree::diffuse as bd;
-use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
 use msx::models::posfree::diffuse as pfd;
-use msx::models::WalkOptions;
+use msx::models::posfree::{Options, Segments};
 use msx::rng::Sampler;
+use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
+use msx::walk::WalkOptions;
 use msx::{Distribution, Microfacet, Spectrum};
 use std::f64::consts::PI;
 
 const MAX_BOUNCES: u32 = 256;
 
-fn opts(segments: Segments, orders: (u32, u32)) -> WalkOptions {
-    WalkOptions { segments, max_bounces: MAX_BOUNCES, orders }
+fn opts(segments: Segments, orders: (u32, u32)) -> Options {
+    Options { segments, walk: WalkOptions { max_bounces: MAX_BOUNCES, orders } }
 }
 
 fn albedo() -> Spectrum {
@@ -116,7 +115,10 @@ fn bdpt_furnace() {
 #[test]
 fn bdpt_vs_pt_variance_and_time() {
     println!("=== diffuse, all orders, channel 0 (albedo 0.9): variance and ns per call, pt vs bdpt (K_b = {}) ===", DEFAULT_BDPT_ORDERS);
-    println!("{:<4} {:<9} {:>4} {:<13} {:>11} {:>11} {:>7} {:>7} {:>6} {:>6}", "seg", "dist", "α", "pair", "var pt", "var bdpt", "ns pt", "ns bd", "var×", "eff×");
+    println!(
+        "{:<4} {:<9} {:>4} {:<13} {:>11} {:>11} {:>7} {:>7} {:>6} {:>6}",
+        "seg", "dist", "α", "pair", "var pt", "var bdpt", "ns pt", "ns bd", "var×", "eff×"
+    );
     let n = 40_000;
     let mut seed = 7000u64;
     for seg in [Segments::Uncorrelated, Segments::Correlated] {

@@ -16,11 +16,10 @@
 //! BSDF, agree within the family-wise 3σ level of `crate::common::family_sigmas`.
 //! Run with `--nocapture` for the measured values.
 
-
 use crate::common::*;
 use glam::DVec3;
-use msx::bsdf::{Config, Estimator, Material, Model, Surface};
 use msx::{Bsdf, Distribution};
+use msx::{Config, Estimator, Material, Model, Surface};
 
 const N: u64 = 100_000;
 const THETA_I: f64 = 0.6;

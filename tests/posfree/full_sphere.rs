@@ -9,7 +9,6 @@
 //! Statistical checks: family-wise 3σ of the Monte Carlo standard error
 //! (`crate::common::Checker`).
 
-
 use crate::common::{cosine_hemisphere, dir, Checker, Stat};
 use glam::DVec3;
 use msx::rng::Sampler;

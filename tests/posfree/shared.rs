@@ -24,11 +24,7 @@ pub fn dist_name(d: Distribution) -> &'static str {
 
 /// (name, ω_i, ω_o) on the upper side: mirror configuration, off-specular, grazing.
 pub fn pairs() -> [(&'static str, DVec3, DVec3); 3] {
-    [
-        ("mirror", dir(0.6, 0.0), dir(0.6, PI)),
-        ("off-specular", dir(0.3, 0.0), dir(1.1, 2.0)),
-        ("grazing", dir(1.45, 0.0), dir(1.3, PI - 0.4)),
-    ]
+    [("mirror", dir(0.6, 0.0), dir(0.6, PI)), ("off-specular", dir(0.3, 0.0), dir(1.1, 2.0)), ("grazing", dir(1.45, 0.0), dir(1.3, PI - 0.4))]
 }
 
 /// Per-channel statistics of `n` calls of an estimator with its own stream,

@@ -102,7 +102,7 @@ CONDUCTOR_ANALYTIC = {
 
 # ------------------------------------------------------------------ compensated dielectric (compensated_dielectric.rs)
 
-# Lower clamp of the tabulated albedo (src/tables/dielectric_albedo.rs, E_MIN).
+# Lower clamp of the tabulated albedo (src/models/analytic/dielectric_albedo.rs, E_MIN).
 E_MIN = 1e-3
 
 

@@ -1,4 +1,4 @@
-"""``model="auto"`` in the Dr.Jit engine: twin of ``src/models/auto.rs``.
+"""``model="auto"`` in the Dr.Jit engine: twin of ``src/models/auto/``.
 
 The position-free ``correlated`` model whose bounce cap is 1 (its analytic order 1, no walk) wherever the
 core's rule finds order 1 alone within ``auto_tolerance`` of the scattered energy for the call's

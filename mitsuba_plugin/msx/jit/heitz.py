@@ -1,5 +1,5 @@
 """Heitz et al. 2016, the stochastic random walk on the Smith microsurface with explicit heights, in the
-Dr.Jit engine: twin of ``src/models/heitz/mod.rs`` on the three microsurfaces (conductor, Lambertian
+Dr.Jit engine: twin of ``src/walk/height.rs`` on the three microsurfaces (conductor, Lambertian
 facets, dielectric).
 
 Heights as in the core: Heitz's uniform height distribution, carried as t = ln C¹(h) ≤ 0 (t = 0 at the

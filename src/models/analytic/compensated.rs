@@ -12,11 +12,11 @@
 //! The albedo table (`src/tables/albedo.rs`) is computed by this project's own code on
 //! first use (deterministic stratified quadrature over visible normals).
 
-pub use crate::tables::albedo::{single_albedo, AlbedoTable};
-use crate::models::single::conductor as single;
-use crate::models::ConductorFresnel;
+use crate::microfacet::ConductorFresnel;
 use crate::microfacet::Microfacet;
+use crate::models::single::conductor as single;
 use crate::spectrum::{Spectrum, MAX_CHANNELS};
+pub use crate::tables::albedo::{single_albedo, AlbedoTable};
 use glam::DVec3;
 use std::cell::Cell;
 
@@ -39,8 +39,26 @@ pub fn fresnel_average(fresnel: &ConductorFresnel) -> Spectrum {
             return avg;
         }
     }
-    const X: [f64; 8] = [0.0950125098376374, 0.2816035507792589, 0.4580167776572274, 0.6178762444026438, 0.7554044083550030, 0.8656312023878318, 0.9445750230732326, 0.9894009349916499];
-    const W: [f64; 8] = [0.1894506104550685, 0.1826034150449236, 0.1691565193950025, 0.1495959888165767, 0.1246289712555339, 0.0951585116824928, 0.0622535239386479, 0.0271524594117541];
+    const X: [f64; 8] = [
+        0.0950125098376374,
+        0.2816035507792589,
+        0.4580167776572274,
+        0.6178762444026438,
+        0.7554044083550030,
+        0.8656312023878318,
+        0.9445750230732326,
+        0.9894009349916499,
+    ];
+    const W: [f64; 8] = [
+        0.1894506104550685,
+        0.1826034150449236,
+        0.1691565193950025,
+        0.1495959888165767,
+        0.1246289712555339,
+        0.0951585116824928,
+        0.0622535239386479,
+        0.0271524594117541,
+    ];
     let mut avg = Spectrum::ZERO;
     for s in [-1.0, 1.0] {
         for (x, w) in X.iter().zip(W.iter()) {
@@ -64,7 +82,11 @@ pub fn scale(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3) -> Spectrum
     f_avg.map(|fa| {
         let f_ms = fa * fa * e_avg / (1.0 - fa * (1.0 - e_avg));
         let s = 1.0 + if fa > 0.0 { f_ms / fa * ratio } else { 0.0 };
-        if s.is_finite() { s } else { 1.0 }
+        if s.is_finite() {
+            s
+        } else {
+            1.0
+        }
     })
 }
 

@@ -15,15 +15,15 @@
 //! it, η_r = 1/n, with total internal reflection). In Radiance mode the
 //! transmitted part keeps `single_dielectric`'s 1/η_r² factor.
 //!
-//! The table E(μ, α, n) is src/tables/dielectric_albedo.rs.
+//! The table E(μ, α, n) is `dielectric_albedo.rs` beside this file.
 //!
 //! Limitations: the compensated lobe is not reciprocal (the scale depends on
 //! ω_i only, as in Turquin 2019); anisotropic roughness uses α = √(α_u α_v);
 //! η_r outside [1/3, 3] or within 1.01 of 1 uses the nearest table edge.
 
+use super::dielectric_albedo::{DielectricAlbedoTable, E_MIN};
 use crate::microfacet::Microfacet;
 use crate::models::single::dielectric as single_dielectric;
-use crate::tables::dielectric_albedo::{DielectricAlbedoTable, E_MIN};
 use glam::DVec3;
 
 /// The compensation factor 1/E(μ_i, α, η_r) (≥ 1) for incidence ω_i.

@@ -13,9 +13,9 @@
 //! The model is neither reciprocal nor energy conserving (the paper says so);
 //! its albedo is measured in the tests. Sampling uses `single`'s sampler.
 
-use crate::models::single::conductor as single;
-use crate::models::ConductorFresnel;
+use crate::microfacet::ConductorFresnel;
 use crate::microfacet::Microfacet;
+use crate::models::single::conductor as single;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 use std::f64::consts::PI;

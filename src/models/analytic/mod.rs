@@ -6,14 +6,17 @@
 //! | `fastmsx.rs` | Fast-MSX (Rosales et al. 2023): an analytic second-bounce lobe for GGX conductors |
 //! | `compensated.rs` | Turquin 2019 / Kulla & Conty 2017 energy compensation of conductors |
 //! | `compensated_dielectric.rs` | the same scaling for rough dielectrics (both sides of the interface) |
+//! | `dielectric_albedo.rs` | its table: E_r + E_t of `single` on a dielectric over (α, η, μ), both sides |
 
 pub mod compensated;
 pub mod compensated_dielectric;
+pub mod dielectric_albedo;
 pub mod fastmsx;
 
-use super::single::{conductor as single, dielectric as single_dielectric};
-use super::{Call, Microsurface, Sampled, ScatteringModel};
-use crate::bsdf::Surface;
+use super::single::{conductor as single, Single};
+use super::{Call, Sampled, ScatteringModel};
+use crate::config::Surface;
+use crate::microfacet::Microsurface;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 
@@ -64,12 +67,9 @@ impl ScatteringModel for Compensated {
         }
     }
 
+    /// `single`'s density: the compensation scales `single`'s value and keeps its sampler.
     fn pdf(&self, call: &Call, wi: DVec3, wo: DVec3) -> f64 {
-        match &call.surf {
-            Microsurface::Conductor(_) => single::pdf(&call.mf, wi, wo),
-            &Microsurface::Dielectric { eta, .. } => single_dielectric::pdf(&call.mf, eta, wi, wo),
-            &Microsurface::Diffuse { .. } => 0.0,
-        }
+        Single.pdf(call, wi, wo)
     }
 
     fn sample(&self, call: &Call, wi: DVec3, (s1, u1, u2): (f64, f64, f64)) -> Option<Sampled> {

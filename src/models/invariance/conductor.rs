@@ -23,16 +23,14 @@
 //! both: measured by `benches/models.rs`, numbers in benches/README.md.
 
 use super::recursion::MonotoneExit;
-use crate::models::{ConductorFresnel, WalkOptions};
-use crate::models::posfree::conductor::{self as posfree_conductor, CamVertex, ConductorSegments, LightVertex as WalkLight};
-use crate::walk::{bdpt, russian_roulette_keep, vertex_numbers};
+use crate::microfacet::ConductorFresnel;
 use crate::microfacet::{reflect, Microfacet};
+use crate::models::posfree::conductor::{self as posfree_conductor, CamVertex, ConductorSegments, LightVertex as WalkLight};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
+use crate::walk::WalkOptions;
+use crate::walk::{bdpt, russian_roulette_keep, sample_conductor, ConductorExit, RR_START};
 use glam::DVec3;
-
-/// First vertex after whose NEE Russian roulette may end a walk.
-const RR_START: u32 = 1;
 
 /// Throughput (largest channel) above which the walk of `eval` surely goes on.
 /// Below it the roulette keeps the walk with probability throughput/RR_KEEP,
@@ -43,7 +41,6 @@ const RR_START: u32 = 1;
 /// 13 % (mirror) for ≈ 5 % more time.
 const RR_KEEP: f64 = 0.5;
 
-
 /// Highest order estimated by the connection as well as by the walk's NEE.
 /// Beyond it the NEE alone is better: at GGX α = 1 off-specular, connecting
 /// at every order raises the variance per call by 4 % (the shared y
@@ -51,10 +48,9 @@ const RR_KEEP: f64 = 0.5;
 /// probability per vertex. Order 3 still pays (−8 % variance for ≈ 5 % time).
 const CONNECT_MAX_ORDER: u32 = 3;
 
-
 /// One unbiased estimate of f(ω_i, ω_o)·cos θ_o of the invariance model,
 /// restricted to the orders `opts.orders` and at most `opts.max_bounces`
-/// vertices (`opts.segments` is ignored). Order 1 is deterministic:
+/// vertices. Order 1 is deterministic:
 /// F·D·G2/(4 cos θ_i) with G2 = 1/(1 + Λ(ω_i) + Λ(ω_o)).
 ///
 /// Orders 2 ≤ k ≤ `CONNECT_MAX_ORDER` (3) combine two strategies for the last
@@ -127,8 +123,8 @@ impl Walk<'_> {
 
     /// The estimates of the vertices from `first_vertex` (0-based) on, within
     /// `orders` (the upper one within the bounce cap).
-    /// Kept as one loop over the vertices on purpose: its steps (next event,
-    /// roulette, scattering, exit bookkeeping) share the walk's state.
+    /// One loop over the vertices: its steps (next event, roulette, scattering,
+    /// exit bookkeeping) share the walk's state.
     pub fn from(&self, state: WalkState, first_vertex: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
         let (mf, fresnel, wo, lambda_o) = (self.mf, self.fresnel, self.wo, self.lambda_o);
         let WalkState { mut w, mut pdf_scale, mut pdf_walk, mut dp, mut throughput } = state;
@@ -314,40 +310,24 @@ pub fn sample(
         return None;
     }
     let last = opts.last_order()?;
-    let mut w = wi;
     let mut dp = MonotoneExit::new(mf.abs_lambda(-wi));
-    let mut weight = Spectrum::ONE;
-    for j in 0..last {
-        let (u_exit, u1, u2) = vertex_numbers(j, first, rng);
-        let m = mf.sample_visible(w, u1, u2)?;
-        let cos_wm = w.dot(m);
-        if cos_wm <= 0.0 {
+    let (wo, weight, order) = sample_conductor(mf, fresnel, wi, first, last, &mut dp, rng)?;
+    (order >= opts.orders.0 && wo.is_finite()).then_some((wo, weight, order))
+}
+
+/// The invariance exit: the exact probability of leaving given the monotone
+/// run so far; a non-finite Λ ends the walk.
+impl ConductorExit for MonotoneExit {
+    fn up(&mut self, lambda: f64) -> Option<f64> {
+        if !lambda.is_finite() {
             return None;
         }
-        let d_next = reflect(w, m);
-        weight *= fresnel.eval(cos_wm);
-        if d_next.z > 0.0 {
-            let lambda = mf.lambda(d_next);
-            if !lambda.is_finite() {
-                return None;
-            }
-            let cont = dp.push_up(lambda);
-            if u_exit >= cont {
-                let order = j + 1;
-                if order < opts.orders.0 || !d_next.is_finite() {
-                    return None;
-                }
-                return Some((d_next, weight, order));
-            }
-        } else {
-            let l = mf.abs_lambda(d_next);
-            if !l.is_finite() || !dp.push_down(l) {
-                return None;
-            }
-        }
-        w = -d_next;
+        Some(self.push_up(lambda))
     }
-    None
+
+    fn down(&mut self, l: f64) -> bool {
+        l.is_finite() && self.push_down(l)
+    }
 }
 
 // ---------------------------------------------------------------------------
@@ -403,7 +383,17 @@ impl ConductorSegments for WholePath {
         Some(exit_table(dirs)?.exit_probability(lambda_o))
     }
 
-    fn pt_tail(&self, mf: &Microfacet, fresnel: &ConductorFresnel, wo: DVec3, lambda_o: f64, cam: &[CamVertex], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
+    fn pt_tail(
+        &self,
+        mf: &Microfacet,
+        fresnel: &ConductorFresnel,
+        wo: DVec3,
+        lambda_o: f64,
+        cam: &[CamVertex],
+        kb: u32,
+        orders: (u32, u32),
+        rng: &mut Sampler,
+    ) -> Spectrum {
         let Some(dp) = exit_table(cam.iter().map(|c| (c.l, c.d))) else { return Spectrum::ZERO };
         let cv = &cam[kb as usize];
         let walk = Walk::unidirectional(mf, fresnel, wo, lambda_o);

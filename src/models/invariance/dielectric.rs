@@ -21,7 +21,7 @@
 //! **Exact part: the first run.** Until the first refraction the path stays in
 //! the medium of ω_i and only reflects, so its directions are monotone (down…
 //! down, up… up: a reflection turns an upward ray further up, see
-//! `invariance.rs`). For such a run the depth of the current vertex has an
+//! `conductor.rs`). For such a run the depth of the current vertex has an
 //! exact finite description, [`PieceChain`]: the downward directions stack
 //! independent exponential pieces X_0, …, X_{a−1} (rates L_0 … L_{a−1}); an
 //! upward jump Y ~ Exp(Λ) eats the pieces from the bottom; by memorylessness a
@@ -35,7 +35,7 @@
 //!
 //! All terms are positive (stable). The exit probability of a same-side ω_o
 //! given the hits is E[e^{−Λ_o τ}] = Σ_c π(c) Π_{i≤c} L_i/(L_i+Λ_o) — the same
-//! numbers as Cui's S_k (`invariance.rs`, tested against it) — and the
+//! numbers as Cui's S_k (`recursion.rs`, tested against it) — and the
 //! continuation probability of an upward direction is 1 − P(leave).
 //!
 //! **Sampled part.** Through the interface the exit probability is
@@ -44,7 +44,7 @@
 //! Walter's BTDF with the Beta G2); for c ≥ 1 one τ is drawn from the exact
 //! conditional law. When the walk itself refracts, τ is drawn from the exact
 //! conditional law of the vertex depth given the whole run, flipped, and the
-//! rest of the path is Heitz's walk (`heitz::eval_from` / `sample_from`) from
+//! rest of the path is Heitz's walk (`walk::height::eval_from` / `sample_from`) from
 //! that height: by the tower property the estimate stays unbiased, and it
 //! equals Heitz's walk in expectation (tests/invariance/dielectric.rs).
 //!
@@ -52,24 +52,21 @@
 //! reflection with probability F (Heitz's phase function), carries the exact
 //! hit probabilities in its throughput, and estimates towards ω_o at every
 //! vertex with the phase function × the exact exit probability above. Russian
-//! roulette as in `invariance.rs`. `sample`: the same walk leaves along an
+//! roulette as in `conductor.rs`. `sample`: the same walk leaves along an
 //! upward direction with the exact probability 1 − H_{m+1}/H_m, so every
 //! sample weight is 1 (times Mitsuba's 1/η² for a Radiance-mode transmission).
-//! Transport modes as in `src/models/heitz/mod.rs` (Importance-mode vertex terms; the
+//! Transport modes as in `src/walk/height.rs` (Importance-mode vertex terms; the
 //! Radiance-mode factor applied once per path).
 
-use crate::models::heitz::{self, WalkState};
-use crate::models::{Microsurface, WalkOptions};
-use crate::walk::{russian_roulette, vertex_numbers};
 use crate::microfacet::dielectric::{eta_seen, radiance_scale, refract_unit, valid_ior};
+use crate::microfacet::Microsurface;
 use crate::microfacet::{fresnel, reflect, Microfacet};
 use crate::models::posfree::dielectric::l_beta;
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
+use crate::walk::WalkOptions;
+use crate::walk::{height, russian_roulette, vertex_numbers, RR_START};
 use glam::DVec3;
-
-/// First vertex after whose estimates Russian roulette may end a walk.
-const RR_START: u32 = 1;
 
 /// Exact depth law of the current vertex of a monotone one-sided run entered
 /// from above the microsurface (module docs): the rates L_i of the pieces
@@ -242,13 +239,12 @@ impl PieceChain {
     }
 }
 
-
 /// One unbiased estimate of f(ω_i, ω_o)·|cos θ_o| of the rough dielectric
 /// (Heitz's microsurface, relative IOR `eta` = η_int/η_ext) with the heights
 /// of the first run integrated out (module docs), orders `opts.orders`, at most
 /// `opts.max_bounces` vertices. Radiance mode scales a transmission by 1/η_rel².
-/// Kept as one loop over the vertices on purpose: its steps (next event,
-/// roulette, scattering, exit bookkeeping) share the walk's state.
+/// One loop over the vertices: its steps (next event, roulette, scattering,
+/// exit bookkeeping) share the walk's state.
 pub fn eval(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> f64 {
     if !wi.is_finite() || !wo.is_finite() || wi.z == 0.0 || wo.z == 0.0 || !valid_ior(eta) {
         return 0.0;
@@ -258,10 +254,10 @@ pub fn eval(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opt
     let outside = wi.z > 0.0;
     let same_side = (wo.z > 0.0) == outside;
     let e = eta_seen(eta, outside);
-    let wo_l = heitz::local(wo, outside);
+    let wo_l = height::local(wo, outside);
     // Λ of ω_o in the frame of the medium it leaves into.
     let lambda_o = if same_side { mf.lambda(wo_l) } else { mf.lambda(-wo_l) };
-    let mut w = heitz::local(wi, outside); // −d_m, local frame of the first run
+    let mut w = height::local(wi, outside); // −d_m, local frame of the first run
     let l0 = mf.abs_lambda(-w);
     if !lambda_o.is_finite() || !l0.is_finite() {
         return 0.0;
@@ -273,7 +269,7 @@ pub fn eval(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opt
         let order = j + 1;
         // Next-event estimation towards ω_o: phase function × exit probability.
         if order >= opts.orders.0 {
-            let phase = heitz::dielectric_phase(mf, w, wo_l, e, same_side);
+            let phase = height::dielectric_phase(mf, w, wo_l, e, same_side);
             if phase > 0.0 {
                 let exit = if same_side { chain.exit_given_hits(lambda_o) } else { chain.transmit_exit(lambda_o, rng) };
                 result += throughput * phase * exit;
@@ -291,15 +287,15 @@ pub fn eval(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opt
         }
         // Scatter: visible normal, then reflect with probability F.
         let (u1, u2) = rng.next2();
-        let Some(m) = heitz::visible_normal(mf, w, u1, u2) else { break };
+        let Some(m) = height::visible_normal(mf, w, u1, u2) else { break };
         let c = w.dot(m);
         let f = fresnel::dielectric(c, e);
         if rng.next() >= f {
             if let Some(o) = refract_unit(w, m, c, e) {
                 // Leave the exact part: sample the vertex depth, continue as Heitz.
                 let tau = chain.sample_depth(rng);
-                let state = WalkState::after_refraction(outside, o, -tau, Spectrum::splat(throughput), order + 1);
-                result += heitz::eval_from(mf, &surf, wo, state, opts, rng).0[0];
+                let state = height::State::after_refraction(outside, o, -tau, Spectrum::splat(throughput), order + 1);
+                result += height::eval_from(mf, &surf, wo, state, opts, rng).0[0];
                 break;
             }
             // Total internal reflection: reflect (F = 1 in effect).
@@ -359,7 +355,7 @@ pub fn sample(
     let surf = Microsurface::Dielectric { eta, radiance };
     let outside = wi.z > 0.0;
     let e = eta_seen(eta, outside);
-    let mut w = heitz::local(wi, outside);
+    let mut w = height::local(wi, outside);
     let l0 = mf.abs_lambda(-w);
     if !l0.is_finite() {
         return None;
@@ -372,14 +368,14 @@ pub fn sample(
     for j in 0..last {
         let order = j + 1;
         let (u_choice, u1, u2) = vertex_numbers(j, first, rng);
-        let m = heitz::visible_normal(mf, w, u1, u2)?;
+        let m = height::visible_normal(mf, w, u1, u2)?;
         let c = w.dot(m);
         let f = fresnel::dielectric(c, e);
         if u_choice >= f {
             if let Some(o) = refract_unit(w, m, c, e) {
                 let tau = chain.sample_depth(rng);
-                let state = WalkState::after_refraction(outside, o, -tau, Spectrum::ONE, order + 1);
-                let (wo, weight, k) = heitz::sample_from(mf, &surf, state, None, opts, rng)?;
+                let state = height::State::after_refraction(outside, o, -tau, Spectrum::ONE, order + 1);
+                let (wo, weight, k) = height::sample_from(mf, &surf, state, None, opts, rng)?;
                 return finish(wo, weight.0[0], k);
             }
         }
@@ -394,7 +390,7 @@ pub fn sample(
             }
             let cont = chain.push_up(lambda);
             if rng.next() >= cont {
-                return finish(heitz::local(d, outside), 1.0, order);
+                return finish(height::local(d, outside), 1.0, order);
             }
         } else {
             let l = mf.abs_lambda(d);

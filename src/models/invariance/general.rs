@@ -3,7 +3,7 @@
 //! not monotone in z (after a Lambertian bounce a direction can go up and the
 //! next one down again), so the complete S_k recursion of docs/paper-notes.md is needed.
 //!
-//! **Path contribution.** As in `invariance.rs`: a path d_0 = −ω_i, d_1, …,
+//! **Path contribution.** As in `recursion.rs`: a path d_0 = −ω_i, d_1, …,
 //! d_k = ω_o contributes (Π_{j<k} v_j)·S_k(d_0..d_k) to f·cos θ_o, with
 //! v_j = L_j·p(−d_j → d_{j+1}) (L_j = |Λ(d_j)|, p Heitz's diffuse phase function,
 //! see `src/models/posfree/diffuse.rs`). With p_exit(d_0..d_k) = (Π_{j<k} L_j)·S_k (Cui
@@ -38,16 +38,14 @@
 //! `dielectric.rs` integrates the heights exactly up to the first
 //! refraction and samples them after it.
 
-use crate::models::{Microsurface, WalkOptions};
-use crate::walk::{cosine_about, russian_roulette, vertex_numbers};
 use crate::microfacet::Microfacet;
+use crate::microfacet::Microsurface;
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
+use crate::walk::WalkOptions;
+use crate::walk::{cosine_about, russian_roulette, vertex_numbers, RR_START};
 use glam::DVec3;
 use std::f64::consts::FRAC_1_PI;
-
-/// First vertex after whose NEE Russian roulette may end a walk.
-const RR_START: u32 = 1;
 
 /// Incremental exit probabilities of an arbitrary direction sequence
 /// d_0..d_m (d_0 downward), the complete invariance recursion in scaled form
@@ -69,7 +67,13 @@ pub struct ExitTable {
 impl ExitTable {
     /// Starts a path with the downward d_0 of |Λ(d_0)| = `l0` (= 1 + Λ(ω_i)).
     pub fn new(l0: f64) -> Self {
-        let mut t = ExitTable { l: Vec::with_capacity(16), down: Vec::with_capacity(16), p: Vec::with_capacity(136), scratch: Vec::with_capacity(17), hit: 1.0 };
+        let mut t = ExitTable {
+            l: Vec::with_capacity(16),
+            down: Vec::with_capacity(16),
+            p: Vec::with_capacity(136),
+            scratch: Vec::with_capacity(17),
+            hit: 1.0,
+        };
         t.l.push(l0);
         t.down.push(true);
         t.p.push(1.0);
@@ -185,8 +189,8 @@ fn lam(mf: &Microfacet, d: DVec3) -> Option<(f64, bool)> {
 
 /// One unbiased estimate of f(ω_i, ω_o)·cos θ_o of the invariance model on the
 /// diffuse microsurface, orders `opts.orders`, at most `opts.max_bounces`
-/// vertices (`opts.segments` is ignored). Zero for conductors (see
-/// `invariance.rs`) and dielectrics (not implemented, module docs).
+/// vertices. Zero for conductors and dielectrics, whose walks are
+/// `conductor.rs` and `dielectric.rs`.
 pub fn eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
     let Microsurface::Diffuse { albedo } = *surf else { return Spectrum::ZERO };
     if !(wi.z > 0.0) || !(wo.z > 0.0) || !wi.is_finite() || !wo.is_finite() {
@@ -243,7 +247,14 @@ pub fn eval(mf: &Microfacet, surf: &Microsurface, wi: DVec3, wo: DVec3, opts: &W
 /// E[weight·g(ω_o)] = ∫ g·eval). `first` = (u_exit, u1, u2) drives the first
 /// vertex (visible normal and exit decision); the cosine lobe and later
 /// vertices use `rng`. None for conductors and dielectrics.
-pub fn sample(mf: &Microfacet, surf: &Microsurface, wi: DVec3, first: (f64, f64, f64), opts: &WalkOptions, rng: &mut Sampler) -> Option<(DVec3, Spectrum, u32)> {
+pub fn sample(
+    mf: &Microfacet,
+    surf: &Microsurface,
+    wi: DVec3,
+    first: (f64, f64, f64),
+    opts: &WalkOptions,
+    rng: &mut Sampler,
+) -> Option<(DVec3, Spectrum, u32)> {
     let Microsurface::Diffuse { albedo } = *surf else { return None };
     if !(wi.z > 0.0) || !wi.is_finite() {
         return None;

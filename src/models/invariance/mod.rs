@@ -17,9 +17,9 @@ pub mod recursion;
 pub use recursion::{p_exit, p_exit_error_study, p_exit_with_bound, segment_term, segment_term_monotone, MonotoneExit};
 
 use super::mis::{walk_pdf, OrderOneExit};
-use super::posfree::Segments;
-use super::{Call, Microsurface, Sampled, ScatteringModel};
-use crate::bsdf::{Estimator, Surface};
+use super::{Call, Sampled, ScatteringModel};
+use crate::config::{Estimator, Surface};
+use crate::microfacet::Microsurface;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 
@@ -46,7 +46,7 @@ impl ScatteringModel for Invariance {
     }
 
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
-        let (opts, mf, rng) = (&call.walk(Segments::Correlated), &call.mf, &mut call.rng());
+        let (opts, mf, rng) = (&call.walk(), &call.mf, &mut call.rng());
         match &call.surf {
             Microsurface::Conductor(fresnel) if self.estimator == Estimator::Bdpt => conductor::eval_bdpt(mf, fresnel, wi, wo, opts, rng),
             Microsurface::Conductor(fresnel) => conductor::eval(mf, fresnel, wi, wo, opts, rng),
@@ -60,7 +60,7 @@ impl ScatteringModel for Invariance {
     }
 
     fn sample(&self, call: &Call, wi: DVec3, first: (f64, f64, f64)) -> Option<Sampled> {
-        let (opts, mf, rng) = (&call.walk(Segments::Correlated), &call.mf, &mut call.rng());
+        let (opts, mf, rng) = (&call.walk(), &call.mf, &mut call.rng());
         let (wo, weight, order) = match &call.surf {
             Microsurface::Conductor(fresnel) => conductor::sample(mf, fresnel, wi, first, opts, rng)?,
             &Microsurface::Dielectric { eta, radiance } => {

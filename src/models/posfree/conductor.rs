@@ -4,22 +4,14 @@
 //! bidirectional estimator (`walk/bdpt.rs`). The pair factors of the segment
 //! models are in `mod.rs`.
 
-use super::{roulette_importance, Segments};
-use crate::models::{ConductorFresnel, WalkOptions};
-use crate::walk::{bdpt, russian_roulette_keep, vertex_numbers};
+use super::{roulette_importance, Options, Segments};
+use crate::microfacet::ConductorFresnel;
 use crate::microfacet::{reflect, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
+use crate::walk::WalkOptions;
+use crate::walk::{bdpt, russian_roulette_keep, sample_conductor, ConductorExit, RR_START};
 use glam::DVec3;
-
-/// First vertex at which Russian roulette may end a path (played on arrival,
-/// before the vertex's next event; see [`roulette_importance`]). Roulette from
-/// the first continuation on: the continue factor is small for most directions
-/// at moderate roughness, and killing those walks early cut the GGX α = 0.5
-/// eval time ≈ 3× for ≈ 1.3× the variance per call (measured off-specular), a
-/// net efficiency gain; starting at vertex 3 spent most of the time on walks
-/// that carried almost no weight.
-const RR_START: u32 = 1;
 
 /// PT estimator with next-event estimation towards ω_o at every vertex
 /// (Wang eqs. 24–26). Returns one sample of f(ω_i, ω_o)·cos θ_o: Wang's vertex
@@ -31,13 +23,13 @@ const RR_START: u32 = 1;
 /// the projected-area factor of ω_i's visible normals there, as at any
 /// vertex reached by an upward segment. ω_o must point up (light leaves
 /// upward only).
-pub fn eval_pt(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
+pub fn eval_pt(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, opts: &Options, rng: &mut Sampler) -> Spectrum {
     if wi.z == 0.0 || wo.z <= 0.0 {
         return Spectrum::ZERO;
     }
     // Vertex 0: light arrives from ω_i, L_0 = |Λ(d_0)| = |Λ(−ω_i)| (1 + Λ(ω_i) for ω_i above).
     let start = PtState { w: wi, l: mf.abs_lambda(-wi), throughput: Spectrum::ONE };
-    let orders = opts.clamped_orders();
+    let orders = opts.walk.clamped_orders();
     pt_walk(mf, fresnel, wo, mf.lambda(wo), opts.segments, start, 0, orders, RR_START, rng)
 }
 
@@ -138,45 +130,44 @@ pub(crate) fn pt_walk(
 }
 
 /// Random-walk sampler (Wang §4.3 with the exit probabilities of docs/paper-notes.md):
-/// at each upward direction the walk leaves with probability 1 − continue_up,
-/// so that the weight is the product of the Fresnel terms. The first vertex
-/// uses the caller's (u_exit, u1, u2). Returns (ω_o, weight, order) or None.
+/// at each upward direction the walk leaves with probability 1 − continue_up
+/// ([`walk::sample_conductor`](crate::walk::sample_conductor)), so that the
+/// weight is the product of the Fresnel terms. The first vertex uses the
+/// caller's (u_exit, u1, u2). Returns (ω_o, weight, order) or None.
 pub fn sample_walk(
     mf: &Microfacet,
     fresnel: &ConductorFresnel,
     wi: DVec3,
     first: (f64, f64, f64),
-    opts: &WalkOptions,
+    opts: &Options,
     rng: &mut Sampler,
 ) -> Option<(DVec3, Spectrum, u32)> {
     if wi.z == 0.0 {
         return None;
     }
-    let mut w = wi;
-    let mut l = mf.abs_lambda(-wi); // as in eval_pt: ω_i may lie below the macro surface
-    let mut weight = Spectrum::ONE;
-    for j in 0..opts.max_bounces {
-        let (u_exit, u1, u2) = vertex_numbers(j, first, rng);
-        let m = mf.sample_visible(w, u1, u2)?;
-        let cos_wm = w.dot(m);
-        if cos_wm <= 0.0 {
-            return None;
-        }
-        let d_next = reflect(w, m);
-        weight *= fresnel.eval(cos_wm);
-        if d_next.z > 0.0 {
-            let lambda = mf.lambda(d_next);
-            let p_continue = opts.segments.continue_up(l, lambda);
-            if u_exit >= p_continue {
-                return Some((d_next, weight, j + 1));
-            }
-            l = lambda;
-        } else {
-            l = mf.abs_lambda(d_next);
-        }
-        w = -d_next;
+    // As in eval_pt: ω_i may lie below the macro surface.
+    let mut exit = SegmentExit { segments: opts.segments, l: mf.abs_lambda(-wi) };
+    sample_conductor(mf, fresnel, wi, first, opts.walk.max_bounces, &mut exit, rng)
+}
+
+/// The position-free exit: the segment term's continuation probability from
+/// the last segment's |Λ| `l`.
+struct SegmentExit {
+    segments: Segments,
+    l: f64,
+}
+
+impl ConductorExit for SegmentExit {
+    fn up(&mut self, lambda: f64) -> Option<f64> {
+        let p_continue = self.segments.continue_up(self.l, lambda);
+        self.l = lambda;
+        Some(p_continue)
     }
-    None
+
+    fn down(&mut self, l: f64) -> bool {
+        self.l = l;
+        true
+    }
 }
 
 // ---------------------------------------------------------------------------
@@ -262,7 +253,17 @@ pub(crate) trait ConductorSegments {
     }
     /// The model's PT estimate of the orders above K_b from the end of `cam`.
     #[allow(clippy::too_many_arguments)]
-    fn pt_tail(&self, mf: &Microfacet, fresnel: &ConductorFresnel, wo: DVec3, lambda_o: f64, cam: &[CamVertex], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum;
+    fn pt_tail(
+        &self,
+        mf: &Microfacet,
+        fresnel: &ConductorFresnel,
+        wo: DVec3,
+        lambda_o: f64,
+        cam: &[CamVertex],
+        kb: u32,
+        orders: (u32, u32),
+        rng: &mut Sampler,
+    ) -> Spectrum;
 }
 
 impl ConductorSegments for Segments {
@@ -276,7 +277,17 @@ impl ConductorSegments for Segments {
         Segments::last(*self, l, lambda_o)
     }
 
-    fn pt_tail(&self, mf: &Microfacet, fresnel: &ConductorFresnel, wo: DVec3, lambda_o: f64, cam: &[CamVertex], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
+    fn pt_tail(
+        &self,
+        mf: &Microfacet,
+        fresnel: &ConductorFresnel,
+        wo: DVec3,
+        lambda_o: f64,
+        cam: &[CamVertex],
+        kb: u32,
+        orders: (u32, u32),
+        rng: &mut Sampler,
+    ) -> Spectrum {
         let cv = &cam[kb as usize];
         let state = PtState { w: -cv.d, l: cv.l, throughput: cv.thr };
         pt_walk(mf, fresnel, wo, lambda_o, *self, state, kb, orders, kb + RR_START, rng)
@@ -418,7 +429,7 @@ impl<S: ConductorSegments> bdpt::BdptSurface for Bidirectional<'_, S> {
 
 /// BDPT estimate of f(ω_i, ω_o)·cos θ_o with the default number of
 /// bidirectional orders ([`bdpt::DEFAULT_BDPT_ORDERS`]).
-pub fn eval_bdpt(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
+pub fn eval_bdpt(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3, opts: &Options, rng: &mut Sampler) -> Spectrum {
     eval_bdpt_with(mf, fresnel, wi, wo, opts, bdpt::DEFAULT_BDPT_ORDERS, rng)
 }
 
@@ -429,7 +440,7 @@ pub fn eval_bdpt_with(
     fresnel: &ConductorFresnel,
     wi: DVec3,
     wo: DVec3,
-    opts: &WalkOptions,
+    opts: &Options,
     bdpt_orders: u32,
     rng: &mut Sampler,
 ) -> Spectrum {
@@ -440,11 +451,11 @@ pub fn eval_bdpt_with(
     if wi.z <= 0.0 || wo.z <= 0.0 {
         return Spectrum::ZERO;
     }
-    estimate_bdpt(mf, fresnel, &opts.segments, wi, wo, opts, bdpt_orders, rng)
+    estimate_bdpt(mf, fresnel, &opts.segments, wi, wo, &opts.walk, bdpt_orders, rng)
 }
 
 /// The bidirectional estimate of a conductor with the segment term `seg`
-/// (ω_i and ω_o above the surface), orders `opts.orders`.
+/// (ω_i and ω_o above the surface), orders `opts.walk.orders`.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn estimate_bdpt<S: ConductorSegments>(
     mf: &Microfacet,

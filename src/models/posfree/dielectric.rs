@@ -62,13 +62,12 @@
 //! (G1 of each direction taken in its own medium's frame), of `Correlated`
 //! with G2 = 1/(1+Λ_i+Λ_o) (reflection) or B(1+Λ_i, 1+Λ_o) (transmission).
 
-use super::{roulette_importance, Segments};
-use crate::models::WalkOptions;
-use crate::walk::{bdpt, roulette_scalar};
+use super::{roulette_importance, Options, Segments};
 use crate::microfacet::dielectric::{eta_seen, radiance_scale, reflect_or_refract, valid_ior};
 use crate::microfacet::fresnel::dielectric_full;
 use crate::microfacet::Microfacet;
-use crate::rng::Sampler;
+use crate::rng::{unit_interval, Sampler};
+use crate::walk::{bdpt, roulette_scalar, RR_START};
 use glam::DVec3;
 
 /// ln(L·B(L, 1+Λ)) = ln Γ(L+1) + ln Γ(Λ+1) − ln Γ(L+Λ+1) (≤ 0 for L, Λ ≥ 0).
@@ -224,10 +223,6 @@ fn scatter(mf: &Microfacet, st: &mut State, u_choice: f64, u1: f64, u2: f64) -> 
     Some((-d, true, f))
 }
 
-
-/// First vertex at which Russian roulette may end a path (as posfree.rs).
-const RR_START: u32 = 1;
-
 /// Gain of the next-event value in `posfree::roulette_importance` for
 /// dielectrics. Larger than the conductors' because the reflection near the
 /// normal is small (F ≈ 0.04 at the first vertex) against the height-chain
@@ -242,16 +237,14 @@ fn valid_inputs(eta: f64, wi: DVec3) -> bool {
 }
 
 /// PT estimator with next-event estimation to ω_o at every vertex: one unbiased
-/// sample of f(ω_i, ω_o)·|cos θ_o| over the orders `opts.orders`, and whether
-/// the pair is a reflection (ω_i, ω_o on the same side).
-pub fn eval_pt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> (f64, bool) {
-    let is_reflection = wi.z * wo.z > 0.0;
+/// sample of f(ω_i, ω_o)·|cos θ_o| over the orders `opts.walk.orders`.
+pub fn eval_pt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &Options, rng: &mut Sampler) -> f64 {
     if !valid_inputs(eta, wi) || wo.z == 0.0 || !wo.is_finite() {
-        return (0.0, is_reflection);
+        return 0.0;
     }
-    let orders = opts.clamped_orders();
+    let orders = opts.walk.clamped_orders();
     let result = pt_walk(mf, opts.segments, wo, State::new(mf, eta, wi), 1.0, 0, orders, RR_START, rng);
-    (result * radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0), is_reflection)
+    result * radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0)
 }
 
 /// The PT-with-NEE walk from vertex `first_vertex` (0-based) on, the light
@@ -318,14 +311,22 @@ fn pt_walk(
 /// transmission in Radiance mode). `first` = (sample1, u1, u2) drives the first
 /// vertex: sample1 chooses reflection when sample1 < F and, rescaled to [0, 1)
 /// within the chosen branch, decides the first exit. Returns (ω_o, weight,
-/// order) or None (no visible normal, or `opts.max_bounces` reached).
-pub fn sample_walk(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, first: (f64, f64, f64), opts: &WalkOptions, rng: &mut Sampler) -> Option<(DVec3, f64, u32)> {
+/// order) or None (no visible normal, or `opts.walk.max_bounces` reached).
+pub fn sample_walk(
+    mf: &Microfacet,
+    eta: f64,
+    radiance: bool,
+    wi: DVec3,
+    first: (f64, f64, f64),
+    opts: &Options,
+    rng: &mut Sampler,
+) -> Option<(DVec3, f64, u32)> {
     if !valid_inputs(eta, wi) {
         return None;
     }
     let seg = opts.segments;
     let mut st = State::new(mf, eta, wi);
-    for j in 0..opts.max_bounces {
+    for j in 0..opts.walk.max_bounces {
         let (u_choice, u1, u2) = if j == 0 {
             first
         } else {
@@ -340,11 +341,7 @@ pub fn sample_walk(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, first: 
             let u_exit = if j == 0 {
                 // Reuse sample1: uniform again within the chosen branch.
                 let u = if refracted { (u_choice - f) / (1.0 - f) } else { u_choice / f };
-                if u.is_finite() {
-                    u.clamp(0.0, 1.0 - f64::EPSILON / 2.0)
-                } else {
-                    rng.next()
-                }
+                unit_interval(u).unwrap_or_else(|| rng.next())
             } else {
                 rng.next()
             };
@@ -431,7 +428,6 @@ impl Dir {
         State { w: -self.side * self.g, l: self.l, side: self.side, eta_f: eta_seen(eta, self.side > 0.0) }
     }
 }
-
 
 /// The camera vertex: d_s and the prefix f/p (Π c).
 #[derive(Clone, Copy, Default)]
@@ -606,32 +602,22 @@ impl bdpt::BdptSurface for Bidirectional<'_> {
     }
 }
 
-/// BDPT estimate of f(ω_i, ω_o)·|cos θ_o| (orders `opts.orders`), default K_b.
-pub fn eval_bdpt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> f64 {
+/// BDPT estimate of f(ω_i, ω_o)·|cos θ_o| (orders `opts.walk.orders`), default K_b.
+pub fn eval_bdpt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &Options, rng: &mut Sampler) -> f64 {
     eval_bdpt_with(mf, eta, radiance, wi, wo, opts, bdpt::DEFAULT_BDPT_ORDERS, rng)
 }
 
 /// BDPT estimate with orders 1..=`bdpt_orders` bidirectional (clamped to
 /// 1..=[`bdpt::MAX_BDPT_ORDERS`]) and higher orders by path tracing.
 #[allow(clippy::too_many_arguments)]
-pub fn eval_bdpt_with(
-    mf: &Microfacet,
-    eta: f64,
-    radiance: bool,
-    wi: DVec3,
-    wo: DVec3,
-    opts: &WalkOptions,
-    bdpt_orders: u32,
-    rng: &mut Sampler,
-) -> f64 {
+pub fn eval_bdpt_with(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &Options, bdpt_orders: u32, rng: &mut Sampler) -> f64 {
     if !valid_inputs(eta, wi) || wo.z == 0.0 || !wo.is_finite() {
         return 0.0;
     }
     let side_i = if wi.z > 0.0 { 1.0 } else { -1.0 };
     let side_o = if wo.z > 0.0 { 1.0 } else { -1.0 };
-    let surface =
-        Bidirectional { mf, eta, seg: opts.segments, d0: Dir::new(mf, -wi, side_i), dk: Dir::new(mf, wo, side_o), wo };
-    let result = bdpt::estimate(&surface, opts.clamped_orders(), bdpt_orders, rng);
+    let surface = Bidirectional { mf, eta, seg: opts.segments, d0: Dir::new(mf, -wi, side_i), dk: Dir::new(mf, wo, side_o), wo };
+    let result = bdpt::estimate(&surface, opts.walk.clamped_orders(), bdpt_orders, rng);
     let value = result * radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0);
     if value.is_finite() && value > 0.0 {
         value

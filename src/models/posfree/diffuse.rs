@@ -49,28 +49,24 @@
 //! past is exact, so the estimator stays unbiased).
 
 use super::conductor::{cont, smith};
-use super::Segments;
-use crate::models::WalkOptions;
-use crate::walk::{bdpt, cosine_about, russian_roulette, vertex_numbers};
+use super::{Options, Segments};
 use crate::microfacet::Microfacet;
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
+use crate::walk::{bdpt, cosine_about, russian_roulette, vertex_numbers, RR_START};
 use glam::DVec3;
 use std::f64::consts::FRAC_1_PI;
 
-/// First vertex after which Russian roulette may end a path (as `posfree`).
-const RR_START: u32 = 1;
-
 /// PT estimator with next-event estimation of f(ω_i, ω_o)·cos θ_o for the
 /// diffuse microsurface of albedo `albedo` (per channel). Orders
-/// `opts.orders`, at most `opts.max_bounces` vertices, segment model
+/// `opts.walk.orders`, at most `opts.walk.max_bounces` vertices, segment model
 /// `opts.segments`.
-pub fn eval_pt(mf: &Microfacet, albedo: Spectrum, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
+pub fn eval_pt(mf: &Microfacet, albedo: Spectrum, wi: DVec3, wo: DVec3, opts: &Options, rng: &mut Sampler) -> Spectrum {
     if wi.z <= 0.0 || wo.z <= 0.0 {
         return Spectrum::ZERO;
     }
     let walk = Walk { mf, albedo, wo, lambda_o: mf.lambda(wo), seg: opts.segments };
-    walk.from(wi, 1.0 + mf.lambda(wi), Spectrum::ONE, 0, opts.clamped_orders(), rng)
+    walk.from(wi, 1.0 + mf.lambda(wi), Spectrum::ONE, 0, opts.walk.clamped_orders(), rng)
 }
 
 /// What the PT walk of a diffuse microsurface needs besides its state.
@@ -128,7 +124,7 @@ impl Walk<'_> {
 }
 
 /// Random-walk sampler: returns (ω_o, weight = Π albedo, order) or None when
-/// the walk exceeds `opts.max_bounces`. The first vertex uses the caller's
+/// the walk exceeds `opts.walk.max_bounces`. The first vertex uses the caller's
 /// (u_exit, u1, u2) for the exit decision and the visible normal; the
 /// Lambertian direction and later vertices use `rng`.
 pub fn sample_walk(
@@ -136,7 +132,7 @@ pub fn sample_walk(
     albedo: Spectrum,
     wi: DVec3,
     first: (f64, f64, f64),
-    opts: &WalkOptions,
+    opts: &Options,
     rng: &mut Sampler,
 ) -> Option<(DVec3, Spectrum, u32)> {
     if wi.z <= 0.0 {
@@ -146,7 +142,7 @@ pub fn sample_walk(
     let mut w = wi;
     let mut l = 1.0 + mf.lambda(wi);
     let mut weight = Spectrum::ONE;
-    for j in 0..opts.max_bounces {
+    for j in 0..opts.walk.max_bounces {
         let (u_exit, u1, u2) = vertex_numbers(j, first, rng);
         let m = mf.sample_visible(w, u1, u2)?;
         let (u3, u4) = rng.next2();
@@ -338,25 +334,17 @@ impl bdpt::BdptSurface for Bidirectional<'_> {
     }
 }
 
-/// BDPT estimate of f(ω_i, ω_o)·cos θ_o (orders `opts.orders`), default K_b.
-pub fn eval_bdpt(mf: &Microfacet, albedo: Spectrum, wi: DVec3, wo: DVec3, opts: &WalkOptions, rng: &mut Sampler) -> Spectrum {
+/// BDPT estimate of f(ω_i, ω_o)·cos θ_o (orders `opts.walk.orders`), default K_b.
+pub fn eval_bdpt(mf: &Microfacet, albedo: Spectrum, wi: DVec3, wo: DVec3, opts: &Options, rng: &mut Sampler) -> Spectrum {
     eval_bdpt_with(mf, albedo, wi, wo, opts, bdpt::DEFAULT_BDPT_ORDERS, rng)
 }
 
 /// BDPT estimate with orders 1..=`bdpt_orders` bidirectional (clamped to
 /// 1..=[`bdpt::MAX_BDPT_ORDERS`]) and higher orders by path tracing.
-pub fn eval_bdpt_with(
-    mf: &Microfacet,
-    albedo: Spectrum,
-    wi: DVec3,
-    wo: DVec3,
-    opts: &WalkOptions,
-    bdpt_orders: u32,
-    rng: &mut Sampler,
-) -> Spectrum {
+pub fn eval_bdpt_with(mf: &Microfacet, albedo: Spectrum, wi: DVec3, wo: DVec3, opts: &Options, bdpt_orders: u32, rng: &mut Sampler) -> Spectrum {
     if !(wi.z > 0.0) || !(wo.z > 0.0) {
         return Spectrum::ZERO;
     }
     let surface = Bidirectional { walk: Walk { mf, albedo, wo, lambda_o: mf.lambda(wo), seg: opts.segments }, wi };
-    bdpt::estimate(&surface, opts.clamped_orders(), bdpt_orders, rng)
+    bdpt::estimate(&surface, opts.walk.clamped_orders(), bdpt_orders, rng)
 }

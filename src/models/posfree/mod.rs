@@ -93,10 +93,19 @@ pub(crate) fn roulette_importance(nee: f64, last: f64, gain: f64) -> f64 {
 pub(crate) const RR_LAST_WEIGHT: f64 = 0.05;
 
 use super::mis::{walk_pdf, OrderOneExit};
-use super::{Call, Microsurface, Sampled, ScatteringModel};
-use crate::bsdf::{Estimator, Surface};
+use super::{Call, Sampled, ScatteringModel};
+use crate::config::{Estimator, Surface};
+use crate::microfacet::Microsurface;
 use crate::spectrum::Spectrum;
+use crate::walk::WalkOptions;
 use glam::DVec3;
+
+/// Options of one position-free walk: its segment terms and the walk's bounds.
+#[derive(Clone, Copy, Debug)]
+pub struct Options {
+    pub segments: Segments,
+    pub walk: WalkOptions,
+}
 
 /// `model="uncorrelated"` / `"correlated"` with `estimator` PT or BDPT.
 #[derive(Clone, Copy, Debug)]
@@ -115,11 +124,13 @@ impl ScatteringModel for PosFree {
     }
 
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
-        let (opts, mf, rng) = (&call.walk(self.segments), &call.mf, &mut call.rng());
+        let (opts, mf, rng) = (&Options { segments: self.segments, walk: call.walk() }, &call.mf, &mut call.rng());
         match (&call.surf, self.estimator) {
             (Microsurface::Conductor(fresnel), Estimator::Pt) => conductor::eval_pt(mf, fresnel, wi, wo, opts, rng),
             (Microsurface::Conductor(fresnel), Estimator::Bdpt) => conductor::eval_bdpt(mf, fresnel, wi, wo, opts, rng),
-            (&Microsurface::Dielectric { eta, radiance }, Estimator::Pt) => Spectrum::splat(dielectric::eval_pt(mf, eta, radiance, wi, wo, opts, rng).0),
+            (&Microsurface::Dielectric { eta, radiance }, Estimator::Pt) => {
+                Spectrum::splat(dielectric::eval_pt(mf, eta, radiance, wi, wo, opts, rng))
+            }
             (&Microsurface::Dielectric { eta, radiance }, Estimator::Bdpt) => {
                 Spectrum::splat(dielectric::eval_bdpt(mf, eta, radiance, wi, wo, opts, rng))
             }
@@ -138,7 +149,7 @@ impl ScatteringModel for PosFree {
     }
 
     fn sample(&self, call: &Call, wi: DVec3, first: (f64, f64, f64)) -> Option<Sampled> {
-        let (opts, mf, rng) = (&call.walk(self.segments), &call.mf, &mut call.rng());
+        let (opts, mf, rng) = (&Options { segments: self.segments, walk: call.walk() }, &call.mf, &mut call.rng());
         let (wo, weight, order) = match &call.surf {
             Microsurface::Conductor(fresnel) => conductor::sample_walk(mf, fresnel, wi, first, opts, rng)?,
             &Microsurface::Dielectric { eta, radiance } => {

@@ -3,7 +3,7 @@
 //! Mitsuba's rational G1 for Beckmann) and Mitsuba's visible-normal sampler.
 //! `eval` returns f·cos θ_o = F·D·G / (4 cos θ_i).
 
-use crate::models::ConductorFresnel;
+use crate::microfacet::ConductorFresnel;
 use crate::microfacet::{mitsuba, reflect, Microfacet};
 use crate::spectrum::Spectrum;
 use glam::DVec3;

@@ -6,8 +6,9 @@
 pub mod conductor;
 pub mod dielectric;
 
-use super::{Call, Microsurface, Sampled, ScatteringModel};
-use crate::bsdf::Surface;
+use super::{Call, Sampled, ScatteringModel};
+use crate::config::Surface;
+use crate::microfacet::Microsurface;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 

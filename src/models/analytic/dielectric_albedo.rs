@@ -6,10 +6,10 @@
 //! (F·G1(ω_r) + (1 − F)·G1(ω_t))) and cached per distribution. Used by
 //! `compensated` on dielectrics (src/models/analytic/compensated_dielectric.rs).
 
-use super::{Axis, Grid, Warp};
+use crate::config::Distribution;
 use crate::microfacet::fresnel::dielectric_full;
-use crate::microfacet::{mitsuba, reflect, refract, Distribution, Microfacet};
-use crate::tables;
+use crate::microfacet::{mitsuba, reflect, refract, Microfacet};
+use crate::tables::{self, Axis, Grid, Warp};
 use glam::DVec3;
 use std::sync::OnceLock;
 
@@ -124,7 +124,8 @@ impl DielectricAlbedoTable {
                 }
             }
         });
-        let side = |s: usize| Grid { axes: [ALPHA, eta, MU], values: rows.chunks(2 * row).flat_map(|r| r[s * row..(s + 1) * row].to_vec()).collect() };
+        let side =
+            |s: usize| Grid { axes: [ALPHA, eta, MU], values: rows.chunks(2 * row).flat_map(|r| r[s * row..(s + 1) * row].to_vec()).collect() };
         DielectricAlbedoTable { enter: side(0), leave: side(1) }
     }
 

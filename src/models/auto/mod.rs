@@ -16,7 +16,7 @@
 //! while the table lookup cost ≈ 10 % of an evaluation. Only the step from
 //! "walk" to "no walk" pays.
 //!
-//! **Table.** src/tables/multiple_scattering.rs: per surface and
+//! **Table.** `table.rs` beside this file: per surface and
 //! distribution, an upper bound of the multiply scattered fraction T₁ of
 //! `correlated` over α (0.005 … 4), μ_i = |cos θ_i| (0.02 … 1) and, for
 //! dielectrics, the relative IOR seen from ω_i (1/3 … 3).
@@ -34,17 +34,16 @@
 //! both bracketing IOR rows for dielectrics). Off the grid (α > 4, μ < 0.02,
 //! IOR ratio beyond 1/3 … 3): the full model. Anisotropy uses max(α_u, α_v).
 
+pub mod table;
+
 use super::posfree::{PosFree, Segments};
-use super::{Call, Microsurface, Sampled, ScatteringModel};
-use crate::bsdf::{Estimator, Surface};
-use crate::microfacet::Distribution;
+use super::{Call, Sampled, ScatteringModel};
+use crate::config::{Distribution, Estimator, Surface};
+use crate::microfacet::Microsurface;
 use crate::spectrum::Spectrum;
-use crate::tables::multiple_scattering::{mu_cell, MsTable, ALPHA, MU};
 use glam::DVec3;
 use std::sync::OnceLock;
-
-/// Default tolerance: 1 % of the scattered energy may be omitted.
-pub const DEFAULT_TOLERANCE: f64 = 0.01;
+use table::{mu_cell, MsTable, ALPHA, MU};
 
 /// The order-1 thresholds of one tolerance: per IOR node and μ cell, the α
 /// below which order 1 alone omits at most `tolerance` (module docs).
@@ -123,7 +122,7 @@ pub struct Auto {
 
 impl Auto {
     pub fn new(surface: Surface, dist: Distribution, tolerance: f64, estimator: Estimator) -> Self {
-Auto { rule: OrderOneRule::new(surface, dist, tolerance), full: PosFree { segments: Segments::Correlated, estimator } }
+        Auto { rule: OrderOneRule::new(surface, dist, tolerance), full: PosFree { segments: Segments::Correlated, estimator } }
     }
 
     /// The call with this call's bounce cap: 1 where order 1 suffices.

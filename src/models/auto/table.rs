@@ -8,15 +8,15 @@
 //! probability over the visible normals (jittered 32 × 32 grid, 64 × 64 for the
 //! diffuse microsurface's extra cosine direction, fixed seed): G2 reflection
 //! L₀/(L₀ + Λ), Beta transmission L₀·B(L₀, 1 + Λ'). Used by `auto`
-//! (src/models/auto.rs), which explains why F = 1 bounds every material.
+//! (`mod.rs` here), which explains why F = 1 bounds every material.
 
-use super::{Axis, Warp};
-use crate::bsdf::Surface;
+use crate::config::Distribution;
+use crate::config::Surface;
 use crate::microfacet::fresnel::dielectric_full;
-use crate::microfacet::{reflect, refract, Distribution, Microfacet};
+use crate::microfacet::{reflect, refract, Microfacet};
 use crate::models::posfree::{dielectric as posfree_dielectric, Segments};
 use crate::rng::{hash_words, Sampler};
-use crate::tables;
+use crate::tables::{self, Axis, Warp};
 use crate::walk::cosine_about;
 use glam::DVec3;
 use std::sync::OnceLock;

@@ -14,7 +14,6 @@ import math
 import random
 
 import numpy as np
-import pytest
 
 from conftest import set_variant
 

@@ -19,7 +19,7 @@ np = pytest.importorskip("numpy")
 mi = pytest.importorskip("mitsuba")
 import drjit as dr  # noqa: E402
 
-from conftest import TRAVERSE_CASES, close, direction_pairs, expected_traverse, traverse_items  # noqa: E402
+from conftest import TRAVERSE_CASES, direction_pairs, expected_traverse, traverse_items  # noqa: E402
 
 _REASON = llvm_unusable_reason()
 if _REASON:
@@ -374,7 +374,6 @@ def test_timing_batched_vs_scalar():
     mi = llvm()
     b = mi.load_dict(MS_BSDF)
     n = 200_000
-    rng = np.random.default_rng(3)
     wi_np, wo_np = batch(direction_pairs(3, 2000, grazing_fraction=0.0))
     reps = n // len(wi_np)
     si = dr.zeros(mi.SurfaceInteraction3f, n)

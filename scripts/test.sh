@@ -10,7 +10,7 @@ step() { printf '\n== %s (%s) ==\n' "$1" "$(date +%T)"; }
 step "1/4 build and install msx with pip (cargo build --release inside)"
 python3 -m pip install --disable-pip-version-check --progress-bar off '.[test]'
 
-step "2/4 Rust format and lints (cargo fmt --check; cargo clippy --all-targets -- -D warnings)"
+step "2/4 format and lints (cargo fmt --check; cargo clippy --all-targets -- -D warnings; ruff check)"
 if cargo fmt --version >/dev/null 2>&1; then
     cargo fmt --check
 else
@@ -21,6 +21,7 @@ if cargo clippy --version >/dev/null 2>&1; then
 else
     echo "skipped: clippy is not installed (rustup component add clippy)"
 fi
+python3 -m ruff check .  # the Python lint of pyproject.toml (installed with the test extras)
 
 step "3/4 Rust tests (cargo test)"
 cargo test

@@ -306,7 +306,7 @@ def make_bsdf_class(mi, variant):
                 if rc != lib.MSX_OK:
                     raise RuntimeError("%s: native batch call failed (%d): %s"
                                        % (PLUGIN, rc, ffi.string(self._err).decode(errors="replace")))
-                del keep
+                keep.clear()  # the input arrays the native call read may go
                 # Never NaN/inf, whatever the inputs of inactive lanes held.
                 res = []
                 for a in (val, pdf, wo_out):

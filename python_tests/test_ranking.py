@@ -1,0 +1,99 @@
+"""The report's ranking rule (msx.evaluation.uncertainty): rows equal within noise come out tied, a real
+difference comes out ranked, and the standard error of bias² matches the spread of independent replicates.
+Pure NumPy: no rendering. Fixed seeds."""
+
+import math
+
+import numpy as np
+import pytest
+
+from msx.evaluation import uncertainty as U
+
+
+def synthetic_renders(rng, reference, bias, sigma, seeds=3):
+    """Independent renders (seeds) of a model whose expectation is reference·(1 + bias), per-pixel noise σ."""
+    return [reference * (1.0 + bias) + rng.normal(0.0, sigma, reference.shape) for _ in range(seeds)]
+
+
+def entry(label, images, reference, mask):
+    t = U.bias2_terms(images, reference, mask)
+    b, se = U.mean_se(t)
+    return dict(label=label, bias2=b, se=se, terms=t)
+
+
+@pytest.fixture
+def scene():
+    rng = np.random.default_rng(1234)
+    reference = rng.uniform(0.2, 1.0, (40, 40, 3))
+    mask = np.zeros((40, 40), dtype=bool)
+    mask[5:35, 5:35] = True
+    return rng, reference, mask
+
+
+def test_same_model_twice_is_tied(scene):
+    """Two rows of the same model (independent seeds, as the sweep renders two estimators of one model):
+    their bias² differ by noise only and must come out in one group, whichever seed."""
+    rng, ref, mask = scene
+    for _ in range(20):
+        a = entry("correlated", synthetic_renders(rng, ref, 0.03, 0.05), ref, mask)
+        b = entry("auto", synthetic_renders(rng, ref, 0.03, 0.05), ref, mask)
+        assert a["bias2"] != b["bias2"]  # the numbers differ...
+        groups = U.rank([a, b])
+        assert len(groups) == 1, U.ranking_text(groups)  # ...but not beyond the noise
+        assert " = " in U.ranking_text(groups)
+
+
+def test_numbers_equal_within_noise_are_tied_without_terms():
+    """The rule on (bias², se) alone: a difference of 1 combined standard error is a tie, 5 is a ranking."""
+    a = dict(label="a", bias2=1.0e-3, se=1.0e-4)
+    b = dict(label="b", bias2=1.0e-3 + math.hypot(1e-4, 1e-4), se=1.0e-4)
+    c = dict(label="c", bias2=1.0e-3 + 5 * math.hypot(1e-4, 1e-4), se=1.0e-4)
+    assert [[e["label"] for e in g] for g in U.rank([b, a])] == [["a", "b"]]
+    assert [[e["label"] for e in g] for g in U.rank([c, a])] == [["a"], ["c"]]
+    assert U.ranking_text(U.rank([c, b, a])) == "a = b < c"
+
+
+def test_real_difference_is_ranked(scene):
+    """A model 1 % too bright against one 4 % too bright (noise as above): ranked, the closer one first."""
+    rng, ref, mask = scene
+    for _ in range(20):
+        good = entry("uncorrelated", synthetic_renders(rng, ref, 0.01, 0.05), ref, mask)
+        bad = entry("compensated", synthetic_renders(rng, ref, 0.04, 0.05), ref, mask)
+        groups = U.rank([bad, good])
+        assert [[e["label"] for e in g] for g in groups] == [["uncorrelated"], ["compensated"]]
+
+
+def test_bias2_standard_error_matches_replicates(scene):
+    """Unbiased model (bias² = 0): the mean of the bias² estimates over replicates is 0 within their
+    standard error, and the reported standard error equals the replicates' spread within the sampling error
+    of a standard deviation from R replicates (3σ)."""
+    rng, ref, mask = scene
+    R = 400
+    est, ses = [], []
+    for _ in range(R):
+        t = U.bias2_terms(synthetic_renders(rng, ref, 0.0, 0.05), ref, mask)
+        b, se = U.mean_se(t)
+        est.append(b)
+        ses.append(se)
+    est = np.array(est)
+    spread = est.std(ddof=1)
+    assert abs(est.mean()) <= 3 * spread / math.sqrt(R)
+    # sd of a sample standard deviation ≈ σ / √(2(R − 1)); the mean reported se is much less noisy.
+    assert abs(np.mean(ses) - spread) <= 3 * spread / math.sqrt(2 * (R - 1)) + 3 * np.std(ses) / math.sqrt(R)
+
+
+def test_mean_error_sign():
+    rng = np.random.default_rng(7)
+    ref = rng.uniform(0.2, 1.0, (30, 30, 3))
+    mask = np.ones((30, 30), dtype=bool)
+    dark = U.mean_se(U.mean_terms(synthetic_renders(rng, ref, -0.06, 0.02), ref, mask))
+    assert abs(dark[0] + 0.06) <= 4 * dark[1]
+    assert U.sign_word(*dark) == "too dark"
+    same = U.mean_se(U.mean_terms(synthetic_renders(rng, ref, 0.0, 0.02), ref, mask))
+    assert U.sign_word(*same) == "within noise"
+
+
+def test_time_in_range():
+    assert U.time_in_range(2.0, [0.5, 1.0, 4.0]) == (2.0, 1.0)
+    t, f = U.time_in_range(40.0, [0.5, 1.0, 4.0])
+    assert t == 40.0 and f == pytest.approx(10.0)

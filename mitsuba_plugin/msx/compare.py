@@ -24,7 +24,7 @@ from .evaluation import atlas as atlas_mod
 from .evaluation import charts, common
 from .evaluation import energy as energy_mod
 from .evaluation import lobes as lobes_mod
-from .evaluation import renders
+from .evaluation import references, renders
 from .evaluation import uncertainty
 from .evaluation.common import CONDUCTOR_ROWS, DIELECTRIC_ROWS, UNBIASED, row_label
 
@@ -138,10 +138,14 @@ def run(args):
     from .evaluation import report
 
     checks = _physics_checks(scene_reports)
+    micro_summary = None
+    if micro:
+        micro_summary = references.summary(scene_reports, micro["rows"])
+        micro_summary["chart"] = charts.two_references(out / "two_references.png", *micro_summary["chart_data"])
     total = time.perf_counter() - t_start
     html = report.page(dict(route=route, settings=st, scenes=scene_reports, side=side_reports, fails=fails,
                             stability=stability_pngs, extras=extras_png, lobes=lobe_pngs, energy=energy_png,
-                            checks=checks, seconds=total, micro=micro, atlas=atlas_rows, machine=_machine(),
+                            checks=checks, seconds=total, micro=micro, micro_summary=micro_summary, atlas=atlas_rows, machine=_machine(),
                             out=out))
     (out / "index.html").write_text(html)
     print(f"\nreport: {out / 'index.html'} ({total:.0f} s)")
@@ -288,7 +292,7 @@ def _model_groups(scene, table, sdir):
     material. Each entry takes its bias² from its member with the smallest standard error; `members_differ`
     lists members whose bias² differ beyond noise (it should stay empty)."""
     by = {t["row"]: t for t in table}
-    sets = [(["built-in", "single"], [("builtin", "-"), ("single", "pt")], "identical by construction"),
+    sets = [(["single", "built-in"], [("single", "pt"), ("builtin", "-")], "identical by construction"),
             (["Smith model (the reference)"], sorted(UNBIASED), "heitz and invariance: the model the reference renders")]
     same_auto = ("auto", "pt") in by and _same_model_here(scene, sdir, "auto", "correlated")
     for m in ("uncorrelated", "correlated", "compensated", "fastmsx", "auto"):

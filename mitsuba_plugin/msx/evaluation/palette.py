@@ -18,4 +18,6 @@ MODEL_COLORS = {
 
 def color(label: str) -> str:
     """The colour of a row label ('correlated bdpt' → correlated's) or a model name."""
+    if label.startswith("Smith"):  # the Smith model's entry (heitz = invariance): heitz's colour
+        return MODEL_COLORS["heitz"]
     return MODEL_COLORS.get(label, MODEL_COLORS.get(label.split(" ")[0], "0.3"))

@@ -376,6 +376,56 @@ def _fail_table(fails):
     return "\n".join(out)
 
 
+def _micro_section(ctx):
+    """The two references side by side (summary, chart, orderings), then the microgeometry charts, the long
+    per-configuration table folded."""
+    micro, ms = ctx["micro"], ctx.get("micro_summary") or {}
+    out = ["<h2 id=references>Two references: the Smith model and explicit microgeometry</h2>",
+           "<p class=note>The sweeps above measure each model against the converged <b>Smith</b> multiple-scattering "
+           "reference (GGX, the scenes' materials). Here every model is also measured against rays traced on "
+           "generated <b>Beckmann height fields</b> (docs/microgeometry.md; lossless facets, every α and θ_i of "
+           "the grid): the lobe's L1 distance ∫|f_model − f_traced| cos θ_o dω (fraction of the incident flux), "
+           "averaged over the configurations. Microgeometry ranking rule: a model ranks before another when its "
+           f"L1 is smaller by more than {uncertainty.Z:g} standard errors of the mean per-configuration difference "
+           "(it must be closer consistently), else tied.</p>"]
+    if ms.get("chart"):
+        out.append(_img(ms["chart"], "each model against the two references"))
+    if ms.get("rankings"):
+        out.append("<table><tr><th class=l>surface</th><th class=l>against the Smith reference (bias², this page's "
+                   "sweeps)</th><th class=l>against the traced surfaces (mean lobe L1)</th><th class=l>opposite "
+                   "orderings</th><th class=l>Smith model's own energy error per order</th></tr>")
+        for surface, (smith, mtext) in ms["rankings"].items():
+            st = "<br>".join(f"{html.escape(n)}: {html.escape(t)}" for n, t in smith) or "— (no sweep scene)"
+            dis = ms["disagree"].get(surface) or []
+            dtext = "<br>".join(f"{html.escape(s)}: Smith {html.escape(a)} before {html.escape(b)}, traced the "
+                                "other way" for s, a, b in dis) or "none"
+            oe = ms["order_errors"].get(surface, {})
+            otext = ", ".join(f"{lab}: {v['mean'] * 100:+.1f} % (worst {v['worst'] * 100:.0f} %, mean |z| "
+                              f"{v['z']:.1f})" for lab, v in oe.items()) or "—"
+            out.append(f"<tr><td class=l>{surface}</td><td class=l>{st}</td><td class=l>{html.escape(mtext)}</td>"
+                       f"<td class=l>{dtext}</td><td class=l>{otext}</td></tr>")
+        out.append("</table><p class=note>Why the orderings can differ: the Smith model is itself an approximation "
+                   "of a height field (uncorrelated heights, the Smith shadowing); its own energy error per order "
+                   "against the traced surfaces is the last column (|z| = error ÷ its standard error: above ≈ 3 the "
+                   "difference is real). A model closer to Smith is not closer to the physical surface where Smith's "
+                   "error is of the size of the model's. The sweeps use GGX, the traced surfaces Beckmann.</p>")
+    out.append("<h3>Microgeometry: energy per order</h3>")
+    for c in micro.get("energy_charts", []):
+        out.append(_img(c, Path(c).stem.replace("_", " ")))
+    if micro.get("surface_chart"):
+        out.append(_img(micro["surface_chart"], "generated surfaces against Beckmann"))
+    lobes = [c for c in micro.get("charts", []) if c and Path(c).name.startswith("lobes_")]
+    if lobes:
+        out.append("<p>Lobes per order, one chart per configuration: " + ", ".join(
+            f"<a href='{html.escape(_rel(c))}'>{html.escape(Path(c).stem)}</a>" for c in lobes) + ".</p>")
+    base = Path(micro["csv"]).parent
+    out.append("<details><summary>Every configuration (long table; also "
+               f"<a href='{_rel(base / 'errors.html')}'>errors.html</a>, <a href='{_rel(base / 'errors.csv')}'>"
+               f"errors.csv</a>, <a href='{_rel(base / 'summary.md')}'>summary.md</a>)</summary>" + micro["html"] +
+               "</details>")
+    return "\n".join(out)
+
+
 def page(ctx):
     _OUT[0] = ctx.get("out")
     st = ctx["settings"]
@@ -431,8 +481,6 @@ def page(ctx):
         parts.append(_img(p, Path(p).stem))
     parts.append("<h2>Energy</h2>" + _img(ctx["energy"], "directional albedo against roughness"))
     if ctx.get("micro"):
-        parts.append("<h2>Against explicit microgeometry</h2><p class='note'>Every model against rays traced on "
-                     "generated Beckmann height fields (docs/microgeometry.md): relative energy error per scattering "
-                     "order and L1 of the lobe; charts in <code>microgeometry/</code>.</p>" + ctx["micro"]["html"])
+        parts.append(_micro_section(ctx))
     parts.append("</body></html>")
     return "\n".join(parts)

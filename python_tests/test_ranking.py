@@ -97,3 +97,30 @@ def test_time_in_range():
     assert U.time_in_range(2.0, [0.5, 1.0, 4.0]) == (2.0, 1.0)
     t, f = U.time_in_range(40.0, [0.5, 1.0, 4.0])
     assert t == 40.0 and f == pytest.approx(10.0)
+
+
+def micro_rows(l1_by_model, noise=0.01):
+    """Rows like microgeometry.compare's: one per (configuration, model) with its lobe L1."""
+    rows = []
+    for model, values in l1_by_model.items():
+        for k, v in enumerate(values):
+            rows.append(dict(surface="conductor", alpha="0.5", theta_i=0.1 * k, model=model, L1=v, L1_noise=noise))
+    return rows
+
+
+def test_microgeometry_ranking_ties_and_ranks():
+    """Against the traced surfaces: heitz and invariance are one entry (the Smith model); a model closer on
+    every configuration by a constant margin ranks first; a model that is closer on some configurations and
+    farther on others by the same amount is tied."""
+    from msx.evaluation import references as R
+
+    rng = np.random.default_rng(3)
+    base = rng.uniform(0.04, 0.06, 16)
+    jitter = rng.normal(0.0, 0.002, 16)
+    rows = micro_rows({"heitz": base, "invariance": base + 1e-4, "uncorrelated": base + 0.01,
+                       "correlated": base + jitter})
+    groups = R.micro_ranking(rows, "conductor")
+    labels = [[e["label"] for e in g] for g in groups]
+    assert labels[-1] == ["uncorrelated"]  # 0.01 worse on every configuration: ranked last
+    assert sorted(labels[0]) == sorted(["Smith model (heitz, invariance)", "correlated"])  # tied: noise only
+    assert sum(len(g) for g in labels) == 3  # heitz and invariance reported once

@@ -115,6 +115,7 @@ def run(args):
     prog.stage("lobes")
     lobe_data = lobes_mod.compute(st, progress=prog.update)
     lobe_pngs = [charts.lobes(out / f"lobes_{s}.png", s, lobe_data, lobes_mod.ORDERS) for s in lobes_mod.MODELS]
+    cusp = {m: lobes_mod.normal_cusp(model=m) for m in ("correlated", "heitz")}
 
     prog.stage("energy curves")
     import mitsuba as mi
@@ -144,7 +145,7 @@ def run(args):
         micro_summary["chart"] = charts.two_references(out / "two_references.png", *micro_summary["chart_data"])
     total = time.perf_counter() - t_start
     html = report.page(dict(route=route, settings=st, scenes=scene_reports, side=side_reports, fails=fails,
-                            stability=stability_pngs, extras=extras_png, lobes=lobe_pngs, energy=energy_png,
+                            stability=stability_pngs, extras=extras_png, lobes=lobe_pngs, cusp=cusp, energy=energy_png,
                             checks=checks, seconds=total, micro=micro, micro_summary=micro_summary, atlas=atlas_rows, machine=_machine(),
                             out=out))
     (out / "index.html").write_text(html)

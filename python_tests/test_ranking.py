@@ -124,3 +124,31 @@ def test_microgeometry_ranking_ties_and_ranks():
     assert labels[-1] == ["uncorrelated"]  # 0.01 worse on every configuration: ranked last
     assert sorted(labels[0]) == sorted(["Smith model (heitz, invariance)", "correlated"])  # tied: noise only
     assert sum(len(g) for g in labels) == 3  # heitz and invariance reported once
+
+
+@pytest.mark.parametrize("alpha, same", [(1.0, True), (0.01, False)])
+def test_auto_is_correlated_only_where_its_rule_keeps_the_walk(tmp_path, alpha, same):
+    """The report groups `auto` with `correlated` only where the two give identical values at the scene's
+    material (core calls, no rendering): at α = 1 auto never drops the walk, at α = 0.01 it does."""
+    from msx import compare
+    from msx.evaluation.common import CONDUCTOR_ROWS
+    from msx.evaluation.renders import SweepScene
+
+    (tmp_path / "s.xml").write_text(f'<scene version="3.0.0"><default name="alpha" value="{alpha}"/>'
+                                    '<default name="distribution" value="ggx"/></scene>')
+    scene = SweepScene("s", "test", "conductor", "roughconductor", CONDUCTOR_ROWS, "direct")
+    assert compare._same_model_here(scene, tmp_path, "auto", "correlated") is same
+    # The grouping: one entry per model here, auto inside correlated's entry exactly when identical.
+    rng = np.random.default_rng(5)
+    table = []
+    for row in CONDUCTOR_ROWS:
+        t = rng.normal(0.01, 0.001, 200)
+        label = "built-in" if row[0] == "builtin" else row[0] if row[1] == "pt" else f"{row[0]} {row[1]}"
+        table.append(dict(row=row, label=label, bias2=float(t.mean()), bias2_se=float(t.std() / math.sqrt(200)),
+                          terms=t, unbiased=row[0] in ("heitz", "invariance")))
+    groups = compare._model_groups(scene, table, tmp_path)
+    labels = [g["label"] for g in groups]
+    assert ("correlated = auto" in labels) is same and ("auto" in labels) is not same
+    assert "single = built-in" in labels and sum("Smith" in x for x in labels) == 1
+    rows = [r for g in groups for r in g["rows"]]
+    assert sorted(rows) == sorted(CONDUCTOR_ROWS)  # every row exactly once

@@ -131,10 +131,10 @@ def difference_grid(path, reference, images, labels, mask, title):
     return path
 
 
-METRICS = [("furnace_error", "furnace error |1 − E|", LogNorm(1e-3, 1.0)),
-           ("rel_std", "noise per call (rel. std)", LogNorm(1e-2, 10.0)),
-           ("max_weight", "largest contribution / mean", LogNorm(1.0, 1e3)),
-           ("ns_per_call", "ns per eval call", LogNorm(30.0, 1e4))]
+METRICS = [("furnace_error", "energy lost or created, |1 − E|", LogNorm(1e-3, 1.0)),
+           ("rel_std", "noise of one call (std ÷ mean)", LogNorm(1e-2, 10.0)),
+           ("max_weight", "largest contribution ÷ mean (fireflies)", LogNorm(1.0, 1e3)),
+           ("ns_per_call", "time per eval call (ns)", LogNorm(30.0, 1e4))]
 
 
 def stability(path, rows, surface, alphas, thetas, failing=None):
@@ -244,12 +244,12 @@ def lobes(path, surface, data, orders):
             if surface != "dielectric":
                 ax.set_thetamin(-90)
                 ax.set_thetamax(90)
-            ax.tick_params(labelsize=5)
+            ax.tick_params(labelsize=7)
             ax.yaxis.set_major_locator(matplotlib.ticker.MaxNLocator(3))
             ax.set_title(f"α {key[1]:g}, θ_i {math.degrees(key[2]):.0f}°: "
                          f"{'order ' + col if col != 'total' else 'total'}", fontsize=8, pad=12)
             if col == "total":
-                ax.legend(fontsize=5, loc="center left", bbox_to_anchor=(1.1, 0.5))
+                ax.legend(fontsize=6, loc="center left", bbox_to_anchor=(1.1, 0.5))
     fig.suptitle(f"Lobes, {surface}: f·cos θ_o in the plane of incidence (radius), per scattering order", fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.98))
     fig.savefig(path, dpi=90, bbox_inches="tight", pad_inches=0.15)

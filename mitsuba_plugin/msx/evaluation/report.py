@@ -10,6 +10,7 @@ import os
 from pathlib import Path
 
 from . import uncertainty
+from .atlas import FAIL
 from .common import TARGETS_RMS, row_label
 
 CSS = """
@@ -112,31 +113,42 @@ def _looks_right(t):
     return _verdict(t["bias2"], t["bias2_se"], t["mean_error"], t["mean_error_se"]) == "right"
 
 
-def _cheap_ranges(atlas, surface, model, limit=0.02, theta_max=60.0):
-    """The atlas' α values at which `model`'s furnace error stays ≤ limit for every θ_i ≤ theta_max."""
+def _cheap_ranges(atlas, surface, model, limit=None, theta_max=60.0):
+    """Per α column of the atlas (θ_i ≤ theta_max): 'ok' when every cell's furnace error is within `limit`
+    by 3 standard errors, 'fail' when one exceeds it by more than 3 standard errors, else 'undecided'.
+    Returns ({alpha: state}, alphas)."""
+    limit = FAIL["furnace_error"] if limit is None else limit
+    z = uncertainty.Z
     cells = [r for r in atlas if r["surface"] == surface and r["model"] == model and r["estimator"] == "pt"
              and r["theta_i"] <= theta_max]
     alphas = sorted({r["alpha"] for r in cells})
-    return [a for a in alphas if all(r["furnace_error"] <= limit for r in cells if r["alpha"] == a)], alphas
+    state = {}
+    for a in alphas:
+        col = [r for r in cells if r["alpha"] == a]
+        if any(r["furnace_error"] - z * r["furnace_se"] > limit for r in col):
+            state[a] = "fail"
+        elif all(r["furnace_error"] + z * r["furnace_se"] <= limit for r in col):
+            state[a] = "ok"
+        else:
+            state[a] = "undecided"
+    return state, alphas
 
 
-def _alpha_span(good, alphas):
-    """'α ≤ x' / 'α ≥ x' / 'none of α …' / 'all α' from the atlas columns that pass."""
+def _alpha_list(xs):
+    return "{" + ", ".join(f"{a:.2g}" for a in xs) + "}"
+
+
+def _alpha_span(state, alphas):
+    """Words for the α columns per state."""
     if not alphas:
         return "not measured"
-    if len(good) == len(alphas):
-        return f"every α of the atlas ({alphas[0]:.2g}–{alphas[-1]:.2g})"
-    if not good:
-        return f"no α of the atlas ({alphas[0]:.2g}–{alphas[-1]:.2g})"
-    prefix = []
-    for a in alphas:
-        if a in good:
-            prefix.append(a)
-        else:
-            break
-    if prefix and len(prefix) == len(good):
-        return f"α ≤ {prefix[-1]:.2g} (fails from α = {alphas[len(prefix)]:.2g})"
-    return "α ∈ {" + ", ".join(f"{a:.2g}" for a in good) + "}"
+    parts = []
+    for key, word in (("ok", "enough at α ∈ "), ("fail", "not enough at α ∈ "),
+                      ("undecided", "undecided at this run's noise at α ∈ ")):
+        xs = [a for a in alphas if state[a] == key]
+        if xs:
+            parts.append(word + _alpha_list(xs))
+    return "; ".join(parts)
 
 
 def _auto_saving(atlas, surface):
@@ -236,10 +248,19 @@ def _advice(ctx):
             out.append(f"<li>{html.escape(rep['scene'].title)}:<ul>" +
                        "".join(f"<li>{x}</li>" for x in _scene_advice(rep)) + "</ul></li>")
         for surface in surfaces:
-            good, alphas = _cheap_ranges(atlas, surface, "single")
-            if alphas:
-                out.append(f"<li><b>single</b> ({surface.replace('_', ' ')}, atlas, F = 1 / η 1.5, θ_i ≤ 60°) is "
-                           f"enough (≤ 2 % of the energy lost) at {_alpha_span(good, alphas)}.</li>")
+            lim = FAIL["furnace_error"]
+            for model, what in (("single", f"loses ≤ {lim:.0%} of the energy"),
+                                ("compensated", f"keeps the energy within {lim:.0%} (its lobe's shape: the scenes "
+                                                "above)")):
+                state, alphas = _cheap_ranges(atlas, surface, model)
+                if not alphas:
+                    continue
+                grazing, _ = _cheap_ranges(atlas, surface, model, theta_max=90.0)
+                ok_all = [a for a in alphas if grazing[a] == "ok"]
+                out.append(f"<li><b>{model}</b> ({surface.replace('_', ' ')}, atlas furnace, F = 1 / η 1.5; "
+                           f"“enough”: {what} at every θ_i ≤ 60°, by 3 standard errors): {_alpha_span(state, alphas)}"
+                           + (f"; up to grazing incidence too at α ∈ {_alpha_list(ok_all)}" if ok_all else "")
+                           + ".</li>")
         sav = _auto_saving(atlas, surfaces[0])
         if sav:
             cheaper = [a for a, r in sav if r < 0.9]

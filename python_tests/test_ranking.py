@@ -152,3 +152,16 @@ def test_auto_is_correlated_only_where_its_rule_keeps_the_walk(tmp_path, alpha, 
     assert "single = built-in" in labels and sum("Smith" in x for x in labels) == 1
     rows = [r for g in groups for r in g["rows"]]
     assert sorted(rows) == sorted(CONDUCTOR_ROWS)  # every row exactly once
+
+
+def test_same_computation_up_to_float_rounding_is_tied(scene):
+    """single and the built-in render the same samples: their images differ by float32 rounding only, the
+    paired standard error is then ~0, and rounding must not read as a ranking (nor as members that differ)."""
+    rng, ref, mask = scene
+    imgs = synthetic_renders(rng, ref, -0.5, 0.05)
+    a = entry("built-in", imgs, ref, mask)
+    b = entry("single", [np.float32(i).astype(np.float64) * (1 + 1e-7) for i in imgs], ref, mask)
+    assert a["bias2"] != b["bias2"] and U.diff_se(a, b) < 1e-6 * a["bias2"]
+    assert len(U.rank([a, b])) == 1 and not U.differ(a, b)
+    c = entry("uncorrelated", synthetic_renders(rng, ref, -0.45, 0.05), ref, mask)
+    assert U.differ(a, c)

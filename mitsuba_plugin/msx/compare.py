@@ -311,9 +311,9 @@ def _model_groups(scene, table, sdir):
         if not members:
             continue
         best = min(members, key=lambda t: t["bias2_se"])
+        entry = lambda t: dict(bias2=t["bias2"], se=t["bias2_se"], terms=t["terms"])  # noqa: E731
         differ = [f"{x['label']} vs {y['label']}" for i, x in enumerate(members) for y in members[i + 1:]
-                  if uncertainty.diff_se(dict(se=x["bias2_se"], terms=x["terms"]), dict(se=y["bias2_se"], terms=y["terms"]))
-                  * uncertainty.Z < abs(x["bias2"] - y["bias2"])]
+                  if uncertainty.differ(entry(x), entry(y))]
         label = " = ".join(names)
         groups.append(dict(label=label, members=[m["label"] for m in members], bias2=best["bias2"], se=best["bias2_se"],
                            terms=best["terms"], why=why, unbiased=all(m["unbiased"] for m in members),

@@ -6,6 +6,7 @@ Pure Python on the numbers of the run (no rendering)."""
 
 from __future__ import annotations
 
+import html
 import math
 
 import numpy as np
@@ -82,10 +83,11 @@ def summary(scene_reports, micro_rows):
         micro_chart[surface] = [(e["label"], e["bias2"], max(e["bias2"] - z * e["se"], 0.0), e["bias2"] + z * e["se"])
                                 for g in groups for e in g]
         micro_text = uncertainty.ranking_text(groups)
+        values = "; ".join(f"{e['label']} {e['bias2']:.4f} ± {e['se']:.4f}" for g in groups for e in g)
         res["order_errors"][surface] = smith_order_errors(micro_rows, surface)
         reps = [r for r in scene_reports if r["scene"].name in SURFACE_SCENES.get(surface, [])]
         smith_texts = [(r["scene"].name, uncertainty.ranking_text(r["ranking"])) for r in reps]
-        res["rankings"][surface] = (smith_texts, micro_text)
+        res["rankings"][surface] = (smith_texts, f"{micro_text} (mean L1 ± s.e.: {values})")
         # Pairs of approximations that the two references order oppositely (both orderings significant).
         mo = _order(groups)
         pairs = []
@@ -100,11 +102,11 @@ def summary(scene_reports, micro_rows):
         best = [e["label"] for e in groups[0]]
         oe = res["order_errors"][surface]
         err = ", ".join(f"order {lab} {v['mean'] * 100:+.1f} % (worst {v['worst'] * 100:.0f} %)" for lab, v in oe.items())
-        res["advice"].append(f"<b>{surface}</b>: closest to the traced surfaces (mean lobe L1): "
-                             f"<b>{', '.join(best)}</b>; ordering {micro_text}. The Smith model itself against the "
-                             f"traced surfaces, energy per order: {err or '—'}.")
+        res["advice"].append(f"<b>{surface}</b>: closest to the traced surfaces (mean lobe L1, tied within noise): "
+                             f"<b>{html.escape(', '.join(best))}</b>; ordering {html.escape(micro_text)}. The Smith "
+                             f"model itself against the traced surfaces, energy per order: {err or '—'}.")
         for scene, a, b in pairs:
-            res["advice"].append(f"{surface}: the Smith reference ({scene}) puts <b>{a}</b> before <b>{b}</b>, the "
-                                 f"traced surfaces the other way round.")
+            res["advice"].append(f"{surface}: the Smith reference ({scene}) puts <b>{html.escape(a)}</b> before "
+                                 f"<b>{html.escape(b)}</b>, the traced surfaces the other way round.")
     res["chart_data"] = (smith_chart, micro_chart)
     return res

@@ -212,8 +212,7 @@ def _scene_advice(rep):
         if ext:
             (tt, f), t = min(ext, key=lambda x: x[0][0])
             lines.append(f"<b>Fastest to a clean render</b> ({rms:g} % RMS error): no row reached it inside the "
-                         f"measured renders; the fit's fastest is {t['label']}, {_sec(tt)} "
-                         f"<span class=warn>(extrapolated ×{f:.0f})</span>.")
+                         f"measured renders; the fit's fastest is {t['label']}, {_time_cell((tt, f))}.")
     never = [t["label"] for t in rep["table"] if t["times"][rms][0] == float("inf")
              and t["bias2"] - z * t["bias2_se"] > (rms / 100) ** 2]
     if never:

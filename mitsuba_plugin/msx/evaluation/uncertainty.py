@@ -24,6 +24,10 @@ import math
 import numpy as np
 
 Z = 3.0  # a difference counts when it exceeds Z standard errors (two-sided false alarm ≈ 0.27 % per pair)
+# ... and float32 rounding: renders are float32, so two rows that are the same computation (single and the
+# built-in, same seeds) differ by rounding only; their paired standard error is then ~0 and rounding alone
+# would read as "significant". Differences below this relative size are ties.
+ROUNDING = 1e-5
 
 
 def bias2_terms(images, reference, mask, ref_noise=0.0):
@@ -66,9 +70,19 @@ def diff_se(a, b):
     return math.hypot(a["se"], b["se"])
 
 
+def _floor(a, b):
+    return ROUNDING * max(abs(a["bias2"]), abs(b["bias2"]))
+
+
 def significantly_lower(a, b, z=Z):
-    """True if a's bias² is lower than b's by more than z standard errors of the difference."""
-    return b["bias2"] - a["bias2"] > z * diff_se(a, b)
+    """True if a's bias² is lower than b's by more than z standard errors of the difference (and more than
+    float32 rounding)."""
+    return b["bias2"] - a["bias2"] > z * diff_se(a, b) + _floor(a, b)
+
+
+def differ(a, b, z=Z):
+    """True if the bias² of a and b differ beyond noise (either way)."""
+    return significantly_lower(a, b, z) or significantly_lower(b, a, z)
 
 
 def rank(entries, z=Z):

@@ -112,7 +112,7 @@ def test_microgeometry_ranking_ties_and_ranks():
     """Against the traced surfaces: heitz and invariance are one entry (the Smith model); a model closer on
     every configuration by a constant margin ranks first; a model that is closer on some configurations and
     farther on others by the same amount is tied."""
-    from msx.evaluation import references as R
+    from msx.evaluation import two_references as R
 
     rng = np.random.default_rng(3)
     base = rng.uniform(0.04, 0.06, 16)

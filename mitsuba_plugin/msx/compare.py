@@ -24,7 +24,7 @@ from .evaluation import atlas as atlas_mod
 from .evaluation import charts, common
 from .evaluation import energy as energy_mod
 from .evaluation import lobes as lobes_mod
-from .evaluation import references, renders
+from .evaluation import renders, two_references
 from .evaluation import uncertainty
 from .evaluation.common import CONDUCTOR_ROWS, DIELECTRIC_ROWS, UNBIASED, row_label
 
@@ -141,7 +141,7 @@ def run(args):
     checks = _physics_checks(scene_reports)
     micro_summary = None
     if micro:
-        micro_summary = references.summary(scene_reports, micro["rows"])
+        micro_summary = two_references.summary(scene_reports, micro["rows"])
         micro_summary["chart"] = charts.two_references(out / "two_references.png", *micro_summary["chart_data"])
     total = time.perf_counter() - t_start
     html = report.page(dict(route=route, settings=st, scenes=scene_reports, side=side_reports, fails=fails,

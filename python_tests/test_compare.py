@@ -8,7 +8,6 @@ import csv
 import math
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
@@ -16,7 +15,8 @@ FILES = ["index.html", "results.csv", "atlas.csv", "energy.csv", "energy.png", "
          "stability_dielectric_outside.png", "stability_dielectric_inside.png", "stability_extras.png",
          "lobes_conductor.png", "lobes_dielectric.png", "lobes_diffuse.png"]
 SCENES = ["fig09_copper_sphere", "fig01_dielectric_slab", "fig01_dielectric_sphere"]
-RESULT_COLUMNS = {"scene", "model", "estimator", "spp", "seconds", "rel_mse", "bias2", "variance"}
+RESULT_COLUMNS = {"scene", "model", "estimator", "spp", "seconds", "rel_mse", "bias2", "bias2_se", "rel_rms_pct",
+                  "mean_error_pct", "mean_error_se_pct", "variance"}
 ATLAS_COLUMNS = {"model", "surface", "alpha", "theta_i", "furnace_error", "rel_std", "nonfinite", "max_weight",
                  "ns_per_call"}
 TIMING = {"seconds", "ns_per_call"}
@@ -61,6 +61,39 @@ def test_output_contract(two_runs):
     html = (out / "index.html").read_text()
     assert "Which model should I use?" in html and "data:image/png;base64," in html
     assert "FAILED" not in run.stdout
+    # Every bias² has its standard error, from the seeds: finite and positive.
+    assert all(float(r["bias2_se"]) > 0 for r in res)
+
+
+def local_links(html):
+    """href and src values of the page that point at files (not data:, http(s):, mailto: or #anchors)."""
+    from html.parser import HTMLParser
+
+    found = []
+
+    class P(HTMLParser):
+        def handle_starttag(self, tag, attrs):
+            for k, v in attrs:
+                if k in ("href", "src") and v and not v.startswith(("data:", "http:", "https:", "mailto:", "#")):
+                    found.append(v)
+
+    P().feed(html)
+    return found
+
+
+def test_page_for_users(two_runs):
+    """Issue 18: the advice comes first, every scene states its ranking with its rule, no development target,
+    and every link of the page resolves."""
+    out = two_runs[0]
+    html = (out / "index.html").read_text()
+    h2 = html.index("<h2")
+    assert html[h2:].startswith("<h2 id=advice>Which model should I use?")
+    assert "Speed target" not in html and "target ≤" not in html
+    assert "tied within noise" in html and html.count("Ranking: <b>") == len(SCENES)
+    links = local_links(html)
+    assert "results.csv" in links and any(link.endswith(".png") for link in links)
+    missing = [link for link in links if not (out / link.split("#")[0]).exists()]
+    assert not missing, missing
 
 
 def test_physics_checks_ran(two_runs):

@@ -117,3 +117,12 @@ def test_comparison_writes_tables_and_charts(tmp_path, monkeypatch):
     a = [x for x in r["rows"] if x["surface"] == "conductor" and x["model"] == "single"][0]
     b = [x for x in r2["rows"] if x["model"] == "single"][0]
     assert a["E1_sim"] == b["E1_sim"]
+    # With the report's prefix (the folder sits one level below the page): the returned Markdown carries the
+    # prefix, summary.md — which lies in the folder — resolves from its own folder.
+    import re
+
+    r3 = mg.compare(tmp_path, rays=16000, thetas=(0.5,), alphas=((0.5, 0.5),), surfaces=("conductor",),
+                    model_samples=16000, grid=128, n_surfaces=4, progress=False, link_prefix="microgeometry/")
+    links = re.findall(r"\]\(([^)]+)\)", (tmp_path / "summary.md").read_text())
+    assert links and all((tmp_path / link).exists() for link in links), links
+    assert all(link.startswith("microgeometry/") for link in re.findall(r"\]\(([^)]+)\)", r3["markdown"]))

@@ -25,7 +25,8 @@ from .evaluation import atlas as atlas_mod
 from .evaluation import charts, common
 from .evaluation import energy as energy_mod
 from .evaluation import lobes as lobes_mod
-from .evaluation import renders
+from .evaluation import renders, two_references
+from .evaluation import uncertainty
 from .evaluation.common import CONDUCTOR_ROWS, DIELECTRIC_ROWS, UNBIASED, row_label
 
 SWEEP_SCENES = [
@@ -106,7 +107,8 @@ def run(args):
     atlas_rows = atlas_mod.compute(st, progress=prog.update)
     pexit = atlas_mod.pexit_map(st)
     fails = atlas_mod.failures(atlas_rows)
-    stability_pngs = [charts.stability(out / f"stability_{s}.png", atlas_rows, s, st.atlas_alphas, st.atlas_thetas)
+    stability_pngs = [charts.stability(out / f"stability_{s}.png", atlas_rows, s, st.atlas_alphas, st.atlas_thetas,
+                                       failing=atlas_mod.is_failing)
                       for s in atlas_mod.SURFACES]
     fast = [r for r in atlas_rows if r["model"] == "fastmsx"]
     extras_png = charts.extras(out / "stability_extras.png", pexit, fast, st.atlas_alphas, st.atlas_thetas)
@@ -117,6 +119,7 @@ def run(args):
     prog.stage("lobes")
     lobe_data = lobes_mod.compute(st, progress=prog.update)
     lobe_pngs = [charts.lobes(out / f"lobes_{s}.png", s, lobe_data, lobes_mod.ORDERS) for s in lobes_mod.MODELS]
+    cusp = {m: lobes_mod.normal_cusp(model=m) for m in ("correlated", "heitz")}
 
     prog.stage("energy curves")
     import mitsuba as mi
@@ -134,15 +137,20 @@ def run(args):
         micro = microgeometry.compare(out / "microgeometry", link_prefix="microgeometry/")
 
     prog.stage("report")
-    _write_csv(out / "results.csv", results, ["scene", "model", "estimator", "spp", "seconds", "rel_mse", "bias2",
-                                              "variance", "rel_mse_se", "unbiased", "route"])
+    _write_csv(out / "results.csv", results, ["scene", "model", "estimator", "spp", "seconds", "rel_mse",
+                                              "rel_mse_se", "rel_rms_pct", "bias2", "bias2_se", "mean_error_pct",
+                                              "mean_error_se_pct", "variance", "unbiased", "route"])
     from .evaluation import report
 
     checks = _physics_checks(scene_reports)
+    micro_summary = None
+    if micro:
+        micro_summary = two_references.summary(scene_reports, micro["rows"])
+        micro_summary["chart"] = charts.two_references(out / "two_references.png", *micro_summary["chart_data"])
     total = time.perf_counter() - t_start
     html = report.page(dict(route=route, settings=st, scenes=scene_reports, side=side_reports, fails=fails,
-                            stability=stability_pngs, extras=extras_png, lobes=lobe_pngs, energy=energy_png,
-                            checks=checks, seconds=total, micro=micro, machine=f"{platform.machine()}, {os.cpu_count()} cores",
+                            stability=stability_pngs, extras=extras_png, lobes=lobe_pngs, cusp=cusp, energy=energy_png,
+                            checks=checks, seconds=total, micro=micro, micro_summary=micro_summary, atlas=atlas_rows, machine=_machine(),
                             out=out))
     (out / "index.html").write_text(html)
     print(f"\nreport: {out / 'index.html'} ({total:.0f} s)")
@@ -152,6 +160,17 @@ def run(args):
     bad = [c for c in checks if not c["ok"]]
     if bad:
         raise RenderError(f"{len(bad)} physics check(s) failed: " + "; ".join(c["name"] for c in bad))
+
+
+def _machine():
+    """CPU model (Linux: /proc/cpuinfo), architecture and cores, for the page."""
+    name = platform.processor() or ""
+    try:
+        with open("/proc/cpuinfo") as f:
+            name = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), name)
+    except OSError:
+        pass
+    return f"{name + ', ' if name else ''}{platform.machine()}, {os.cpu_count()} cores, {platform.system()}"
 
 
 # ---------------------------------------------------------------- sweep scenes
@@ -181,7 +200,7 @@ def _sweep_scene(renderer, scene, st, cache, out, prog, results):
                                                             progress=lambda d, t: prog.update(d, t, "reference spp"))
         ref = 0.5 * (h1 + h2)
         noise = renders.reference_noise(h1, h2, ref, mask)
-        stats = renders.statistics(scene, data, ref, noise, mask)
+        stats, terms = renders.statistics(scene, data, ref, noise, mask)
         smallest = min(r["rel_mse"] for r in stats)
         if noise <= smallest / 10 or ref_spp >= st.ref_max_factor * top:
             break
@@ -190,26 +209,26 @@ def _sweep_scene(renderer, scene, st, cache, out, prog, results):
         r["route"] = renderer.routes.get((scene.name, r["model"], r["estimator"]), renderer.variant)
     results.extend(stats)
 
-    # Time to reach 1 % and 0.1 % relative MSE: rel_mse(t) = bias² + c/t, c from the measured variances.
+    # Time to reach each target relative RMS error: rel_mse(t) = bias² + c/t, c from the measured variances;
+    # a time beyond the longest measured render of the row is an extrapolation, flagged with its factor.
+    builtin_top = next(r for r in stats if (r["model"], r["estimator"]) == ("builtin", "-") and r["spp"] == top)
     table = []
     for row in scene.rows:
         rs = [r for r in stats if (r["model"], r["estimator"]) == row]
-        c = common.fit_variance_constant([r["seconds"] for r in rs], [r["variance"] for r in rs])
+        secs = [r["seconds"] for r in rs]
+        c = common.fit_variance_constant(secs, [r["variance"] for r in rs])
         b2 = rs[-1]["bias2"]
-        table.append(dict(label=row_label(row), row=row, bias2=b2, c=c, top=rs[-1],
-                          t1=common.time_to_reach(1e-2, b2, c), t01=common.time_to_reach(1e-3, b2, c),
-                          unbiased=row in UNBIASED,
-                          slope=_slope([r["spp"] for r in rs], [r["variance"] for r in rs])))
-    # Speed target: the error heitz reaches at the top spp, and the time the faster invariance estimator
-    # (PT or, on conductors, BDPT) needs for it.
-    h = next(t for t in table if t["row"] == ("heitz", "pt"))
-    target = h["top"]["rel_mse"]
-    speed = {}
-    for t in table:
-        if t["unbiased"] and t["row"][0] == "invariance":
-            speed[t["row"]] = common.time_to_reach(target, t["bias2"], t["c"])
-    best_row = min(speed, key=lambda r: speed[r] if math.isfinite(speed[r]) else math.inf)
-    speed_ratio = speed[best_row] / h["top"]["seconds"]
+        t = dict(label=row_label(row), row=row, bias2=b2, bias2_se=rs[-1]["bias2_se"], c=c, top=rs[-1],
+                 mean_error=rs[-1]["mean_error_pct"], mean_error_se=rs[-1]["mean_error_se_pct"],
+                 unbiased=row in UNBIASED, terms=terms[row], seconds_range=(min(secs), max(secs)),
+                 time_ratio=rs[-1]["seconds"] / builtin_top["seconds"] if builtin_top["seconds"] > 0 else float("nan"),
+                 slope=_slope([r["spp"] for r in rs], [r["variance"] for r in rs]), times={})
+        for rms in common.TARGETS_RMS:
+            t["times"][rms] = uncertainty.time_in_range(
+                common.time_to_reach((rms / 100.0) ** 2, b2, c), secs)
+        table.append(t)
+    groups = _model_groups(scene, table, sdir=renderer.scenes_dir)
+    ranking = uncertainty.rank(groups)
 
     # Images: converged (seed mean at the top spp) per row, side by side, and differences to the built-in.
     means = {row: sum(data[row][top].images) / len(data[row][top].images) for row in scene.rows}
@@ -231,7 +250,7 @@ def _sweep_scene(renderer, scene, st, cache, out, prog, results):
         img = data[row][spp].images[0]
         crops.append(img)
         crop_labels.append(f"{row_label(row)}: {spp} spp, {np.mean(data[row][spp].seconds):.2f} s\n"
-                           f"rel MSE {renders.rel_mse(img, ref, mask):.2e}")
+                           f"RMS error {100 * math.sqrt(max(renders.rel_mse(img, ref, mask), 0.0)):.1f} %")
     ys, xs = np.nonzero(mask)
     crop = ((ys.min(), ys.max() + 1), (xs.min(), xs.max() + 1)) if ys.size else None
     crops_png = charts.image_grid(out / f"crops_{scene.name}.png", crops, crop_labels, cols=6, crop=crop,
@@ -241,14 +260,71 @@ def _sweep_scene(renderer, scene, st, cache, out, prog, results):
     return dict(scene=scene, stats=stats, table=table, ref=dict(row=ref_row, spp=ref_spp, noise=noise,
                 seconds=ref_seconds, cached=cached, smallest=smallest, efficiency_vs_heitz=eff_ratio),
                 mask_pixels=int(mask.sum()),
-                speed=dict(target=target, heitz_seconds=h["top"]["seconds"], best=row_label(best_row),
-                           best_seconds=speed[best_row], ratio=speed_ratio, spp=top,
-                           single_seconds=next(t["top"]["seconds"] for t in table if t["row"] == ("single", "pt")),
-                           builtin_seconds=next(t["top"]["seconds"] for t in table if t["row"] == ("builtin", "-")),
-                           best_top_seconds=next(t["top"]["seconds"] for t in table if t["row"] == best_row)),
+                groups=groups, ranking=ranking,
                 pngs=dict(evt=evt_png, models=grid_png, diff=diff_png, crops=crops_png),
                 means=means, data_top={r: data[r][top] for r in scene.rows}, data=data, mask=mask, reference=ref,
                 energy={row_label(r): _energy(means[r], mask) for r in scene.rows})
+
+
+def _same_model_here(scene, sdir, a, b, n=4000):
+    """True if models a and b give bit-identical values at the scene's material (its α, distribution and
+    surface; bk7 for glass) on n random direction pairs with the same random stream: e.g. `auto`, whose rule
+    keeps the whole `correlated` walk wherever multiple scattering is not negligible."""
+    import xml.etree.ElementTree as ET
+
+    from .core import CoreBsdf
+
+    root = ET.parse(Path(sdir) / f"{scene.name}.xml").getroot()
+    d = {e.get("name"): e.get("value") for e in root.iter("default")}
+    kw = dict(distribution=d.get("distribution", "ggx"), alpha=float(d.get("alpha", 0.1)), seed=17)
+    if scene.surface == "dielectric":
+        kw.update(surface="dielectric", ior=1.5046)  # bk7, the scenes' default interior
+    rng = np.random.default_rng(99)
+    wi, wo = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    wi[:, 2] = np.abs(wi[:, 2])
+    if scene.surface != "dielectric":
+        wo[:, 2] = np.abs(wo[:, 2])
+    fa = CoreBsdf(model=a, **kw).eval(wi, wo)
+    fb = CoreBsdf(model=b, **kw).eval(wi, wo)
+    return bool(np.array_equal(fa, fb))
+
+
+def _model_groups(scene, table, sdir):
+    """The entries the bias² ranking compares: rows that are one model at this scene are one entry.
+    Estimators of one model (pt, bdpt) have the same expectation; `single` is the built-in (the physics check
+    "single = built-in" verifies it on every run); heitz and invariance are the Smith model the reference
+    renders (checked too); `auto` joins `correlated` where both give identical values at the scene's
+    material. Each entry takes its bias² from its member with the smallest standard error; `members_differ`
+    lists members whose bias² differ beyond noise (it should stay empty)."""
+    by = {t["row"]: t for t in table}
+    sets = [(["single", "built-in"], [("single", "pt"), ("builtin", "-")], "identical by construction"),
+            (["Smith model (the reference)"], sorted(UNBIASED), "heitz and invariance: the model the reference renders")]
+    same_auto = ("auto", "pt") in by and _same_model_here(scene, sdir, "auto", "correlated")
+    for m in ("uncorrelated", "correlated", "compensated", "fastmsx", "auto"):
+        if m == "auto" and same_auto:
+            continue
+        rows = [r for r in by if r[0] == m]
+        if m == "correlated" and same_auto:
+            rows.append(("auto", "pt"))
+        why = ("auto keeps the whole correlated walk at this scene's roughness (identical values)"
+               if m == "correlated" and same_auto else "estimators of one model")
+        sets.append(([m] if not (m == "correlated" and same_auto) else ["correlated", "auto"], rows, why))
+    groups = []
+    for names, rows, why in sets:
+        members = [by[r] for r in rows if r in by]
+        if not members:
+            continue
+        best = min(members, key=lambda t: t["bias2_se"])
+        entry = lambda t: dict(bias2=t["bias2"], se=t["bias2_se"], terms=t["terms"])  # noqa: E731
+        differ = [f"{x['label']} vs {y['label']}" for i, x in enumerate(members) for y in members[i + 1:]
+                  if uncertainty.differ(entry(x), entry(y))]
+        label = " = ".join(names)
+        groups.append(dict(label=label, members=[m["label"] for m in members], bias2=best["bias2"], se=best["bias2_se"],
+                           terms=best["terms"], why=why, unbiased=all(m["unbiased"] for m in members),
+                           members_differ=differ, rows=[m["row"] for m in members]))
+    return groups
 
 
 def _slope(spps, variances):
@@ -292,7 +368,7 @@ def _side_scene(renderer, key, name, title, builtin, models, extra, st, out, pro
         eb = [float(im[mask].mean()) for im in b]
         d = np.array(e) - np.array(eb)
         energy.append(dict(label=row_label(row), value=float(np.mean(e)), builtin=float(np.mean(eb)),
-                           ratio=float(np.mean(e) / np.mean(eb)), se=float(d.std(ddof=1) / math.sqrt(len(d)))))
+                           ratio=float(np.mean(e) / np.mean(eb)), se=float(d.std(ddof=1) / math.sqrt(len(d))), seeds=e))
     grid_png = charts.image_grid(out / f"{key}_models.png", [means[r] for r in rows],
                                  [f"{row_label(r)}\n{e['value']:.4f}" for r, e in zip(rows, energy)], cols=min(len(rows), 5),
                                  title=f"{title} ({spp} spp; label: mean over the object)")

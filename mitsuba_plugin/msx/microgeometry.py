@@ -475,33 +475,36 @@ def compare(out_dir, *, rays=4_000_000, quick=False, thetas=THETAS, alphas=ALPHA
     energy_charts = [_energy_chart(out, rows, s, alphas, thetas) for s in surfaces]
     surf_chart = surface_chart(out, alphas[-1], grid=grid, corr_cells=corr_cells, n_surfaces=n_surfaces, seed=seed)
     fragment, html = _write_tables(out, rows, surfaces, link_prefix)
+    local_fragment, _ = _write_tables(out, rows, surfaces, "")
     elapsed = time.perf_counter() - t_start
     speed = f"{total_rays / total_seconds:,.0f} rays/s" if total_seconds > 0 else "cached simulations"
-    md = [
-        "## Ground truth from explicit microgeometry",
-        "",
-        f"Rays traced through all their bounces on generated Beckmann surfaces ({n_surfaces} realisations of "
-        f"{grid}² vertices, correlation length {corr_cells:g} cells, {rays:,} rays per configuration; "
-        f"{speed}; {elapsed:.0f} s in all). Errors of the simulation: spread between surface realisations. "
-        f"Models: {model_samples:,} Importance-mode samples each, binned by order and direction like the rays. "
-        "How it works and what it shows: docs/microgeometry.md.",
-        "",
-        fragment,
-        "",
-    ]
-    if surf_chart:
-        md += ["Generated surfaces against Beckmann (slope histograms; tested in tests/microgeometry.rs):", "",
-               f"![surfaces]({link_prefix}surfaces.png)", ""]
-    md += [
-        "Energy per order against θ_i:",
-        "",
-    ]
-    md += [f"![{Path(c).stem}]({link_prefix}{Path(c).name})" for c in energy_charts if c]
-    md += ["", "Lobes per order in the plane of incidence (one chart per configuration): "
-           + ", ".join(f"[{Path(c).stem}]({link_prefix}{Path(c).name})" for c in charts if c)]
-    markdown = "\n".join(md) + "\n"
-    (out / "summary.md").write_text(markdown)
+    def summary(prefix, frag):
+        md = [
+            "## Ground truth from explicit microgeometry",
+            "",
+            f"Rays traced through all their bounces on generated Beckmann surfaces ({n_surfaces} realisations of "
+            f"{grid}² vertices, correlation length {corr_cells:g} cells, {rays:,} rays per configuration; "
+            f"{speed}; {elapsed:.0f} s in all). Errors of the simulation: spread between surface realisations. "
+            f"Models: {model_samples:,} Importance-mode samples each, binned by order and direction like the rays. "
+            "How it works and what it shows: docs/microgeometry.md.",
+            "",
+            frag,
+            "",
+        ]
+        if surf_chart:
+            md += ["Generated surfaces against Beckmann (slope histograms; tested in tests/microgeometry.rs):", "",
+                   f"![surfaces]({prefix}surfaces.png)", ""]
+        md += ["Energy per order against θ_i:", ""]
+        md += [f"![{Path(c).stem}]({prefix}{Path(c).name})" for c in energy_charts if c]
+        md += ["", "Lobes per order in the plane of incidence (one chart per configuration): "
+               + ", ".join(f"[{Path(c).stem}]({prefix}{Path(c).name})" for c in charts if c)]
+        return "\n".join(md) + "\n"
+
+    markdown = summary(link_prefix, fragment)
+    # summary.md lies in out_dir: its links are relative to out_dir, without the report's prefix.
+    (out / "summary.md").write_text(summary("", local_fragment))
     return {"markdown": markdown, "html": html, "rows": rows, "charts": charts + energy_charts,
+            "energy_charts": [c for c in energy_charts if c], "surface_chart": surf_chart,
             "csv": str(out / "errors.csv"), "seconds": elapsed}
 
 
@@ -570,8 +573,8 @@ def _write_tables(out, rows, surfaces, link_prefix=""):
             cfg_rows = [r for r in sel if r["alpha"] == a and r["theta_i"] == t]
             r0 = cfg_rows[0]
             sim_cells = [f"{r0[f'E{lab}_sim']:.4f} ± {r0[f'E{lab}_sim_se']:.4f}" for lab in ORDER_LABELS]
-            lines.append(f"| {a} | {t:g} | **simulation** | " + " | ".join(sim_cells) + " | |")
-            html.append(f"<tr><td>{a}</td><td>{t:g}</td><td><b>simulation</b></td>"
+            lines.append(f"| {a} | {math.degrees(t):.0f}° | **simulation** | " + " | ".join(sim_cells) + " | |")
+            html.append(f"<tr><td>{a}</td><td>{math.degrees(t):.0f}°</td><td><b>simulation</b></td>"
                         + "".join(f"<td>{c}</td>" for c in sim_cells) + "<td></td></tr>")
             for r in cfg_rows:
                 cells = []
@@ -663,8 +666,12 @@ def _plt():
         return None
 
 
-_COLORS = {"single": "tab:gray", "uncorrelated": "tab:blue", "correlated": "tab:orange", "heitz": "tab:green",
-           "invariance": "tab:red", "compensated": "tab:purple", "fastmsx": "tab:brown"}
+def _color(model):
+    """The evaluation's one colour per model (evaluation/palette.py), so that a model looks the same here and
+    in every chart of the report."""
+    from .evaluation.palette import color
+
+    return color(model)
 
 
 def _in_plane(res: SimResult, v):
@@ -696,7 +703,7 @@ def _lobe_chart(out, res, model_data, surface, alpha, theta):
             if not _has_order(model, lab):
                 continue
             _, my = _in_plane(res, mv[k])
-            ax.plot(x[sel], my[sel], "-", color=_COLORS.get(model), lw=1.1, label=model)
+            ax.plot(x[sel], my[sel], "-", color=_color(model), lw=1.1, label=model)
         for v in (-90, 90):
             if limit > 90:
                 ax.axvline(v, color="0.7", lw=0.6)
@@ -707,7 +714,7 @@ def _lobe_chart(out, res, model_data, surface, alpha, theta):
     axes[0].set_ylabel("dE/dω = f·|cos θ_o| (1/sr)")
     axes[4].legend(fontsize=6)
     return _save(plt, fig, out / f"lobes_{surface}_a{alpha[0]:g}-{alpha[1]:g}_t{theta:g}.png",
-                 f"{surface}, Beckmann α = {_alpha_label(alpha)}, θ_i = {theta:g} rad")
+                 f"{surface}, Beckmann α = {_alpha_label(alpha)}, θ_i = {math.degrees(theta):.0f}°")
 
 
 def _energy_chart(out, rows, surface, alphas, thetas):
@@ -723,19 +730,20 @@ def _energy_chart(out, rows, surface, alphas, thetas):
         for k, lab in enumerate(ORDER_LABELS):
             ax = axes[ia][k]
             rs = sorted({r["theta_i"] for r in sel if r["alpha"] == al})
+            xs = [math.degrees(t) for t in rs]
             base = [next(r for r in sel if r["alpha"] == al and r["theta_i"] == t) for t in rs]
-            ax.errorbar(rs, [b[f"E{lab}_sim"] for b in base], yerr=[b[f"E{lab}_sim_se"] for b in base], fmt="ko",
+            ax.errorbar(xs, [b[f"E{lab}_sim"] for b in base], yerr=[b[f"E{lab}_sim_se"] for b in base], fmt="ko",
                         ms=4, label="simulation", zorder=5)
             for model in MODELS[surface]:
                 if not _has_order(model, lab):
                     continue
                 ms = [next(r for r in sel if r["alpha"] == al and r["theta_i"] == t and r["model"] == model) for t in rs]
-                ax.plot(rs, [m[f"E{lab}_model"] for m in ms], "-", marker=".", color=_COLORS.get(model), lw=1,
+                ax.plot(xs, [m[f"E{lab}_model"] for m in ms], "-", marker=".", color=_color(model), lw=1,
                         label=model)
             ax.set_title(f"α = {al}, order {lab}", fontsize=8)
             ax.tick_params(labelsize=7)
             if ia == len(alphas) - 1:
-                ax.set_xlabel("θ_i (rad)", fontsize=7)
+                ax.set_xlabel("θ_i (degrees)", fontsize=7)
     axes[0][4].legend(fontsize=6)
     return _save(plt, fig, out / f"energy_{surface}.png",
                  f"{surface}: energy per scattering order (fraction of the incident flux)")

@@ -204,6 +204,19 @@ def pexit_map(st, vertices=6, paths=400):
     return out
 
 
+def is_failing(c, metric, thresholds=FAIL):
+    """Whether cell c crosses the threshold of `metric` (the rule of the table "where each method fails").
+    single and fastmsx do not conserve energy by design: their furnace error is charted, not failed."""
+    if metric not in thresholds:
+        return False
+    thr = thresholds[metric]
+    if metric == "furnace_error":  # beyond the threshold by more than 3 standard errors of the estimate
+        return c["model"] not in ("single", "fastmsx") and c[metric] - 3.0 * c["furnace_se"] > thr
+    if metric == "nonfinite":
+        return c[metric] > 0
+    return not (c[metric] <= thr)
+
+
 def failures(rows, thresholds=FAIL):
     """The generated table "where each method fails": per model and surface, each failing metric with the
     region of (α, θ_i) cells where it fails."""
@@ -213,14 +226,7 @@ def failures(rows, thresholds=FAIL):
         by.setdefault((r["model"], r["estimator"], r["surface"]), []).append(r)
     for (model, est, surface), cells in by.items():
         for metric, thr in thresholds.items():
-            if metric == "furnace_error" and model in ("single", "fastmsx"):
-                continue  # not energy conserving by design: charted separately
-            if metric == "furnace_error":  # beyond the threshold by more than 3 standard errors of the estimate
-                bad = [c for c in cells if c[metric] - 3.0 * c["furnace_se"] > thr]
-            elif metric == "nonfinite":
-                bad = [c for c in cells if c[metric] > 0]
-            else:
-                bad = [c for c in cells if not (c[metric] <= thr)]
+            bad = [c for c in cells if is_failing(c, metric, thresholds)]
             if not bad:
                 continue
             alphas = sorted({c["alpha"] for c in bad})

@@ -15,21 +15,13 @@ import matplotlib.ticker  # noqa: E402,F401
 from matplotlib.colors import LogNorm, TwoSlopeNorm  # noqa: E402
 
 from .common import row_label  # noqa: E402
+from .palette import color  # noqa: E402
 
-# Line style per row label: colour by model, dotted for BDPT.
-STYLE = {label: dict(color=c, ls=ls, marker=m) for label, c, ls, m in [
-    ("built-in", "black", "--", "x"),
-    ("single", "0.45", "-", "x"),
-    ("uncorrelated", "tab:orange", "-", "o"),
-    ("uncorrelated bdpt", "tab:orange", ":", "s"),
-    ("correlated", "tab:blue", "-", "o"),
-    ("correlated bdpt", "tab:blue", ":", "s"),
-    ("heitz", "tab:red", "-", "^"),
-    ("invariance", "tab:green", "-", "v"),
-    ("invariance bdpt", "tab:green", ":", "s"),
-    ("auto", "tab:purple", "-", "d"),
-    ("compensated", "tab:brown", "-", "P"),
-    ("fastmsx", "tab:pink", "-", "*"),
+# Line style per row label: colour by model (palette.py, shared with the microgeometry charts), dotted for BDPT.
+STYLE = {label: dict(color=color(label), ls=ls, marker=m) for label, ls, m in [
+    ("built-in", "--", "x"), ("single", "-", "x"), ("uncorrelated", "-", "o"), ("uncorrelated bdpt", ":", "s"),
+    ("correlated", "-", "o"), ("correlated bdpt", ":", "s"), ("heitz", "-", "^"), ("invariance", "-", "v"),
+    ("invariance bdpt", ":", "s"), ("auto", "-", "d"), ("compensated", "-", "P"), ("fastmsx", "-", "*"),
 ]}
 
 
@@ -66,17 +58,26 @@ def error_vs_time(path, title, stats):
         if r["label"] not in top or r["spp"] > top[r["label"]]["spp"]:
             top[r["label"]] = r
     xs = np.arange(len(labels))
-    b2 = [max(top[lb]["bias2"], 1e-12) for lb in labels]
-    var = [max(top[lb]["variance"] / 1.0, 1e-12) for lb in labels]
-    bx.bar(xs - 0.2, b2, 0.4, label="bias² (converged vs reference)", color="tab:red")
+    # bias² with 3 standard errors; a value that is zero within noise is drawn as its upper bound (an open
+    # triangle), never as a bar at an arbitrary floor.
+    z = 3.0
+    b2 = np.array([top[lb]["bias2"] for lb in labels])
+    se = np.array([top[lb].get("bias2_se", 0.0) for lb in labels])
+    var = np.array([top[lb]["variance"] for lb in labels])
+    sig = b2 > z * se
+    bx.bar(xs[sig] - 0.2, b2[sig], 0.4, label="bias² (converged vs reference), ± 3 s.e.", color="tab:red",
+           yerr=z * se[sig], error_kw=dict(lw=0.8, capsize=2))
+    if (~sig).any():
+        bx.plot(xs[~sig] - 0.2, np.maximum(b2[~sig], 0.0) + z * se[~sig], "v", mfc="none", mec="tab:red", ms=6,
+                label="bias² zero within noise: upper bound (3 s.e.)")
     bx.bar(xs + 0.2, var, 0.4, label=f"variance of one render at {top[labels[0]]['spp']} spp", color="tab:blue")
     bx.set_yscale("log")
     bx.set_xticks(xs, labels, rotation=60, ha="right", fontsize=7)
-    bx.set_ylabel("relative error")
+    bx.set_ylabel("relative squared error (relative MSE units)")
     bx.legend(fontsize=7)
     bx.grid(True, axis="y", which="both", lw=0.3, alpha=0.5)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight", pad_inches=0.15)
     plt.close(fig)
     return path
 
@@ -100,7 +101,7 @@ def image_grid(path, images, labels, title=None, cols=None, exposure=1.0, crop=N
     if title:
         fig.suptitle(title, fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight", pad_inches=0.15)
     plt.close(fig)
     return path
 
@@ -125,20 +126,20 @@ def difference_grid(path, reference, images, labels, mask, title):
     if im is not None:
         fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.8, label="luminance difference (object pixels)")
     fig.suptitle(title, fontsize=9)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight", pad_inches=0.15)
     plt.close(fig)
     return path
 
 
-METRICS = [("furnace_error", "furnace error |1 − E|", LogNorm(1e-3, 1.0)),
-           ("rel_std", "noise per call (rel. std)", LogNorm(1e-2, 10.0)),
-           ("max_weight", "largest contribution / mean", LogNorm(1.0, 1e3)),
-           ("ns_per_call", "ns per eval call", LogNorm(30.0, 1e4))]
+METRICS = [("furnace_error", "energy lost or created, |1 − E|", LogNorm(1e-3, 1.0)),
+           ("rel_std", "noise of one call (std ÷ mean)", LogNorm(1e-2, 10.0)),
+           ("max_weight", "largest contribution ÷ mean (fireflies)", LogNorm(1.0, 1e3)),
+           ("ns_per_call", "time per eval call (ns)", LogNorm(30.0, 1e4))]
 
 
-def stability(path, rows, surface, alphas, thetas):
+def stability(path, rows, surface, alphas, thetas, failing=None):
     """Heat maps over α × θ_i: one row per model, one column per metric; cells with raw non-finite values
-    are marked ×."""
+    are marked ×; failing(cell, metric) → True marks a cell beyond the atlas' threshold with a white dot."""
     models = []
     for r in rows:
         key = (r["model"], r["estimator"])
@@ -152,8 +153,10 @@ def stability(path, rows, surface, alphas, thetas):
         cells = [r for r in rows if r["surface"] == surface and (r["model"], r["estimator"]) == key]
         for mj, (metric, name, norm) in enumerate(METRICS):
             grid = np.full((len(alphas), len(thetas)), np.nan)
-            bad = []
+            bad, over = [], []
             for c in cells:
+                if failing is not None and failing(c, metric):
+                    over.append((ti[c["theta_i"]], ai[c["alpha"]]))
                 v = c[metric]
                 if metric == "rel_std" and v == 0:
                     v = np.nan  # deterministic model: no noise
@@ -162,20 +165,23 @@ def stability(path, rows, surface, alphas, thetas):
                     bad.append((ti[c["theta_i"]], ai[c["alpha"]]))
             ax = axes[mi_, mj]
             im = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis", norm=norm)
+            for x, y in over:
+                ax.plot(x, y, "o", ms=2.5, mfc="white", mec="none")
             for x, y in bad:
                 ax.text(x, y, "×", color="red", ha="center", va="center", fontsize=9)
-            ax.set_xticks(range(len(thetas)), [f"{t:g}" for t in thetas], fontsize=5)
-            ax.set_yticks(range(len(alphas)), [f"{a:.2g}" for a in alphas], fontsize=5)
+            ax.set_xticks(range(len(thetas)), [f"{t:g}" for t in thetas], fontsize=6)
+            ax.set_yticks(range(len(alphas)), [f"{a:.2g}" for a in alphas], fontsize=6)
             if mi_ == 0:
                 ax.set_title(name, fontsize=8)
             if mj == 0:
                 ax.set_ylabel(f"{row_label(key)}\nα", fontsize=7)
             if mi_ == len(models) - 1:
                 ax.set_xlabel("θ_i (degrees)", fontsize=7)
-            fig.colorbar(im, ax=ax, fraction=0.05, pad=0.02).ax.tick_params(labelsize=5)
-    fig.suptitle(f"Stability atlas: {surface.replace('_', ' ')} (× = raw non-finite or negative values)", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
+            fig.colorbar(im, ax=ax, fraction=0.05, pad=0.02).ax.tick_params(labelsize=6)
+    fig.suptitle(f"Stability atlas: {surface.replace('_', ' ')} (× = raw non-finite or negative values; "
+                 "white dot = beyond the threshold of the table \"where each method fails\")", fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.97))
+    fig.savefig(path, dpi=100, bbox_inches="tight", pad_inches=0.15)
     plt.close(fig)
     return path
 
@@ -208,7 +214,7 @@ def extras(path, pexit, fastmsx_rows, alphas, thetas):
         ax.set_xlabel("θ_i (degrees)", fontsize=7)
         ax.set_ylabel("α", fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    fig.savefig(path, dpi=100, bbox_inches="tight", pad_inches=0.15)
     plt.close(fig)
     return path
 
@@ -232,21 +238,21 @@ def lobes(path, surface, data, orders):
                 lab = f"{m} (E_r {case[m]['E_r']:.2f}, E_t {case[m]['E_t']:.2f})" if col == "total" else m
                 # Reflection: θ_o ∈ (−90°, 90°); transmission: θ_o + 180°. Each side drawn separately.
                 n = len(th) if surface != "dielectric" else len(th) // 2
-                ax.plot(th[:n], v[:n], lw=1.0, label=lab, **{k: STYLE.get(m, {}).get(k) for k in ("color",)})
+                ax.plot(th[:n], v[:n], lw=1.0, label=lab, color=color(m))
                 if surface == "dielectric":
-                    ax.plot(th[n:], v[n:], lw=1.0, **{k: STYLE.get(m, {}).get(k) for k in ("color",)})
+                    ax.plot(th[n:], v[n:], lw=1.0, color=color(m))
             if surface != "dielectric":
                 ax.set_thetamin(-90)
                 ax.set_thetamax(90)
-            ax.tick_params(labelsize=5)
+            ax.tick_params(labelsize=7)
             ax.yaxis.set_major_locator(matplotlib.ticker.MaxNLocator(3))
-            ax.set_title(f"α {key[1]:g}, θ_i {key[2]:g} rad: {'order ' + col if col != 'total' else 'total'}",
-                         fontsize=7)
+            ax.set_title(f"α {key[1]:g}, θ_i {math.degrees(key[2]):.0f}°: "
+                         f"{'order ' + col if col != 'total' else 'total'}", fontsize=8, pad=12)
             if col == "total":
-                ax.legend(fontsize=5, loc="center left", bbox_to_anchor=(1.1, 0.5))
+                ax.legend(fontsize=6, loc="center left", bbox_to_anchor=(1.1, 0.5))
     fig.suptitle(f"Lobes, {surface}: f·cos θ_o in the plane of incidence (radius), per scattering order", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    fig.tight_layout(rect=(0, 0, 1, 0.98))
+    fig.savefig(path, dpi=90, bbox_inches="tight", pad_inches=0.15)
     plt.close(fig)
     return path
 
@@ -274,7 +280,7 @@ def energy(path, rows, thetas):
                     ys = [sum(r["value"] for r in rs if r["alpha"] == a) for a in alphas]
                 else:
                     ys = [next(r["value"] for r in rs if r["alpha"] == a and r["part"] == part) for a in alphas]
-                ax.plot(alphas, ys, label=m, lw=1.2, color=STYLE.get(m, {}).get("color"), marker=".")
+                ax.plot(alphas, ys, label=m, lw=1.2, color=color(m), marker=".")
             ax.set_xscale("log")
             if part in ("E", "E_r+E_t"):
                 ax.axhline(1.0, color="k", lw=0.6)
@@ -284,6 +290,44 @@ def energy(path, rows, thetas):
             if i == 0 and j == 0:
                 ax.legend(fontsize=6)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=90, bbox_inches="tight", pad_inches=0.15)
+    plt.close(fig)
+    return path
+
+
+def two_references(path, smith, micro):
+    """Left: each model's converged RMS error against the Smith reference per sweep scene (%, ± 3 s.e. of
+    bias² propagated). Right: each model's mean lobe L1 against the ray-traced microgeometry per surface
+    (± 3 s.e. over the configurations). Colours: one per model (palette.py). Error bars: the 3-standard-error
+    bounds. smith: {scene: [(label, rms_pct, low, high)]}; micro: {surface: [(model, l1, low, high)]}."""
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4.6))
+    for ax, data, ylabel, title in ((axes[0], smith, "converged RMS error against the Smith reference (%)",
+                                     "Against the Smith reference (sweep scenes, GGX)"),
+                                    (axes[1], micro, "mean lobe L1 against the traced surfaces (fraction of flux)",
+                                     "Against explicit microgeometry (Beckmann, every α, θ_i)")):
+        groups = list(data)
+        models = []
+        for g in groups:
+            for m, *_ in data[g]:
+                if m not in models:
+                    models.append(m)
+        width = 0.8 / max(1, len(models))
+        for j, m in enumerate(models):
+            xs, ys, es = [], [], []
+            for i, g in enumerate(groups):
+                for mm, v, lo, hi in data[g]:
+                    if mm == m:
+                        xs.append(i - 0.4 + (j + 0.5) * width)
+                        ys.append(v)
+                        es.append((v - lo, hi - v))
+            ax.bar(xs, ys, width, yerr=np.array(es).T.reshape(2, -1), color=color(m.split(" = ")[0]), label=m,
+                   error_kw=dict(lw=0.7, capsize=1.5))
+        ax.set_xticks(range(len(groups)), [g.replace("_", " ") for g in groups], fontsize=8)
+        ax.set_ylabel(ylabel, fontsize=8)
+        ax.set_title(title, fontsize=9)
+        ax.grid(True, axis="y", lw=0.3)
+        ax.legend(fontsize=6, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100, bbox_inches="tight", pad_inches=0.15)
     plt.close(fig)
     return path

@@ -23,6 +23,11 @@ DIELECTRIC_ROWS = [r for r in CONDUCTOR_ROWS if r[0] != "fastmsx" and r != ("inv
 UNBIASED = {("heitz", "pt"), ("invariance", "pt"), ("invariance", "bdpt")}
 
 
+# Targets of the time-to-error columns, as relative RMS error in % (rel MSE = (x / 100)²): 10 % is a
+# visibly noisy render, 3 % a clean one.
+TARGETS_RMS = (10.0, 3.0)
+
+
 def row_label(row) -> str:
     model, est = row
     if model == "builtin":

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .common import UNBIASED, rel_mse, row_label
+from .uncertainty import bias2_terms, mean_se, mean_terms
 
 
 # What the Dr.Jit engine's refusals end with (msx/jit/bsdf.py ``ALTERNATIVES``).
@@ -278,26 +279,30 @@ def sweep(renderer: Renderer, scene: SweepScene, st, progress=None):
 
 
 def statistics(scene: SweepScene, data, ref, ref_noise, mask):
-    """Per row and spp: rel MSE against the reference (mean over seeds), seconds (mean), variance (spread
-    over seeds, relative), and per row the bias² (its seed-mean at the top spp against the reference,
-    minus both noises)."""
-    rows = []
+    """Per row and spp: rel MSE against the reference (mean over seeds) and its square root, the relative
+    RMS error, seconds (mean), variance (spread over seeds, relative); per row, from its seed mean at the
+    top spp: bias² (against the reference, both noises removed) with its standard error, and the signed
+    error of the mean radiance over the object with its standard error (uncertainty.py). Returns (rows,
+    {row: per-pixel bias² contributions}) — the contributions let two rows be compared on the same pixels."""
+    rows, terms = [], {}
     for row, by_spp in data.items():
         spps = sorted(by_spp)
         top = by_spp[spps[-1]]
-        n = len(top.images)
-        mean_top = sum(top.images) / n
-        var_top = seed_variance(top.images, mask, ref) / n
-        bias2 = rel_mse(mean_top, ref, mask) - var_top - ref_noise
+        terms[row] = bias2_terms(top.images, ref, mask, ref_noise)
+        bias2, bias2_se = mean_se(terms[row])
+        mean_err, mean_err_se = mean_se(mean_terms(top.images, ref, mask))
         for spp in spps:
             im = by_spp[spp]
             errs = [rel_mse(i, ref, mask) for i in im.images]
+            rel = float(np.mean(errs))
             rows.append(dict(scene=scene.name, model=row[0], estimator=row[1], label=row_label(row), spp=spp,
-                             seconds=float(np.mean(im.seconds)), rel_mse=float(np.mean(errs)),
+                             seconds=float(np.mean(im.seconds)), rel_mse=rel,
                              rel_mse_se=float(np.std(errs, ddof=1) / math.sqrt(len(errs))) if len(errs) > 1 else 0.0,
-                             variance=seed_variance(im.images, mask, ref), bias2=bias2,
+                             rel_rms_pct=100.0 * math.sqrt(max(rel, 0.0)),
+                             variance=seed_variance(im.images, mask, ref), bias2=bias2, bias2_se=bias2_se,
+                             mean_error_pct=100.0 * mean_err, mean_error_se_pct=100.0 * mean_err_se,
                              unbiased=row in UNBIASED))
-    return rows
+    return rows, terms
 
 
 def seed_variance(images, mask, reference=None):

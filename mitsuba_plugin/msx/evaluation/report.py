@@ -6,9 +6,12 @@ from __future__ import annotations
 import base64
 import html
 import math
+import os
 from pathlib import Path
 
-from .common import row_label
+from . import uncertainty
+from .atlas import FAIL
+from .common import TARGETS_RMS, row_label
 
 CSS = """
 body{font-family:system-ui,sans-serif;max-width:1250px;margin:2em auto;padding:0 1em;color:#222;line-height:1.45}
@@ -20,10 +23,19 @@ th{background:#f3f3f3}td.l,th.l{text-align:left}img{max-width:100%;border:1px so
 """
 
 
+_OUT = [None]  # the page's folder while page() writes it: links are relative to it
+
+
+def _rel(path) -> str:
+    """A link to a file of the run, relative to the page's folder."""
+    out = _OUT[0]
+    return os.path.relpath(path, out).replace(os.sep, "/") if out else Path(path).name
+
+
 def _img(path: Path, alt: str) -> str:
     data = base64.b64encode(Path(path).read_bytes()).decode()
     return f'<p><img alt="{html.escape(alt)}" src="data:image/png;base64,{data}"><br><span class="note">{html.escape(alt)} ' \
-           f'(<code>{Path(path).name}</code>)</span></p>'
+           f'(<a href="{html.escape(_rel(path))}">{html.escape(Path(path).name)}</a>)</span></p>'
 
 
 def _sec(t):
@@ -40,49 +52,281 @@ def _e(x, digits=2):
     return "—" if x is None or not math.isfinite(x) else f"{x:.{digits}e}"
 
 
-def _which_model(scenes):
-    """Per scene type and error target: the fastest row that reaches the target, among all rows and among
-    estimators of the Smith reference itself."""
-    out = ["<h2>Which model should I use?</h2>",
-           '<p class="note">Derived from this run: for each scene and each target error (relative MSE over the '
-           "object's pixels, against the converged Smith multiple-scattering reference), the model × estimator "
-           "that reaches the target in the least render time, from the fit error(t) = bias² + c/t of its sweep. "
-           "A model whose bias² is above the target never reaches it, whatever the time.</p>",
-           "<table><tr><th class=l>scene</th><th class=l>lighting</th><th>target</th><th class=l>fastest overall</th>"
-           "<th>time</th><th class=l>fastest unbiased (Smith reference)</th><th>time</th><th class=l>cannot reach it</th></tr>"]
-    for rep in scenes:
-        sc = rep["scene"]
-        for target, key in ((1e-2, "t1"), (1e-3, "t01")):
-            rows = [t for t in rep["table"] if t["label"] != "built-in" or True]
-            finite = [t for t in rows if math.isfinite(t[key])]
-            best = min(finite, key=lambda t: t[key]) if finite else None
-            unb = [t for t in finite if t["unbiased"]]
-            best_u = min(unb, key=lambda t: t[key]) if unb else None
-            never = [t["label"] for t in rows if t[key] == float("inf")]
-            out.append(f"<tr><td class=l>{sc.name}</td><td class=l>{sc.lighting}</td><td>{target * 100:g} %</td>"
-                       f"<td class=l>{best['label'] if best else '—'}</td><td>{_sec(best[key]) if best else '—'}</td>"
-                       f"<td class=l>{best_u['label'] if best_u else '—'}</td><td>{_sec(best_u[key]) if best_u else '—'}</td>"
-                       f"<td class=l>{', '.join(never) or '—'}</td></tr>")
-    out.append("</table>")
-    # Closest biased model to the reference per scene (lowest bias²), stated from the numbers.
+def _pct(x, se=None, digits=1):
+    if x is None or not math.isfinite(x):
+        return "—"
+    out = f"{x:+.{digits}f}"
+    if se is not None and math.isfinite(se):
+        out += f" ± {se:.{digits}f}"
+    return out + " %"
+
+
+def _bias(t):
+    """bias² ± its standard error, and a word when it is zero within noise (negative values are noise)."""
+    b, se = t["bias2"], t.get("bias2_se", t.get("se"))
+    txt = f"{_e(b)} ± {_e(se, 1)}"
+    return txt + (" (0 within noise)" if b <= uncertainty.Z * se else "")
+
+
+def _rms_bias(b2, se):
+    """The converged render's relative RMS error against the reference, √bias², in %, with 0 when bias² is
+    zero within noise."""
+    if not math.isfinite(b2):
+        return "—"
+    if b2 <= uncertainty.Z * se:
+        return f"≤ {100 * math.sqrt(max(b2, 0.0) + uncertainty.Z * se):.1f} %"
+    return f"{100 * math.sqrt(b2):.1f} %"
+
+
+def _time_cell(tf):
+    t, f = tf
+    if t is None or not math.isfinite(t):
+        return _sec(t)
+    return _sec(t) if f <= 1.0 else f"{_sec(t)} <span class=warn>(extrapolated ×{f:.0f})</span>" if f >= 10 else \
+        f"{_sec(t)} <span class=warn>(extrapolated ×{f:.1f})</span>"
+
+
+def _mean_word(t):
+    return uncertainty.sign_word(t["mean_error"], t["mean_error_se"])
+
+
+# "Looks right": the converged render differs from the Smith reference by at most LOOK_MEAN % in mean radiance
+# over the object and LOOK_RMS % RMS per pixel (both within noise).
+LOOK_MEAN, LOOK_RMS = 2.0, 5.0
+
+
+def _verdict(b2, b2_se, mean, mean_se):
+    """'right' when both bounds (3 se on the pessimistic side) are within LOOK_MEAN / LOOK_RMS, 'off' when
+    either error is beyond its threshold by more than 3 se, else 'undecided' (this run's noise is too large to
+    tell)."""
+    z = uncertainty.Z
+    rms_hi = 100 * math.sqrt(max(b2 + z * b2_se, 0.0))
+    rms_lo = 100 * math.sqrt(max(b2 - z * b2_se, 0.0))
+    if abs(mean) + z * mean_se <= LOOK_MEAN and rms_hi <= LOOK_RMS:
+        return "right"
+    if abs(mean) - z * mean_se > LOOK_MEAN or rms_lo > LOOK_RMS:
+        return "off"
+    return "undecided"
+
+
+def _looks_right(t):
+    return _verdict(t["bias2"], t["bias2_se"], t["mean_error"], t["mean_error_se"]) == "right"
+
+
+def _cheap_ranges(atlas, surface, model, limit=None, theta_max=60.0):
+    """Per α column of the atlas (θ_i ≤ theta_max): 'ok' when every cell's furnace error is within `limit`
+    by 3 standard errors, 'fail' when one exceeds it by more than 3 standard errors, else 'undecided'.
+    Returns ({alpha: state}, alphas)."""
+    limit = FAIL["furnace_error"] if limit is None else limit
+    z = uncertainty.Z
+    cells = [r for r in atlas if r["surface"] == surface and r["model"] == model and r["estimator"] == "pt"
+             and r["theta_i"] <= theta_max]
+    alphas = sorted({r["alpha"] for r in cells})
+    state = {}
+    for a in alphas:
+        col = [r for r in cells if r["alpha"] == a]
+        if any(r["furnace_error"] - z * r["furnace_se"] > limit for r in col):
+            state[a] = "fail"
+        elif all(r["furnace_error"] + z * r["furnace_se"] <= limit for r in col):
+            state[a] = "ok"
+        else:
+            state[a] = "undecided"
+    return state, alphas
+
+
+def _alpha_list(xs):
+    return "{" + ", ".join(f"{a:.2g}" for a in xs) + "}"
+
+
+def _alpha_span(state, alphas):
+    """Words for the α columns per state."""
+    if not alphas:
+        return "not measured"
+    parts = []
+    for key, word in (("ok", "enough at α ∈ "), ("fail", "not enough at α ∈ "),
+                      ("undecided", "undecided at this run's noise at α ∈ ")):
+        xs = [a for a in alphas if state[a] == key]
+        if xs:
+            parts.append(word + _alpha_list(xs))
+    return "; ".join(parts)
+
+
+def _auto_saving(atlas, surface):
+    """Per α: auto's time per eval call against correlated's (median over θ_i)."""
+    out = []
+    for a in sorted({r["alpha"] for r in atlas if r["surface"] == surface}):
+        ta = [r["ns_per_call"] for r in atlas if r["surface"] == surface and r["model"] == "auto" and r["alpha"] == a]
+        tc = [r["ns_per_call"] for r in atlas if r["surface"] == surface and r["model"] == "correlated"
+              and r["estimator"] == "pt" and r["alpha"] == a]
+        if ta and tc:
+            out.append((a, sorted(ta)[len(ta) // 2] / sorted(tc)[len(tc) // 2]))
+    return out
+
+
+def _scene_advice(rep):
+    """Sentences for one sweep scene, every one from this run's numbers: per entry of the ranking (rows that
+    are one model here), whether it matches the Smith model, whether it looks right, and what it costs."""
+    by = {t["label"]: t for t in rep["table"]}
+    groups = rep["ranking"]
+    z = uncertainty.Z
+    entries = []
+    for tier in groups:
+        for e in tier:
+            best = by[min(e["members"], key=lambda m: by[m]["bias2_se"])]
+            cost = ", ".join(f"{m} ×{by[m]['time_ratio']:.2f}" for m in e["members"])
+            entries.append(dict(e, mean=best["mean_error"], mean_se=best["mean_error_se"], cost=cost,
+                                tied_smith=any(x["unbiased"] for x in tier),
+                                verdict=_verdict(e["bias2"], e["se"], best["mean_error"], best["mean_error_se"])))
+    approx = [e for e in entries if not e["unbiased"]]
     lines = []
-    for rep in scenes:
-        biased = [t for t in rep["table"] if not t["unbiased"] and t["label"] not in ("built-in", "single")]
-        if biased:
-            b = min(biased, key=lambda t: t["bias2"])
-            order = ", ".join(f"{t['label']} {t['bias2']:.1e}" for t in sorted(biased, key=lambda t: t["bias2"]))
-            lines.append(f"<li><b>{rep['scene'].name}</b>: the approximation closest to the Smith reference is "
-                         f"<b>{b['label']}</b> (bias² {b['bias2']:.1e}); all of them, closest first: {order}.</li>")
-    out.append("<p>Closest approximations to the reference in this run (bias² = relative MSE of the converged "
-               "render against the reference, noise removed; negative values are noise):</p><ul>" + "".join(lines) + "</ul>")
+    match = [e for e in approx if e["tied_smith"] and abs(e["mean"]) <= z * e["mean_se"]]
+    if match:
+        lines.append("<b>Matches the Smith model</b> (bias² tied with the reference's model and mean radiance "
+                     "within noise): " + ", ".join(f"{e['label']} ({_pct(e['mean'], e['mean_se'])})" for e in match)
+                     + ".")
+    elif approx:
+        best = min(approx, key=lambda e: e["bias2"])
+        lines.append(f"<b>Matches the Smith model</b>: no approximation does within noise; the closest is "
+                     f"<b>{best['label']}</b> (converged RMS error {_rms_bias(best['bias2'], best['se'])}, mean radiance "
+                     f"{_pct(best['mean'], best['mean_se'])}); for the Smith model itself use its unbiased estimators "
+                     "(heitz, invariance).")
+    for verdict, head in (("right", f"<b>Looks right</b> (converged render within {LOOK_MEAN:g} % of the reference in "
+                                    f"mean radiance and {LOOK_RMS:g} % RMS)"),
+                          ("undecided", "<b>Cannot tell at this run's noise</b> (the bounds straddle the thresholds)"),
+                          ("off", "<b>Visibly off</b>")):
+        sel = [e for e in entries if e["verdict"] == verdict]
+        if sel:
+            lines.append(head + ": " + "; ".join(
+                f"{html.escape(e['label'])} (mean radiance {_pct(e['mean'], e['mean_se'])}, "
+                f"{uncertainty.sign_word(e['mean'], e['mean_se'])}; RMS {_rms_bias(e['bias2'], e['se'])}; "
+                f"time per sample ÷ built-in: {e['cost']})" for e in sel) + ".")
+    rms = min(TARGETS_RMS)
+    ok = [t for t in rep["table"] if _verdict(t["bias2"], t["bias2_se"], t["mean_error"], t["mean_error_se"]) != "off"]
+    measured = [(t["times"][rms][0], t) for t in ok if _finite(t["times"][rms][0]) and t["times"][rms][1] <= 1.0]
+    if measured:
+        tt, t = min(measured, key=lambda x: x[0])
+        lines.append(f"<b>Fastest to a clean render</b> ({rms:g} % RMS error, inside the measured renders) among "
+                     f"the rows not visibly off: <b>{t['label']}</b>, {_sec(tt)} here.")
+    else:
+        ext = [(t["times"][rms], t) for t in ok if _finite(t["times"][rms][0])]
+        if ext:
+            (tt, f), t = min(ext, key=lambda x: x[0][0])
+            lines.append(f"<b>Fastest to a clean render</b> ({rms:g} % RMS error): no row reached it inside the "
+                         f"measured renders; the fit's fastest is {t['label']}, {_time_cell((tt, f))}.")
+    never = [t["label"] for t in rep["table"] if t["times"][rms][0] == float("inf")
+             and t["bias2"] - z * t["bias2_se"] > (rms / 100) ** 2]
+    if never:
+        lines.append(f"Cannot reach {rms:g} % RMS at any render time (bias floor above it beyond noise): "
+                     f"{', '.join(never)}.")
+    return lines
+
+
+def _finite(x):
+    return x is not None and math.isfinite(x)
+
+
+CLASSES = [("Rough conductors (metals)", "conductor", ["conductor"]),
+           ("Glass: reflection and transmission", "dielectric", ["dielectric_outside", "dielectric_inside"])]
+
+
+def _advice(ctx):
+    """The first section: per material class, which model for which goal, from this run's numbers."""
+    atlas = ctx.get("atlas") or []
+    out = ["<h2 id=advice>Which model should I use?</h2>",
+           "<p class=note>Every sentence below is computed from this run's numbers (sections further down). "
+           f"<b>Looks right</b>: the converged render differs from the Smith reference by at most {LOOK_MEAN:g} % in "
+           f"mean radiance over the object (about the smallest brightness step people see between two patches "
+           f"side by side, 1–2 %) and {LOOK_RMS:g} % RMS per pixel, each bound taken "
+           f"{uncertainty.Z:g} standard errors on the pessimistic side. <b>Matches the Smith model</b>: bias² "
+           "tied with the reference's own model (the ranking rule below). Times: render time per sample "
+           "relative to Mitsuba's built-in single-scattering BSDF on the same scene and route.</p>"]
+    for title, kind, surfaces in CLASSES:
+        reps = [r for r in ctx["scenes"] if r["scene"].surface == kind]
+        out.append(f"<h3>{title}</h3><ul>")
+        for rep in reps:
+            out.append(f"<li>{html.escape(rep['scene'].title)}:<ul>" +
+                       "".join(f"<li>{x}</li>" for x in _scene_advice(rep)) + "</ul></li>")
+        for surface in surfaces:
+            lim = FAIL["furnace_error"]
+            for model, what in (("single", f"loses ≤ {lim:.0%} of the energy"),
+                                ("compensated", f"keeps the energy within {lim:.0%} (its lobe's shape: the scenes "
+                                                "above)")):
+                state, alphas = _cheap_ranges(atlas, surface, model)
+                if not alphas:
+                    continue
+                grazing, _ = _cheap_ranges(atlas, surface, model, theta_max=90.0)
+                ok_all = [a for a in alphas if grazing[a] == "ok"]
+                out.append(f"<li><b>{model}</b> ({surface.replace('_', ' ')}, atlas furnace, F = 1 / η 1.5; "
+                           f"“enough”: {what} at every θ_i ≤ 60°, by 3 standard errors): {_alpha_span(state, alphas)}"
+                           + (f"; up to grazing incidence too at α ∈ {_alpha_list(ok_all)}" if ok_all else "")
+                           + ".</li>")
+        sav = _auto_saving(atlas, surfaces[0])
+        if sav:
+            cheaper = [a for a, r in sav if r < 0.9]
+            txt = (f"costs ≤ 0.9× correlated's time per eval call at α ∈ {{{', '.join(f'{a:.2g}' for a in cheaper)}}}"
+                   if cheaper else "is not ≤ 0.9× correlated's time per eval call at any α of the atlas")
+            rest = [r for a, r in sav if a not in cheaper]
+            span = f"; at the other α ×{min(rest):.2f}–{max(rest):.2f}" if rest else ""
+            out.append(f"<li><b>auto</b> ({surfaces[0].replace('_', ' ')}, atlas, median over θ_i) {txt}{span}.</li>")
+        out.append("</ul>")
+    diff = next((r for r in ctx.get("side", []) if r["name"] == "fig08_diffuse"), None)
+    if diff:
+        out.append("<h3>Rough diffuse</h3><ul>" + "".join(f"<li>{x}</li>" for x in _diffuse_advice(diff)) + "</ul>")
+    if ctx.get("micro_summary"):
+        out.append("<h3>Against the physical microgeometry</h3><ul>" +
+                   "".join(f"<li>{x}</li>" for x in ctx["micro_summary"]["advice"]) + "</ul>")
+    else:
+        out.append("<p class=note>The comparison with ray-traced microgeometry (\"matches the physical "
+                   "microgeometry\") runs in the full run only.</p>")
+    return "\n".join(out)
+
+
+def _diffuse_advice(rep):
+    """Fig. 8 has no sweep: each model's mean over the object against the Smith model (mean of heitz and
+    invariance), with the standard error from the seeds."""
+    by = {e["label"]: e for e in rep["energy"]}
+    ref = [by[m] for m in ("heitz", "invariance") if m in by]
+    if not ref:
+        return []
+    import numpy as np
+
+    rv = np.mean([np.mean(e["seeds"]) for e in ref])
+    rse = math.sqrt(sum(np.var(e["seeds"], ddof=1) / len(e["seeds"]) for e in ref)) / len(ref)
+    lines = []
+    for e in rep["energy"]:
+        if e["label"] in ("heitz", "invariance"):
+            continue
+        v = float(np.mean(e["seeds"]))
+        se = math.hypot(float(np.std(e["seeds"], ddof=1) / math.sqrt(len(e["seeds"]))), rse)
+        rel, rel_se = 100 * (v / rv - 1), 100 * se / rv
+        lines.append(f"{e['label']}: mean over the object {_pct(rel, rel_se)} against the Smith model (heitz, "
+                     f"invariance), {uncertainty.sign_word(rel, rel_se)}.")
+    return [f"No converged reference here (side by side only, {rep['spp']} spp): " + " ".join(lines)]
+
+
+def _ranking_section(rep):
+    """Models ranked by bias², with ties."""
+    out = ["<table><tr><th>rank</th><th class=l>model (rows that are one model here)</th><th>bias² ± s.e.</th>"
+           "<th>RMS error of the converged render</th><th class=l>why one entry</th></tr>"]
+    for k, g in enumerate(rep["ranking"], 1):
+        for j, e in enumerate(g):
+            tie = "" if len(g) == 1 else " (tied)"
+            why = html.escape(e["why"]) + (" — <span class=bad>members differ beyond noise: " +
+                                           html.escape(", ".join(e["members_differ"])) + "</span>"
+                                           if e["members_differ"] else "")
+            out.append(f"<tr><td>{k if j == 0 else ''}{tie if j == 0 else ''}</td><td class=l>{html.escape(e['label'])}"
+                       f" <span class=note>({html.escape(', '.join(e['members']))})</span></td><td>{_bias(e)}</td>"
+                       f"<td>{_rms_bias(e['bias2'], e['se'])}</td><td class=l>{why}</td></tr>")
+    out.append("</table>")
+    out.append(f"<p>Ranking: <b>{html.escape(uncertainty.ranking_text(rep['ranking']))}</b> "
+               "(“=”: tied within noise).</p>")
     return "\n".join(out)
 
 
 def _scene_section(rep):
     sc = rep["scene"]
     ref = rep["ref"]
-    sp = rep["speed"]
-    out = [f"<h3>{html.escape(sc.title)}</h3>"]
+    out = [f"<h3 id='{sc.name}'>{html.escape(sc.title)}</h3>"]
     out.append(_img(rep["pngs"]["evt"], f"error against time, {sc.name}"))
     out.append(f'<p class="box">Reference: <b>{row_label(ref["row"])}</b> (Heitz\'s BSDF with the heights integrated '
                f"out; its efficiency 1/(variance × time) in this sweep is {ref['efficiency_vs_heitz']:.2f} × heitz's) "
@@ -90,34 +334,28 @@ def _scene_section(rep):
                f"{' (from the cache)' if ref['cached'] else ''}; its own noise, from two independent halves, "
                f"{_e(ref['noise'])} relative MSE = {ref['noise'] / ref['smallest']:.3f} × the smallest plotted error "
                f"({_e(ref['smallest'])}). Object pixels: {rep['mask_pixels']}.</p>")
-    ratio = sp["ratio"]
-    verdict = ("meets" if ratio <= 0.25 else "misses") if math.isfinite(ratio) else "cannot evaluate"
-    out.append(f'<p class="box">Speed target: heitz reaches relative MSE {_e(sp["target"])} at {sp["spp"]} spp in '
-               f"{_sec(sp['heitz_seconds'])}; {html.escape(sp['best'])} (the faster invariance estimator here) needs "
-               f"{_sec(sp['best_seconds'])} for the same error: "
-               f"<b>{ratio:.2f} × heitz's time</b> (target ≤ 0.25: {verdict}"
-               f"{'' if ratio <= 0.25 or not math.isfinite(ratio) else f', by {ratio / 0.25:.1f}×'}).</p>")
-    if sp.get("single_seconds"):
-        # Where the time goes: `single` costs what the route costs around any BSDF (ray tracing, the plugin's
-        # per-call overhead); what a model adds to it is its own cost.
-        own_h = sp["heitz_seconds"] - sp["single_seconds"]
-        own_i = sp["best_top_seconds"] - sp["single_seconds"]
-        share = own_i / sp["best_top_seconds"] if sp["best_top_seconds"] > 0 else float("nan")
-        own_ratio = sp["best_seconds"] * share / own_h if own_h > 0 else float("nan")
-        out.append(f'<p class="note">Where the time goes at {sp["spp"]} spp: <code>single</code> takes '
-                   f'{_sec(sp["single_seconds"])} in this route ({sp["single_seconds"] / sp["builtin_seconds"]:.1f} × '
-                   f"the built-in), which every model pays; beyond it heitz adds {_sec(own_h)} and {html.escape(sp['best'])} "
-                   f"{_sec(own_i)}. Counting only the models' own cost (the share of each render beyond "
-                   f"<code>single</code>), {html.escape(sp['best'])} would reach heitz's error in {own_ratio:.2f} × "
-                   "heitz's time.</p>")
-    out.append("<table><tr><th class=l>model</th><th>bias²</th><th>variance at top spp</th><th>slope (var vs spp)</th>"
-               "<th>time to 1 %</th><th>time to 0.1 %</th><th>seconds at top spp</th><th>mean over object</th></tr>")
+    out.append("<h4>Closest to the Smith reference</h4>" + _ranking_section(rep))
+    targets = sorted(next(iter(rep["table"]))["times"], reverse=True)
+    out.append("<h4>Every row</h4><table><tr><th class=l>model</th><th>RMS error at top spp</th>"
+               "<th>mean radiance error ± s.e.</th><th class=l></th><th>bias² ± s.e.</th>"
+               "<th>render time per sample ÷ built-in</th>" +
+               "".join(f"<th>time to {x:g} % RMS</th>" for x in targets) +
+               "<th>slope of the variance against spp</th><th>relative MSE at top spp</th></tr>")
     for t in rep["table"]:
-        out.append(f"<tr><td class=l>{t['label']}{' (unbiased)' if t['unbiased'] else ''}</td><td>{_e(t['bias2'])}</td>"
-                   f"<td>{_e(t['top']['variance'])}</td><td>{t['slope']:.2f}</td><td>{_sec(t['t1'])}</td>"
-                   f"<td>{_sec(t['t01'])}</td><td>{t['top']['seconds']:.3f}</td>"
-                   f"<td>{rep['energy'][t['label']]:.4f}</td></tr>")
+        out.append(f"<tr><td class=l>{t['label']}{' (unbiased)' if t['unbiased'] else ''}</td>"
+                   f"<td>{t['top']['rel_rms_pct']:.1f} %</td><td>{_pct(t['mean_error'], t['mean_error_se'], 2)}</td>"
+                   f"<td class=l>{_mean_word(t)}</td><td>{_bias(t)}</td><td>{t['time_ratio']:.2f}</td>" +
+                   "".join(f"<td>{_time_cell(t['times'][x])}</td>" for x in targets) +
+                   f"<td>{t['slope']:.2f}</td><td>{_e(t['top']['rel_mse'])}</td></tr>")
     out.append("</table>")
+    lo = min(t["seconds_range"][0] for t in rep["table"])
+    hi = max(t["seconds_range"][1] for t in rep["table"])
+    out.append(f"<p class=note>Renders of this sweep took {_sec(lo)} to {_sec(hi)} each. Times to a target come "
+               "from the fit error(t) = bias² + c/t of each row's sweep; a time beyond the row's longest measured "
+               "render is marked <span class=warn>extrapolated ×f</span> (f = that time ÷ the longest render). "
+               "“never”: the row's bias floor is above the target. RMS error = √(relative MSE); the mean radiance "
+               "error is that of the seed mean at the top spp over the object's pixels (signed: negative = too "
+               "dark).</p>")
     out.append(_img(rep["pngs"]["crops"], f"equal-time crops, {sc.name}"))
     out.append(_img(rep["pngs"]["models"], f"converged renders per model, {sc.name}"))
     out.append(_img(rep["pngs"]["diff"], f"difference to the built-in, {sc.name}"))
@@ -126,7 +364,7 @@ def _scene_section(rep):
 
 def _side_section(rep):
     out = [f"<h3>{html.escape(rep['title'])}</h3>", "<table><tr><th class=l>model</th><th>mean over the object</th>"
-           f"<th>built-in</th><th>ratio</th><th>± s.e. of the difference</th></tr>"]
+           "<th>built-in</th><th>ratio</th><th>± s.e. of the difference</th></tr>"]
     for e in rep["energy"]:
         out.append(f"<tr><td class=l>{e['label']}</td><td>{e['value']:.4f}</td><td>{e['builtin']:.4f}</td>"
                    f"<td>{e['ratio']:.3f}</td><td>{e['se']:.4f}</td></tr>")
@@ -136,6 +374,12 @@ def _side_section(rep):
     return "\n".join(out)
 
 
+METRIC_WORDS = {"furnace_error": "energy lost or created (furnace |1 − E|)",
+                "rel_std": "noise of one call (std ÷ mean)",
+                "max_weight": "largest single contribution ÷ mean (fireflies)",
+                "nonfinite": "raw NaN, infinite or negative values"}
+
+
 def _fail_table(fails):
     if not fails:
         return "<p>No cell crossed a threshold.</p>"
@@ -143,7 +387,7 @@ def _fail_table(fails):
            "<th>cells</th><th class=l>α range</th><th class=l>θ_i range (°)</th><th>worst</th><th class=l>at (α, θ_i)</th></tr>"]
     for f in sorted(fails, key=lambda f: (f["surface"], f["model"], f["estimator"], f["metric"])):
         label = f["model"] if f["estimator"] == "pt" else f"{f['model']} {f['estimator']}"
-        out.append(f"<tr><td class=l>{label}</td><td class=l>{f['surface']}</td><td class=l>{f['metric']}</td>"
+        out.append(f"<tr><td class=l>{label}</td><td class=l>{f['surface']}</td><td class=l>{METRIC_WORDS.get(f['metric'], f['metric'])}</td>"
                    f"<td>{f['threshold']:g}</td><td>{f['cells']}/{f['of']}</td>"
                    f"<td class=l>{f['alpha_range'][0]:.3g} – {f['alpha_range'][1]:.3g}</td>"
                    f"<td class=l>{f['theta_range'][0]:g} – {f['theta_range'][1]:g}</td><td>{f['worst']:.3g}</td>"
@@ -152,7 +396,79 @@ def _fail_table(fails):
     return "\n".join(out)
 
 
+def _micro_section(ctx):
+    """The two references side by side (summary, chart, orderings), then the microgeometry charts, the long
+    per-configuration table folded."""
+    micro, ms = ctx["micro"], ctx.get("micro_summary") or {}
+    out = ["<h2 id=references>Two references: the Smith model and explicit microgeometry</h2>",
+           "<p class=note>The sweeps above measure each model against the converged <b>Smith</b> multiple-scattering "
+           "reference (GGX, the scenes' materials). Here every model is also measured against rays traced on "
+           "generated <b>Beckmann height fields</b> (docs/microgeometry.md; lossless facets, every α and θ_i of "
+           "the grid): the lobe's L1 distance ∫|f_model − f_traced| cos θ_o dω (fraction of the incident flux), "
+           "averaged over the configurations. Microgeometry ranking rule: a model ranks before another when its "
+           f"L1 is smaller by more than {uncertainty.Z:g} standard errors of the mean per-configuration difference "
+           "(it must be closer consistently), else tied.</p>"]
+    if ms.get("chart"):
+        out.append(_img(ms["chart"], "each model against the two references"))
+    if ms.get("rankings"):
+        out.append("<table><tr><th class=l>surface</th><th class=l>against the Smith reference (bias², this page's "
+                   "sweeps)</th><th class=l>against the traced surfaces (mean lobe L1)</th><th class=l>opposite "
+                   "orderings</th><th class=l>Smith model's own energy error per order</th></tr>")
+        for surface, (smith, mtext) in ms["rankings"].items():
+            st = "<br>".join(f"{html.escape(n)}: {html.escape(t)}" for n, t in smith) or "— (no sweep scene)"
+            dis = ms["disagree"].get(surface) or []
+            dtext = "<br>".join(f"{html.escape(s)}: Smith {html.escape(a)} before {html.escape(b)}, traced the "
+                                "other way" for s, a, b in dis) or "none"
+            oe = ms["order_errors"].get(surface, {})
+            otext = ", ".join(f"{lab}: {v['mean'] * 100:+.1f} % (worst {v['worst'] * 100:.0f} %, mean |z| "
+                              f"{v['z']:.1f})" for lab, v in oe.items()) or "—"
+            out.append(f"<tr><td class=l>{surface}</td><td class=l>{st}</td><td class=l>{html.escape(mtext)}</td>"
+                       f"<td class=l>{dtext}</td><td class=l>{otext}</td></tr>")
+        out.append("</table><p class=note>Why the orderings can differ: the Smith model is itself an approximation "
+                   "of a height field (uncorrelated heights, the Smith shadowing); its own energy error per order "
+                   "against the traced surfaces is the last column (|z| = error ÷ its standard error: above ≈ 3 the "
+                   "difference is real). A model closer to Smith is not closer to the physical surface where Smith's "
+                   "error is of the size of the model's. The sweeps use GGX, the traced surfaces Beckmann.</p>")
+    out.append("<h3>Microgeometry: energy per order</h3>")
+    for c in micro.get("energy_charts", []):
+        out.append(_img(c, Path(c).stem.replace("_", " ")))
+    if micro.get("surface_chart"):
+        out.append(_img(micro["surface_chart"], "generated surfaces against Beckmann"))
+    lobes = [c for c in micro.get("charts", []) if c and Path(c).name.startswith("lobes_")]
+    if lobes:
+        out.append("<p>Lobes per order, one chart per configuration: " + ", ".join(
+            f"<a href='{html.escape(_rel(c))}'>{html.escape(Path(c).stem)}</a>" for c in lobes) + ".</p>")
+    base = Path(micro["csv"]).parent
+    out.append("<details><summary>Every configuration (long table; also "
+               f"<a href='{_rel(base / 'errors.html')}'>errors.html</a>, <a href='{_rel(base / 'errors.csv')}'>"
+               f"errors.csv</a>, <a href='{_rel(base / 'summary.md')}'>summary.md</a>)</summary>" + micro["html"] +
+               "</details>")
+    return "\n".join(out)
+
+
+def _cusp_note(cusp):
+    """What the narrow spike along the normal in correlated's order-3/4+ lobes is, measured by this run."""
+    out, has = [], {}
+    for m, vals in cusp.items():
+        (_, v0, s0), (t1, v1, s1) = vals[0], vals[1]
+        drop, se = v0 - v1, math.hypot(s0, s1)
+        has[m] = drop > uncertainty.Z * se
+        cells = ", ".join(f"{t:g} rad: {v:.4f} ± {s:.4f}" for t, v, s in vals)
+        verdict = (f"falls by {drop:.4f} already at θ_o = {t1:g} rad ({drop / se:.1f} standard errors): a cusp at "
+                   f"ω_o = n, not a smooth peak (which would change by about ({t1:g})² relative)"
+                   if has[m] else f"changes by {drop:+.4f} ± {se:.4f} at θ_o = {t1:g} rad: no measurable cusp")
+        out.append(f"<li><b>{m}</b>: θ_o = {cells} — {verdict}.</li>")
+    end = ""
+    if has.get("correlated") and not has.get("heitz", True):
+        end = ("<p class=note>correlated has a cusp at the normal that the Smith model (heitz) does not: the spike "
+               "in its lobes is a property of the height-correlated model, not noise.</p>")
+    return ("<p class=note>The spike along the normal in correlated's order-3 and 4+ lobes, measured: f·cos θ_o "
+            "at θ_i = 0 (GGX conductor α 0.5, F = 1, 100 000 eval calls per point) near the normal, in the plane "
+            "of incidence:</p><ul class=note>" + "".join(out) + "</ul>" + end)
+
+
 def page(ctx):
+    _OUT[0] = ctx.get("out")
     st = ctx["settings"]
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>msx evaluation</title><style>{CSS}</style>"
              "</head><body>",
@@ -160,8 +476,9 @@ def page(ctx):
              f'<p class="note">Route: {html.escape(ctx["route"])}. Machine: {ctx["machine"]}. Total time of this run: '
              f"{ctx['seconds']:.0f} s. Sweep: {st.size}×{st.size} pixels, spp {st.spps}, {st.seeds} seeds per spp. "
              "Every number and chart on this page was computed by this run; the CSV files beside it hold them "
-             "(<code>results.csv</code>, <code>atlas.csv</code>, <code>energy.csv</code>).</p>"]
-    parts.append(_which_model(ctx["scenes"]))
+             "(<a href='results.csv'>results.csv</a>, <a href='atlas.csv'>atlas.csv</a>, "
+             "<a href='energy.csv'>energy.csv</a>).</p>"]
+    parts.append(_advice(ctx))
     parts.append("<h2>Physics checks of this run</h2><ul>")
     for c in ctx["checks"]:
         cls, state = ("bad", "FAILED") if not c["ok"] else ("warn", "warning") if c.get("warning") else ("ok", "ok")
@@ -173,7 +490,17 @@ def page(ctx):
                  "covered by the object (all channels), R the reference; one line per model × estimator over the spp "
                  "sweep (mean over seeds; seconds = wall time of <code>mi.render</code>). Dashed horizontal lines: the "
                  "bias floors of the approximations. bias² is the seed-mean at the top spp against the reference with "
-                 "both noises subtracted; variance is the spread of one render over seeds.</p>")
+                 "both noises subtracted; variance is the spread of one render over seeds.</p>"
+                 "<p class=box><b>Uncertainty and ranking rule.</b> bias² carries its standard error: every pixel is "
+                 "an independent Monte Carlo estimate whose variance the independent seeds measure, so the standard "
+                 "error is the spread of the per-pixel contributions ÷ √(pixels) (conservative: it also counts how the "
+                 "bias varies over the object). Two models are compared on the same pixels (paired). A model ranks "
+                 f"below another only when its bias² is larger by more than {uncertainty.Z:g} standard errors of the "
+                 "difference (two-sided false alarm ≈ 0.3 % per pair); otherwise they are <b>tied within noise</b>. "
+                 "Rows that are one model at the scene's parameters are one entry: the estimators of a model (PT, "
+                 "BDPT), <code>single</code> and the built-in, heitz and invariance (the reference's model), and "
+                 "<code>auto</code> with <code>correlated</code> where both give identical values at the scene's "
+                 "roughness.</p>")
     for rep in ctx["scenes"]:
         parts.append(_scene_section(rep))
     parts.append("<h2>Side by side</h2>")
@@ -183,7 +510,10 @@ def page(ctx):
                  "η = 1.5 dielectric in importance mode, E integrated from <code>eval</code> with a proposal independent "
                  "of the core), the noise of one <code>eval</code> call at fixed directions, raw non-finite or negative "
                  "values counted by the C ABI before it cleans them (×), the largest single contribution to the "
-                 "furnace estimate relative to its mean (firefly risk) and the time per call.</p>")
+                 "furnace estimate relative to its mean (firefly risk) and the time per call. White dots: cells "
+                 "beyond the threshold of the table below. <code>single</code> and <code>fastmsx</code> do not "
+                 "conserve energy by design: their furnace error is charted (Fast-MSX's signed error separately), "
+                 "not counted as a failure.</p>")
     parts.append("<h3>Where each method fails</h3>" + _fail_table(ctx["fails"]))
     for p in ctx["stability"]:
         parts.append(_img(p, Path(p).stem))
@@ -191,12 +521,12 @@ def page(ctx):
     parts.append("<h2>Lobes</h2><p class='note'>f·cos θ_o in the plane of incidence per scattering order (analytic "
                  "models: their whole value as order 1), with the energy each model reflects (E_r) and transmits "
                  "(E_t).</p>")
+    if ctx.get("cusp"):
+        parts.append(_cusp_note(ctx["cusp"]))
     for p in ctx["lobes"]:
         parts.append(_img(p, Path(p).stem))
     parts.append("<h2>Energy</h2>" + _img(ctx["energy"], "directional albedo against roughness"))
     if ctx.get("micro"):
-        parts.append("<h2>Against explicit microgeometry</h2><p class='note'>Every model against rays traced on "
-                     "generated Beckmann height fields (docs/microgeometry.md): relative energy error per scattering "
-                     "order and L1 of the lobe; charts in <code>microgeometry/</code>.</p>" + ctx["micro"]["html"])
+        parts.append(_micro_section(ctx))
     parts.append("</body></html>")
     return "\n".join(parts)

@@ -1,0 +1,167 @@
+"""The report's ranking rule (msx.evaluation.uncertainty): rows equal within noise come out tied, a real
+difference comes out ranked, and the standard error of bias² matches the spread of independent replicates.
+Pure NumPy: no rendering. Fixed seeds."""
+
+import math
+
+import numpy as np
+import pytest
+
+from msx.evaluation import uncertainty as U
+
+
+def synthetic_renders(rng, reference, bias, sigma, seeds=3):
+    """Independent renders (seeds) of a model whose expectation is reference·(1 + bias), per-pixel noise σ."""
+    return [reference * (1.0 + bias) + rng.normal(0.0, sigma, reference.shape) for _ in range(seeds)]
+
+
+def entry(label, images, reference, mask):
+    t = U.bias2_terms(images, reference, mask)
+    b, se = U.mean_se(t)
+    return dict(label=label, bias2=b, se=se, terms=t)
+
+
+@pytest.fixture
+def scene():
+    rng = np.random.default_rng(1234)
+    reference = rng.uniform(0.2, 1.0, (40, 40, 3))
+    mask = np.zeros((40, 40), dtype=bool)
+    mask[5:35, 5:35] = True
+    return rng, reference, mask
+
+
+def test_same_model_twice_is_tied(scene):
+    """Two rows of the same model (independent seeds, as the sweep renders two estimators of one model):
+    their bias² differ by noise only and must come out in one group, whichever seed."""
+    rng, ref, mask = scene
+    for _ in range(20):
+        a = entry("correlated", synthetic_renders(rng, ref, 0.03, 0.05), ref, mask)
+        b = entry("auto", synthetic_renders(rng, ref, 0.03, 0.05), ref, mask)
+        assert a["bias2"] != b["bias2"]  # the numbers differ...
+        groups = U.rank([a, b])
+        assert len(groups) == 1, U.ranking_text(groups)  # ...but not beyond the noise
+        assert " = " in U.ranking_text(groups)
+
+
+def test_numbers_equal_within_noise_are_tied_without_terms():
+    """The rule on (bias², se) alone: a difference of 1 combined standard error is a tie, 5 is a ranking."""
+    a = dict(label="a", bias2=1.0e-3, se=1.0e-4)
+    b = dict(label="b", bias2=1.0e-3 + math.hypot(1e-4, 1e-4), se=1.0e-4)
+    c = dict(label="c", bias2=1.0e-3 + 5 * math.hypot(1e-4, 1e-4), se=1.0e-4)
+    assert [[e["label"] for e in g] for g in U.rank([b, a])] == [["a", "b"]]
+    assert [[e["label"] for e in g] for g in U.rank([c, a])] == [["a"], ["c"]]
+    assert U.ranking_text(U.rank([c, b, a])) == "a = b < c"
+
+
+def test_real_difference_is_ranked(scene):
+    """A model 1 % too bright against one 4 % too bright (noise as above): ranked, the closer one first."""
+    rng, ref, mask = scene
+    for _ in range(20):
+        good = entry("uncorrelated", synthetic_renders(rng, ref, 0.01, 0.05), ref, mask)
+        bad = entry("compensated", synthetic_renders(rng, ref, 0.04, 0.05), ref, mask)
+        groups = U.rank([bad, good])
+        assert [[e["label"] for e in g] for g in groups] == [["uncorrelated"], ["compensated"]]
+
+
+def test_bias2_standard_error_matches_replicates(scene):
+    """Unbiased model (bias² = 0): the mean of the bias² estimates over replicates is 0 within their
+    standard error, and the reported standard error equals the replicates' spread within the sampling error
+    of a standard deviation from R replicates (3σ)."""
+    rng, ref, mask = scene
+    R = 400
+    est, ses = [], []
+    for _ in range(R):
+        t = U.bias2_terms(synthetic_renders(rng, ref, 0.0, 0.05), ref, mask)
+        b, se = U.mean_se(t)
+        est.append(b)
+        ses.append(se)
+    est = np.array(est)
+    spread = est.std(ddof=1)
+    assert abs(est.mean()) <= 3 * spread / math.sqrt(R)
+    # sd of a sample standard deviation ≈ σ / √(2(R − 1)); the mean reported se is much less noisy.
+    assert abs(np.mean(ses) - spread) <= 3 * spread / math.sqrt(2 * (R - 1)) + 3 * np.std(ses) / math.sqrt(R)
+
+
+def test_mean_error_sign():
+    rng = np.random.default_rng(7)
+    ref = rng.uniform(0.2, 1.0, (30, 30, 3))
+    mask = np.ones((30, 30), dtype=bool)
+    dark = U.mean_se(U.mean_terms(synthetic_renders(rng, ref, -0.06, 0.02), ref, mask))
+    assert abs(dark[0] + 0.06) <= 4 * dark[1]
+    assert U.sign_word(*dark) == "too dark"
+    same = U.mean_se(U.mean_terms(synthetic_renders(rng, ref, 0.0, 0.02), ref, mask))
+    assert U.sign_word(*same) == "within noise"
+
+
+def test_time_in_range():
+    assert U.time_in_range(2.0, [0.5, 1.0, 4.0]) == (2.0, 1.0)
+    t, f = U.time_in_range(40.0, [0.5, 1.0, 4.0])
+    assert t == 40.0 and f == pytest.approx(10.0)
+
+
+def micro_rows(l1_by_model, noise=0.01):
+    """Rows like microgeometry.compare's: one per (configuration, model) with its lobe L1."""
+    rows = []
+    for model, values in l1_by_model.items():
+        for k, v in enumerate(values):
+            rows.append(dict(surface="conductor", alpha="0.5", theta_i=0.1 * k, model=model, L1=v, L1_noise=noise))
+    return rows
+
+
+def test_microgeometry_ranking_ties_and_ranks():
+    """Against the traced surfaces: heitz and invariance are one entry (the Smith model); a model closer on
+    every configuration by a constant margin ranks first; a model that is closer on some configurations and
+    farther on others by the same amount is tied."""
+    from msx.evaluation import two_references as R
+
+    rng = np.random.default_rng(3)
+    base = rng.uniform(0.04, 0.06, 16)
+    jitter = rng.normal(0.0, 0.002, 16)
+    rows = micro_rows({"heitz": base, "invariance": base + 1e-4, "uncorrelated": base + 0.01,
+                       "correlated": base + jitter})
+    groups = R.micro_ranking(rows, "conductor")
+    labels = [[e["label"] for e in g] for g in groups]
+    assert labels[-1] == ["uncorrelated"]  # 0.01 worse on every configuration: ranked last
+    assert sorted(labels[0]) == sorted(["Smith model (heitz, invariance)", "correlated"])  # tied: noise only
+    assert sum(len(g) for g in labels) == 3  # heitz and invariance reported once
+
+
+@pytest.mark.parametrize("alpha, same", [(1.0, True), (0.01, False)])
+def test_auto_is_correlated_only_where_its_rule_keeps_the_walk(tmp_path, alpha, same):
+    """The report groups `auto` with `correlated` only where the two give identical values at the scene's
+    material (core calls, no rendering): at α = 1 auto never drops the walk, at α = 0.01 it does."""
+    from msx import compare
+    from msx.evaluation.common import CONDUCTOR_ROWS
+    from msx.evaluation.renders import SweepScene
+
+    (tmp_path / "s.xml").write_text(f'<scene version="3.0.0"><default name="alpha" value="{alpha}"/>'
+                                    '<default name="distribution" value="ggx"/></scene>')
+    scene = SweepScene("s", "test", "conductor", "roughconductor", CONDUCTOR_ROWS, "direct")
+    assert compare._same_model_here(scene, tmp_path, "auto", "correlated") is same
+    # The grouping: one entry per model here, auto inside correlated's entry exactly when identical.
+    rng = np.random.default_rng(5)
+    table = []
+    for row in CONDUCTOR_ROWS:
+        t = rng.normal(0.01, 0.001, 200)
+        label = "built-in" if row[0] == "builtin" else row[0] if row[1] == "pt" else f"{row[0]} {row[1]}"
+        table.append(dict(row=row, label=label, bias2=float(t.mean()), bias2_se=float(t.std() / math.sqrt(200)),
+                          terms=t, unbiased=row[0] in ("heitz", "invariance")))
+    groups = compare._model_groups(scene, table, tmp_path)
+    labels = [g["label"] for g in groups]
+    assert ("correlated = auto" in labels) is same and ("auto" in labels) is not same
+    assert "single = built-in" in labels and sum("Smith" in x for x in labels) == 1
+    rows = [r for g in groups for r in g["rows"]]
+    assert sorted(rows) == sorted(CONDUCTOR_ROWS)  # every row exactly once
+
+
+def test_same_computation_up_to_float_rounding_is_tied(scene):
+    """single and the built-in render the same samples: their images differ by float32 rounding only, the
+    paired standard error is then ~0, and rounding must not read as a ranking (nor as members that differ)."""
+    rng, ref, mask = scene
+    imgs = synthetic_renders(rng, ref, -0.5, 0.05)
+    a = entry("built-in", imgs, ref, mask)
+    b = entry("single", [np.float32(i).astype(np.float64) * (1 + 1e-7) for i in imgs], ref, mask)
+    assert a["bias2"] != b["bias2"] and U.diff_se(a, b) < 1e-6 * a["bias2"]
+    assert len(U.rank([a, b])) == 1 and not U.differ(a, b)
+    c = entry("uncorrelated", synthetic_renders(rng, ref, -0.45, 0.05), ref, mask)
+    assert U.differ(a, c)

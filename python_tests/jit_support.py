@@ -2,6 +2,7 @@
 directly, and the z-test of two means with their noise (docs/testing.md, "The Dr.Jit engine against the core").
 Import after ``mi.set_variant('llvm_ad_rgb')`` has been possible (the modules skip themselves otherwise)."""
 
+import contextlib
 import math
 
 import drjit as dr
@@ -41,3 +42,16 @@ def z_check(label, a, b, z_max):
     print("%s: engine %s core %s z %s" % (label, np.round(ma, 5), np.round(mb, 5), np.round(z, 2)))
     assert np.all(np.isfinite(ma)) and np.all(np.isfinite(mb)), label
     assert np.all(np.abs(z) <= z_max), "%s: |z| %s > %.2f" % (label, np.abs(z).max(), z_max)
+
+
+@contextlib.contextmanager
+def engine_mode():
+    """The Dr.Jit engine in llvm_ad_rgb (``msx.register(backend="jit")``) with drjit's default symbolic loops
+    and calls, for a test module's duration (llvm_support.drjit_default_mode says why)."""
+    import msx
+    from llvm_support import drjit_default_mode
+
+    mi.set_variant("llvm_ad_rgb")
+    msx.register(backend="jit")
+    with drjit_default_mode():
+        yield

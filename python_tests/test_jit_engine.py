@@ -23,7 +23,7 @@ import textwrap
 
 import pytest
 
-from llvm_support import drjit_default_mode, llvm_unusable_reason  # noqa: E402  (sets DRJIT_LIBLLVM_PATH before drjit starts)
+from llvm_support import llvm_unusable_reason  # noqa: E402  (sets DRJIT_LIBLLVM_PATH before drjit starts)
 
 np = pytest.importorskip("numpy")
 mi = pytest.importorskip("mitsuba")
@@ -58,9 +58,7 @@ Z_MAX = statistics.NormalDist().inv_cdf(1 - (1 - (1 - FAMILY_RATE) ** (1 / COMPA
 
 @pytest.fixture(scope="module", autouse=True)
 def llvm():
-    mi.set_variant("llvm_ad_rgb")
-    msx.register(backend="jit")
-    with drjit_default_mode():
+    with jit_support.engine_mode():
         yield
 
 

@@ -22,7 +22,7 @@ from statistics import NormalDist
 
 import pytest
 
-from llvm_support import drjit_default_mode, llvm_unusable_reason  # noqa: E402  (sets DRJIT_LIBLLVM_PATH first)
+from llvm_support import llvm_unusable_reason  # noqa: E402  (sets DRJIT_LIBLLVM_PATH first)
 
 np = pytest.importorskip("numpy")
 mi = pytest.importorskip("mitsuba")
@@ -32,7 +32,7 @@ _REASON = llvm_unusable_reason()
 if _REASON:
     pytest.skip(_REASON, allow_module_level=True)
 
-import msx  # noqa: E402
+import jit_support  # noqa: E402
 
 LANES = 512
 # float32 evaluations of f carry a relative rounding error of a few hundred ulps at most through these
@@ -50,9 +50,7 @@ Z_MAX = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / RENDER_CHECKS))
 
 @pytest.fixture(scope="module", autouse=True)
 def llvm():
-    mi.set_variant("llvm_ad_rgb")
-    msx.register(backend="jit")
-    with drjit_default_mode():
+    with jit_support.engine_mode():
         yield
 
 

@@ -99,10 +99,11 @@ def engine_support(cfg):
                ", and %s with 'bdpt'" % ", ".join(bdpt) if bdpt else "", ALTERNATIVES))
 
 
-# The models whose gradients the engine computes: closed forms, differentiated by drjit's AD as they are.
-# A random walk's value is an estimate whose derivative drjit's AD does not give without bias (its random
-# decisions depend on the parameters), and Mitsuba's prb divides by weight·pdf, which for a walk is not the
-# BSDF (docs/gradients.md); such a model refuses to be differentiated rather than return a wrong gradient.
+# The models whose gradients the engine computes: the closed forms, differentiated by drjit's AD as they
+# are, and the conductor walks whose eval draws its directions detached (``ConductorWalk.differentiable``,
+# jit/gradients.py). AD of any other walk as written is biased (its random decisions depend on the
+# parameters; docs/gradients.md): such a model refuses to be differentiated rather than return a wrong
+# gradient.
 DIFFERENTIABLE_MODELS = {"conductor": tuple(CONDUCTOR_ANALYTIC), "dielectric": tuple(DIELECTRIC_ANALYTIC),
                          "diffuse": ()}
 

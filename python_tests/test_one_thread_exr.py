@@ -35,4 +35,6 @@ def test_assets_are_written_with_one_thread(tmp_path):
             "print('ok')\n")
     r = run(["-c", code])
     assert r.returncode == 0 and "ok" in r.stdout, r.stderr[-2000:]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["blob.ply", "normalmap.exr", "sky.exr"]
+    assets = ["blob.ply", "normalmap.exr", "sky.exr"]
+    # Each asset with its checksum record beside it (msx/_cache.py), nothing else.
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(assets + [f".{a}.msx" for a in assets])

@@ -97,7 +97,7 @@ def main(argv=None):
     import msx
 
     msx.register()
-    settings = (dict(size=32, target_spp=1024, spp=8, iterations=100, lr=0.03) if args.quick else
+    settings = (dict(size=32, target_spp=2048, spp=16, iterations=100, lr=0.03) if args.quick else
                 dict(size=64, target_spp=4096, spp=16, iterations=200, lr=0.03))
     os.makedirs(args.out, exist_ok=True)
 

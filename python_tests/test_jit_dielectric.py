@@ -27,7 +27,7 @@ import statistics
 
 import pytest
 
-from llvm_support import drjit_default_mode, llvm_unusable_reason  # noqa: E402  (sets DRJIT_LIBLLVM_PATH before drjit starts)
+from llvm_support import llvm_unusable_reason  # noqa: E402  (sets DRJIT_LIBLLVM_PATH before drjit starts)
 
 np = pytest.importorskip("numpy")
 mi = pytest.importorskip("mitsuba")
@@ -37,7 +37,6 @@ _REASON = llvm_unusable_reason()
 if _REASON:
     pytest.skip(_REASON, allow_module_level=True)
 
-import msx  # noqa: E402
 import jit_support  # noqa: E402
 from jit_support import lanes_si  # noqa: E402
 from msx.core import CoreBsdf  # noqa: E402
@@ -84,9 +83,7 @@ Z_MAX = statistics.NormalDist().inv_cdf(1 - (1 - (1 - FAMILY_RATE) ** (1 / COMPA
 
 @pytest.fixture(scope="module", autouse=True)
 def llvm():
-    mi.set_variant("llvm_ad_rgb")
-    msx.register(backend="jit")  # not whatever route an earlier module registered (auto keeps it)
-    with drjit_default_mode():
+    with jit_support.engine_mode():  # backend="jit", not whatever route an earlier module registered
         yield
 
 

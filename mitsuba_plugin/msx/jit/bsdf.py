@@ -10,6 +10,8 @@ The methods are traced: Mitsuba calls them once per kernel with symbolic arrays,
 become loops inside the integrator's kernel. Nothing here changes drjit's flags.
 """
 
+import math
+
 import drjit as dr
 import mitsuba as mi
 
@@ -307,6 +309,9 @@ def make_bsdf_factory(variant):
                 problem = engine_support(self._cfg)
                 if problem is not None:
                     raise MsxParameterError(problem)
+                if dielectric:
+                    # The relative IOR as a parameter, as roughdielectric's ``eta`` (traverse below).
+                    self._ior = mi.Float(self._cfg.ior)
                 self._model = MODELS_BY_SURFACE[kind](self._cfg)
                 self._gradient_problem = gradient_problem(self._cfg)
                 self._differentiable_walk = differentiable_walk(self._cfg)
@@ -315,8 +320,15 @@ def make_bsdf_factory(variant):
             def _config(self, props):
                 return vectorized_config(mi, props)
 
+            def traverse(self, cb):
+                super().traverse(cb)
+                if dielectric:
+                    cb.put("eta", self._ior, mi.ParamFlags.Differentiable | mi.ParamFlags.Discontinuous)
+
             def _refresh(self):
                 self._set_flags()
+                if dielectric:
+                    self._refresh_ior()
                 # A differentiable walk samples its proposal while any parameter carries gradients (set
                 # here, by the parameter update, so that prb's primal and adjoint passes sample alike).
                 self._traced = self._differentiable_walk is not None and any(
@@ -336,6 +348,15 @@ def make_bsdf_factory(variant):
                         clip = (lambda v: dr.clip(v, 0.0, MATERIAL_VALUE_MAX))
                         self._fresnel_average = analytic.fresnel_average(ConductorFresnel(clip(eta), clip(k)))
                         dr.eval(self._fresnel_average)
+
+            def _refresh_ior(self):
+                """A new ``eta``: ``auto``'s rules depend on it (one per side), so the model is rebuilt. A value
+                the calls refuse (not finite, index-matched) keeps the old model: every call is unusable then."""
+                ior = float(dr.ravel(dr.detach(self._ior))[0]) if dr.width(self._ior) > 0 else float("nan")
+                if ior == self._cfg.ior or not (math.isfinite(ior) and abs(ior - 1.0) > INDEX_MATCHED):
+                    return
+                self._cfg.ior = min(max(ior, 1.0 / MATERIAL_VALUE_MAX), MATERIAL_VALUE_MAX)
+                self._model = MODELS_BY_SURFACE[kind](self._cfg)
 
             # ----------------------------------------------------- the call
 
@@ -363,8 +384,9 @@ def make_bsdf_factory(variant):
                 elif dielectric:
                     call.tint_r, ok_r = self._spectrum(self._specular_reflectance, si, active)
                     call.tint_t, ok_t = self._spectrum(self._specular_transmittance, si, active)
-                    usable &= ok_r & ok_t & (abs(self._cfg.ior - 1.0) > INDEX_MATCHED)
-                    call.eta = mi.Float(min(max(self._cfg.ior, 1.0 / MATERIAL_VALUE_MAX), MATERIAL_VALUE_MAX))
+                    ior = self._ior
+                    usable &= ok_r & ok_t & dr.isfinite(ior) & (dr.abs(ior - 1.0) > INDEX_MATCHED)
+                    call.eta = dr.clip(ior, 1.0 / MATERIAL_VALUE_MAX, MATERIAL_VALUE_MAX)
                     call.radiance = ctx.mode == mi.TransportMode.Radiance
                 else:
                     call.albedo, ok = self._spectrum(self._reflectance, si, active)
@@ -372,7 +394,7 @@ def make_bsdf_factory(variant):
                 call.usable = usable
                 if self._gradient_problem is not None:
                     values = (au, av, call.fresnel and call.fresnel.eta, call.fresnel and call.fresnel.k, call.tint_r,
-                              call.tint_t, call.albedo)
+                              call.tint_t, call.albedo, call.eta)
                     if any(v is not None and dr.grad_enabled(v) for v in values):
                         raise MsxParameterError(self._gradient_problem)
                 return call

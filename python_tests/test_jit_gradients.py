@@ -9,7 +9,7 @@
 - Rendered with Mitsuba's ``prb``: the derivative of the image mean by forward and by reverse mode equals
   the central difference of renders at the same seeds, within the noise of the paired per-seed differences
   (a z-test; the Šidák threshold of a family-wise false-alarm rate of 1e-3 over this file's render checks).
-- The walks ``uncorrelated``, ``correlated`` and ``invariance``: their derivative per call, through a symbolic
+- The walks ``uncorrelated``, ``correlated``, ``heitz`` and ``invariance``: their derivative per call, through a symbolic
   call as in a render, forward and reverse, against central differences of the mean estimate (a z-test),
   and rendered as above (including BSDF-sampled paths: the walk samples its proposal while differentiated).
 - The other walks refuse to be differentiated (one line naming the differentiable models) instead of
@@ -44,7 +44,7 @@ EPS32 = 2.0 ** -24
 # far below 1e-3 of the derivative for smooth f; allowed 1e-3 (a factor 2 or a sign is 1 or 2).
 TRUNCATION = 1e-3
 SEEDS = 12  # render checks: paired per-seed differences
-RENDER_CHECKS = 2 * 2 * 8  # forward and reverse × two losses × the rendered cases below
+RENDER_CHECKS = 2 * 2 * 9  # forward and reverse × two losses × the rendered cases below
 Z_MAX = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / RENDER_CHECKS)) / 2.0)
 
 
@@ -238,6 +238,7 @@ RENDERED = [
      "ball.bsdf.alpha.value"),
     ("invariance", {"type": "msx_posfree", "material": "Cu", "model": "invariance", "alpha": 0.7},
      "ball.bsdf.alpha.value"),
+    ("heitz", {"type": "msx_posfree", "material": "Cu", "model": "heitz", "alpha": 0.8}, "ball.bsdf.alpha.value"),
 ]
 
 
@@ -365,8 +366,7 @@ def test_eta_updates_like_roughdielectric():
         assert np.all(v == 0.0), f"eta = {bad}: {v[v != 0.0][:4]}"
 
 
-@pytest.mark.parametrize("model, surface, key", [("heitz", "conductor", "alpha.value"),
-                                                  ("auto", "conductor", "alpha.value"),
+@pytest.mark.parametrize("model, surface, key", [("auto", "conductor", "alpha.value"),
                                                   ("correlated", "dielectric", "eta")])
 def test_other_walks_refuse_gradients_in_one_line(model, surface, key):
     material = {"material": "Cu"} if surface == "conductor" else {"surface": surface}
@@ -384,7 +384,7 @@ def test_other_walks_refuse_gradients_in_one_line(model, surface, key):
         err = err.__cause__ or err.__context__
     text = "\n".join(chain)
     assert f"model='{model}' on surface '{surface}' is not differentiable" in text, text[-2000:]
-    assert "single, fastmsx, compensated, uncorrelated, correlated, invariance (conductor)" in text
+    assert "single, fastmsx, compensated, uncorrelated, correlated, heitz, invariance (conductor)" in text
     # Without gradients the same scene renders.
     dr.disable_grad(p[key])
     p.update()
@@ -395,11 +395,11 @@ def test_other_walks_refuse_gradients_in_one_line(model, surface, key):
 # ------------------------------------------------------------------ the position-free walks, per call
 
 WALK_LANES = 1 << 20
-WALK_CHECKS = 3 * 2 * 3  # three models × two parameters × three channels
+WALK_CHECKS = 4 * 2 * 3  # four models × two parameters × three channels
 Z_WALK = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / WALK_CHECKS)) / 2.0)
 
 
-@pytest.mark.parametrize("model", ["correlated", "uncorrelated", "invariance"])
+@pytest.mark.parametrize("model", ["correlated", "uncorrelated", "heitz", "invariance"])
 def test_walks_differentiate_without_bias(model):
     """The walk's derivative (detached directions, density ratios, detached roulette: docs/gradients.md)
     through a symbolic call, forward and reverse, against central differences of the mean estimate over

@@ -37,7 +37,7 @@ import mitsuba as mi
 
 from . import mis, walk
 from .dielectric import eta_seen, radiance_scale
-from .microfacet import INV_PI, dot, reflect
+from .microfacet import INV_PI, ConductorFresnel, Microfacet, dot, reflect
 from .model import ConductorWalk, DielectricWalk, DiffuseWalk
 from .rng import Stream
 
@@ -219,39 +219,82 @@ def clean_uniform(u):
 # ------------------------------------------------------------------ the walks
 
 
-def eval(mf, fresnel, wi, wo, max_bounces, key):
+def height_step_ratio(mfa, mfs, w, t, tn):
+    """The density of the height step t → ``tn`` along ``w`` under the attached statistics ``mfa`` over its
+    density under the detached ``mfs`` it was drawn from (``sample_height_hit`` before its conditioning on a
+    hit): Λ e^{−Λ|t' − t|} with |Λ| of the direction, so the ratio is (Λ_a/Λ_s)·e^{−(Λ_a − Λ_s)|t' − t|} —
+    value 1, derivative the score. 1 where a density is not finite (a horizontal ray: no step is drawn)."""
+    up = w[2] > 0.0
+    lam_a = dr.select(up, mfa.lambda_(w), mfa.abs_lambda(w))
+    lam_s = dr.select(up, mfs.lambda_(w), mfs.abs_lambda(w))
+    r = (lam_a / lam_s) * dr.exp(-(lam_a - lam_s) * dr.abs(tn - t))
+    ok = (lam_s > 0.0) & dr.isfinite(lam_s) & dr.isfinite(r)
+    return dr.select(ok, r, 1.0)
+
+
+def visible_ratio(mfa, mfs, w, m):
+    """D_ω(m) under ``mfa`` over D_ω(m) under ``mfs`` (m drawn from the latter): value 1, derivative the
+    score; 1 where the drawn normal has no finite positive density."""
+    ds = mfs.d_visible(w, m)
+    ok = (ds > 0.0) & dr.isfinite(ds)
+    return dr.select(ok, mfa.d_visible(w, m) / dr.select(ok, ds, 1.0), 1.0)
+
+
+def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None):
     """One unbiased estimate of f(ω_i, ω_o)·cos θ_o, orders 1..max_bounces (Rust ``eval`` with
     ``eval_from``): the walk enters from ω_i at t = 0; at each vertex the height step is conditioned on
     hitting (the throughput carries P_hit), the path is closed towards ω_o (F · phase · G1(ω_o, h)), then
-    the walk reflects about a visible normal and plays Russian roulette."""
+    the walk reflects about a visible normal and plays Russian roulette.
+
+    ``mf_sample`` (docs/gradients.md): the statistics with their derivatives detached. The heights and the
+    visible normals are then drawn from them, and each draw's throughput carries the ratio of its density
+    under ``mf`` to its density under ``mf_sample`` (value 1, derivative the score); the roulette is
+    detached (``walk.russian_roulette_keep``). The estimate's derivative is then an unbiased estimate of
+    the derivative of f. The differentiated values travel in the loop's state."""
     last = max_bounces  # a Python int, or a UInt32 per lane (model 'auto' style caps)
     lambda_o = mf.lambda_(wo)
     start = valid_incidence(wi) & valid_incidence(wo) & (last > 0)
+    traced = mf_sample is not None
 
-    def body(order, wr, t, thr, result, active, counter):
+    def body(order, wr, t, thr, result, active, counter, *piped):
+        mfa, mfs, fr, lo = mf, mf, fresnel, lambda_o
+        if traced:  # drjit rejects implicit differentiable reads of wide variables inside the loop
+            au, av, lo = piped[:3]
+            mfa = Microfacet(mf.dist, au, av)
+            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
+            if not fresnel.mirror:
+                fr = ConductorFresnel(piped[3], piped[4])
         rng = Stream(key, counter)
         u_h, u_rr = rng.next2()
-        tn, p_hit = sample_height_hit(mf, wr, t, u_h)
+        tn, p_hit = sample_height_hit(mfs, wr, t, u_h)
         active &= p_hit > 0.0
-        t = tn
         thr = thr * p_hit
+        if traced:
+            thr = thr * height_step_ratio(mfa, mfs, wr, t, tn)
+        t = tn
         wi_l = -wr
         # Next-event estimation towards ω_o: F · phase · G1(ω_o, h).
-        p, c, ok = conductor_phase(mf, wi_l, wo)
-        contrib = fresnel.eval(c) * (p * masking_at(lambda_o, t))
+        p, c, ok = conductor_phase(mfa, wi_l, wo)
+        contrib = fr.eval(c) * (p * masking_at(lo, t))
         result = dr.select(active & ok, result + thr * contrib, result)
         active &= order < last
         # Continue: reflect about a visible normal of wi_l, then the roulette.
         u1, u2 = rng.next2()
-        m, cos_wm, valid = visible_normal(mf, wi_l, u1, u2)
-        thr = thr * fresnel.eval(cos_wm)
+        m, cos_wm, valid = visible_normal(mfs, wi_l, u1, u2)
+        thr = thr * fr.eval(cos_wm)
+        if traced:
+            thr = thr * visible_ratio(mfa, mfs, wi_l, m)
         wr = dr.normalize(reflect(wi_l, m))
         thr, survived = walk.russian_roulette_keep(thr, u_rr, 1.0)
         active &= valid & survived & dr.all(dr.isfinite(wr))
-        return order + 1, wr, t, thr, result, active, rng.counter
+        return (order + 1, wr, t, thr, result, active, rng.counter) + piped
 
     state = (mi.UInt32(1), -mi.Vector3f(wi), mi.Float(0.0), mi.Spectrum(1.0), dr.zeros(mi.Spectrum),
              mi.Bool(start), mi.UInt32(0))
+    if traced:
+        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o))
+        if not fresnel.mirror:
+            state += (mi.Spectrum(fresnel.eta), mi.Spectrum(fresnel.k))
     state = dr.while_loop(state, lambda *s: s[5], body, label="msx_heitz_conductor_eval")
     return state[4]
 
@@ -492,7 +535,7 @@ def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
 
 # The conductor walk this module provides (jit/bsdf.py collects it): height-correlated order-1 exit in
 # the MIS density, and no walk from below the macro surface.
-CONDUCTOR_WALKS = {"heitz": ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, below=False)}
+CONDUCTOR_WALKS = {"heitz": ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, below=False, differentiable=True)}
 
 # The walks on the other microsurfaces (jit/bsdf.py collects them; their MIS densities are
 # ``mis.dielectric_pdf`` and ``mis.diffuse_pdf``).

@@ -44,7 +44,7 @@ EPS32 = 2.0 ** -24
 # far below 1e-3 of the derivative for smooth f; allowed 1e-3 (a factor 2 or a sign is 1 or 2).
 TRUNCATION = 1e-3
 SEEDS = 12  # render checks: paired per-seed differences
-RENDER_CHECKS = 2 * 2 * 9  # forward and reverse × two losses × the rendered cases below
+RENDER_CHECKS = 2 * 2 * 11  # forward and reverse × two losses × the rendered cases below
 Z_MAX = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / RENDER_CHECKS)) / 2.0)
 
 
@@ -239,6 +239,11 @@ RENDERED = [
     ("invariance", {"type": "msx_posfree", "material": "Cu", "model": "invariance", "alpha": 0.7},
      "ball.bsdf.alpha.value"),
     ("heitz", {"type": "msx_posfree", "material": "Cu", "model": "heitz", "alpha": 0.8}, "ball.bsdf.alpha.value"),
+    ("diffuse correlated", {"type": "msx_posfree", "surface": "diffuse", "model": "correlated", "alpha": 0.8,
+                            "reflectance": {"type": "rgb", "value": [0.8, 0.6, 0.4]}}, "ball.bsdf.alpha.value"),
+    ("diffuse heitz reflectance", {"type": "msx_posfree", "surface": "diffuse", "model": "heitz", "alpha": 0.6,
+                                   "reflectance": {"type": "rgb", "value": [0.9, 0.6, 0.2]}},
+     "ball.bsdf.reflectance.value"),
 ]
 
 
@@ -395,18 +400,24 @@ def test_other_walks_refuse_gradients_in_one_line(model, surface, key):
 # ------------------------------------------------------------------ the position-free walks, per call
 
 WALK_LANES = 1 << 20
-WALK_CHECKS = 4 * 2 * 3  # four models × two parameters × three channels
+WALK_CHECKS = 7 * 2 * 3  # seven walks × two parameters × three channels
 Z_WALK = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / WALK_CHECKS)) / 2.0)
 
 
-@pytest.mark.parametrize("model", ["correlated", "uncorrelated", "heitz", "invariance"])
-def test_walks_differentiate_without_bias(model):
+WALKS = [("correlated", "conductor"), ("uncorrelated", "conductor"), ("heitz", "conductor"),
+         ("invariance", "conductor"), ("correlated", "diffuse"), ("uncorrelated", "diffuse"), ("heitz", "diffuse")]
+DIFFUSE_ALBEDO = {"type": "rgb", "value": [0.8, 0.6, 0.4]}
+
+
+@pytest.mark.parametrize("model, surface", WALKS, ids=["%s %s" % w for w in WALKS])
+def test_walks_differentiate_without_bias(model, surface):
     """The walk's derivative (detached directions, density ratios, detached roulette: docs/gradients.md)
     through a symbolic call, forward and reverse, against central differences of the mean estimate over
     2²⁰ lanes at one (ω_i, ω_o): z-test on the two means (the differences are noisy: the walk at α ± h
     draws other paths)."""
-    b = mi.load_dict({"type": "msx_posfree", "material": "Cu", "model": model, "distribution": "ggx",
-                      "alpha": 0.5})
+    material = {"material": "Cu"} if surface == "conductor" else {"surface": "diffuse",
+                                                                   "reflectance": DIFFUSE_ALBEDO}
+    b = mi.load_dict({"type": "msx_posfree", **material, "model": model, "distribution": "ggx", "alpha": 0.5})
     p = mi.traverse(b)
     n = WALK_LANES
     si = dr.zeros(mi.SurfaceInteraction3f, n)
@@ -415,7 +426,8 @@ def test_walks_differentiate_without_bias(model):
     wo = dr.normalize(mi.Vector3f(-0.5, 0.4, 0.77))
     ptr = dr.gather(mi.BSDFPtr, mi.BSDFPtr(b), dr.zeros(mi.UInt32, n))  # as a render calls it
     ctx = mi.BSDFContext()
-    for key, h, v in (("alpha.value", 0.02, None), ("eta.value", 0.02, (1.0, 0.5, -0.7))):
+    colour = "eta.value" if surface == "conductor" else "reflectance.value"
+    for key, h, v in (("alpha.value", 0.02, None), (colour, 0.02, (1.0, 0.5, -0.7))):
         x0 = type(p[key])(p[key])
         direction = type(x0)(*v) if v else type(x0)(1.0)
 
@@ -446,7 +458,7 @@ def test_walks_differentiate_without_bias(model):
         for c in range(3):
             se = math.hypot(fd[c].std(ddof=1), fwd[c].std(ddof=1)) / math.sqrt(n)
             z = (fwd[c].mean() - fd[c].mean()) / se
-            print(f"{model} {key} channel {c}: AD {fwd[c].mean():.5f}, FD {fd[c].mean():.5f} ± "
+            print(f"{model} {surface} {key} channel {c}: AD {fwd[c].mean():.5f}, FD {fd[c].mean():.5f} ± "
                   f"{fd[c].std(ddof=1) / math.sqrt(n):.5f}, z {z:+.2f}")
             assert abs(z) <= Z_WALK, f"{model} {key} channel {c}: AD {fwd[c].mean()} vs FD {fd[c].mean()}"
             assert abs(fd[c].mean()) > 5 * fd[c].std(ddof=1) / math.sqrt(n), "the derivative is lost in noise"

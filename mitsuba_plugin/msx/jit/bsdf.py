@@ -102,27 +102,29 @@ def engine_support(cfg):
 
 
 # The models whose gradients the engine computes: the closed forms, differentiated by drjit's AD as they
-# are, and the conductor walks whose eval draws its directions detached (``ConductorWalk.differentiable``,
+# are, and the conductor and diffuse walks whose eval draws its directions detached (``differentiable``,
 # jit/gradients.py). AD of any other walk as written is biased (its random decisions depend on the
 # parameters; docs/gradients.md): such a model refuses to be differentiated rather than return a wrong
 # gradient.
-DIFFERENTIABLE_MODELS = {"conductor": tuple(CONDUCTOR_ANALYTIC), "dielectric": tuple(DIELECTRIC_ANALYTIC),
-                         "diffuse": ()}
+DIFFERENTIABLE_WALK_TABLES = {"conductor": CONDUCTOR_WALKS, "diffuse": DIFFUSE_WALKS}
+DIFFERENTIABLE_MODELS = {
+    "conductor": tuple(CONDUCTOR_ANALYTIC) + tuple(n for n, w in CONDUCTOR_WALKS.items() if w.differentiable),
+    "dielectric": tuple(DIELECTRIC_ANALYTIC),
+    "diffuse": tuple(n for n, w in DIFFUSE_WALKS.items() if w.differentiable),
+}
 
 
 def differentiable_walk(cfg):
-    """The conductor walk whose PT estimate the engine differentiates (jit/gradients.py), or None."""
-    walk = CONDUCTOR_WALKS.get(cfg.model) if cfg.surface == "conductor" and cfg.estimator == "pt" else None
+    """The walk whose PT estimate the engine differentiates (jit/gradients.py), or None."""
+    walk = DIFFERENTIABLE_WALK_TABLES.get(cfg.surface, {}).get(cfg.model) if cfg.estimator == "pt" else None
     return walk if walk is not None and walk.differentiable else None
-
-
-DIFFERENTIABLE_MODELS["conductor"] += tuple(name for name, w in CONDUCTOR_WALKS.items() if w.differentiable)
 
 
 def gradient_problem(cfg):
     """None when the engine differentiates this configuration, else the one-line message of the refusal."""
     models = DIFFERENTIABLE_MODELS.get(cfg.surface, ())
-    if cfg.model in models and (cfg.model not in CONDUCTOR_WALKS or differentiable_walk(cfg) is not None):
+    is_walk = cfg.model in WALKS_BY_SURFACE.get(cfg.surface, {})
+    if cfg.model in models and (not is_walk or differentiable_walk(cfg) is not None):
         return None
     where = ", ".join("%s (%s)" % (", ".join(m), surface) for surface, m in DIFFERENTIABLE_MODELS.items() if m)
     where += " — the walks with estimator 'pt'"
@@ -276,8 +278,34 @@ class DiffuseModel:
         return auto.cap(self.rule, call.mf, wi[2], self.max_bounces)
 
     def eval_pdf(self, call, wi, wo, key, want_value=True, want_pdf=True):
-        value = self.walk.eval_pt(call.mf, call.albedo, wi, wo, self.bounces(call, wi), key) if want_value else None
+        value = None
+        if want_value and call.traced:
+            value = self.differentiable_estimate(call, wi, wo, key)
+        elif want_value:
+            value = self.walk.eval_pt(call.mf, call.albedo, wi, wo, self.bounces(call, wi), key)
         return value, (mis.diffuse_pdf(wi, wo) if want_pdf else None)
+
+    def differentiable_estimate(self, call, wi, wo, key):
+        """The walk's PT estimate with its derivative in α and the albedo (jit/gradients.py)."""
+        mf, n_alpha = call.mf, len(call.alphas)
+        bounces = self.bounces(call, wi)
+
+        def estimate(*values):
+            alphas = values[:n_alpha]
+            au, av = (alphas[0], alphas[0]) if n_alpha == 1 else alphas
+            m = Microfacet(mf.dist, au, av)
+            return self.walk.eval_pt(m, values[n_alpha], wi, wo, bounces, key, mf_sample=gradients.detached(m))
+
+        return gradients.attach(estimate, list(call.alphas) + [call.albedo])
+
+    def sample_traced(self, call, wi, s1, u1, u2, eval_key):
+        """``sample`` while differentiated: ω_o from the cosine lobe (the MIS density, exact), weighed by the
+        walk's estimate there (the one ``eval`` gives, lane key ``eval_key(ω_o)``) over that density."""
+        wo = mi.warp.square_to_cosine_hemisphere(mi.Point2f(u1, u2))
+        pdf = mis.diffuse_pdf(wi, wo)
+        value = self.walk.eval_pt(call.mf, call.albedo, wi, wo, self.bounces(call, wi), eval_key(wo))
+        valid = (wi[2] > 0.0) & (pdf > 0.0)
+        return wo, pdf, dr.select(valid, value / pdf, 0.0), valid
 
     def sample(self, call, wi, s1, u1, u2, key):
         wo, weight, valid = self.walk.sample_walk(call.mf, call.albedo, wi, s1, u1, u2, self.bounces(call, wi), key)

@@ -69,7 +69,9 @@ class DiffuseWalk:
     - ``sample_walk(mf, albedo, wi, sample1, u1, u2, max_bounces, key)`` → (ω_o, weight, valid).
 
     Its MIS density is a cosine lobe.
+    - ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md).
     """
 
-    def __init__(self, eval_pt, sample_walk):
+    def __init__(self, eval_pt, sample_walk, differentiable=False):
         self.eval_pt, self.sample_walk = eval_pt, sample_walk
+        self.differentiable = differentiable

@@ -382,38 +382,50 @@ def conductor_eval_bdpt(segments, mf, fresnel, wi, wo, max_bounces, key):
 # ------------------------------------------------------------------ diffuse facets (diffuse.rs)
 
 
-def diffuse_eval_pt(segments, mf, albedo, wi, wo, max_bounces, key):
+def diffuse_eval_pt(segments, mf, albedo, wi, wo, max_bounces, key, mf_sample=None):
     """PT estimate of f(ω_i, ω_o)·cos θ_o on Lambertian facets of albedo ``albedo`` (diffuse.rs
     ``eval_pt``): per vertex a visible normal m serves the next event, L_j·(a/π)⟨ω_o, m⟩⁺·last, and the
-    Lambertian continuation about m; roulette after every vertex."""
+    Lambertian continuation about m; roulette after every vertex. ``mf_sample``: as in ``pt_walk`` (the
+    visible normals drawn from the detached statistics, each weighted by its density ratio; the cosine lobe
+    about m does not depend on the parameters)."""
     lambda_o = mf.lambda_(wo)
     start = (wi[2] > 0.0) & (wo[2] > 0.0)
     width = dr.width(wi)
+    traced = mf_sample is not None
 
-    def body(j, w, l, thr, result, active, counter):
+    def body(j, w, l, thr, result, active, counter, *piped):
+        mfa, mfs, lo, a = mf, mf, lambda_o, albedo
+        if traced:  # the differentiated values come through the state (drjit rejects implicit wide reads)
+            au, av, lo, a = piped
+            mfa = Microfacet(mf.dist, au, av)
+            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
         rng = Stream(key, counter)
         active &= (l > 0.0) & dr.isfinite(l) & (max_channel(thr) > 0.0)
         u1, u2 = rng.next2()
-        m, valid = mf.sample_visible(w, u1, u2)
+        m, valid = mfs.sample_visible(w, u1, u2)
         active &= valid
+        if traced:
+            thr = thr * ((mfa.d(m) * dr.detach(l)) / (mfs.d(m) * l))
         c = dot(wo, m)
-        nee = albedo * (c * INV_PI * l * last(segments, l, lambda_o))
+        nee = a * (c * INV_PI * l * last(segments, l, lo))
         result = dr.select(active & (c > 0.0), result + thr * nee, result)
         active &= j + 1 < max_bounces
         u3, u4 = rng.next2()
         d_next = walk.cosine_about(m, u3, u4)
-        thr = thr * albedo
+        thr = thr * a
         up = d_next[2] > 0.0
-        lam = mf.abs_lambda(d_next)
+        lam = mfa.abs_lambda(d_next)
         thr = dr.select(up, thr * continue_up(segments, l, lam), thr)
         play = j + 1 >= RR_START
         kept, survived = walk.russian_roulette(thr, rng.next())
         thr = dr.select(play, kept, thr)
         active &= ~play | survived
-        return j + 1, -d_next, lam, thr, result, active, rng.counter
+        return (j + 1, -d_next, lam, thr, result, active, rng.counter) + piped
 
     state = (mi.UInt32(0), mi.Vector3f(wi), 1.0 + mf.lambda_(wi), dr.full(mi.Spectrum, 1.0, width),
              dr.zeros(mi.Spectrum, width), mi.Bool(start), mi.UInt32(0))
+    if traced:
+        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o), mi.Spectrum(albedo))
     return dr.while_loop(state, lambda *s: s[5], body, label="msx_posfree_diffuse_pt")[4]
 
 
@@ -450,5 +462,6 @@ CONDUCTOR_WALKS = {
                         eval_bdpt=partial(conductor_eval_bdpt, name), differentiable=True)
     for name, exit in ((UNCORRELATED, mis.SEPARABLE), (CORRELATED, mis.HEIGHT_CORRELATED))
 }
-DIFFUSE_WALKS = {name: DiffuseWalk(partial(diffuse_eval_pt, name), partial(diffuse_sample_walk, name))
+DIFFUSE_WALKS = {name: DiffuseWalk(partial(diffuse_eval_pt, name), partial(diffuse_sample_walk, name),
+                                   differentiable=True)
                  for name in (UNCORRELATED, CORRELATED)}

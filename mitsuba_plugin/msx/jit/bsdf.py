@@ -102,21 +102,20 @@ def engine_support(cfg):
 
 
 # The models whose gradients the engine computes: the closed forms, differentiated by drjit's AD as they
-# are, and the conductor and diffuse walks whose eval draws its directions detached (``differentiable``,
+# are, and the walks whose eval draws its directions detached (``differentiable``,
 # jit/gradients.py). AD of any other walk as written is biased (its random decisions depend on the
 # parameters; docs/gradients.md): such a model refuses to be differentiated rather than return a wrong
 # gradient.
-DIFFERENTIABLE_WALK_TABLES = {"conductor": CONDUCTOR_WALKS, "diffuse": DIFFUSE_WALKS}
 DIFFERENTIABLE_MODELS = {
     "conductor": tuple(CONDUCTOR_ANALYTIC) + tuple(n for n, w in CONDUCTOR_WALKS.items() if w.differentiable),
-    "dielectric": tuple(DIELECTRIC_ANALYTIC),
+    "dielectric": tuple(DIELECTRIC_ANALYTIC) + tuple(n for n, w in DIELECTRIC_WALKS.items() if w.differentiable),
     "diffuse": tuple(n for n, w in DIFFUSE_WALKS.items() if w.differentiable),
 }
 
 
 def differentiable_walk(cfg):
     """The walk whose PT estimate the engine differentiates (jit/gradients.py), or None."""
-    walk = DIFFERENTIABLE_WALK_TABLES.get(cfg.surface, {}).get(cfg.model) if cfg.estimator == "pt" else None
+    walk = WALKS_BY_SURFACE.get(cfg.surface, {}).get(cfg.model) if cfg.estimator == "pt" else None
     return walk if walk is not None and walk.differentiable else None
 
 
@@ -225,6 +224,7 @@ class DielectricModel:
     def __init__(self, cfg):
         self.walk = DIELECTRIC_WALKS.get(walk_name(cfg))  # None: an analytic model
         self.analytic = DIELECTRIC_ANALYTIC.get(cfg.model)
+        self.analytic_single = DIELECTRIC_ANALYTIC["single"]  # the sampler of the walks' MIS density
         self.max_bounces = cfg.max_bounces or DEFAULT_MAX_BOUNCES
         self.rules = None
         if cfg.model == "auto":  # the relative IOR seen from ω_i: η outside, 1/η inside
@@ -247,12 +247,56 @@ class DielectricModel:
         if want_value:
             if walk is None:
                 value = self.analytic.eval(mf, eta, call.radiance, wi, wo)
+            elif call.traced:
+                value = self.differentiable_estimate(call, wi, wo, key)
             else:
                 value = walk.eval_pt(mf, eta, call.radiance, wi, wo, self.bounces(call, wi), key)
             value = self.tinted(call, wi, wo, value)
         if want_pdf:
-            pdf = self.analytic.pdf(mf, eta, wi, wo) if walk is None else mis.dielectric_pdf(mf, eta, wi, wo)
+            if walk is None:
+                pdf = self.analytic.pdf(mf, eta, wi, wo)
+            elif call.traced:  # the proposal's density, detached as the proposal is
+                pdf = mis.dielectric_pdf(gradients.detached(mf), dr.detach(eta), wi, wo)
+            else:
+                pdf = mis.dielectric_pdf(mf, eta, wi, wo)
         return value, pdf
+
+    def differentiable_estimate(self, call, wi, wo, key):
+        """The walk's PT estimate with its derivative in α and η (jit/gradients.py)."""
+        mf, n_alpha = call.mf, len(call.alphas)
+        bounces = self.bounces(call, wi)
+
+        def estimate(*values):
+            alphas = values[:n_alpha]
+            au, av = (alphas[0], alphas[0]) if n_alpha == 1 else alphas
+            m = Microfacet(mf.dist, au, av)
+            return self.walk.eval_pt(m, values[n_alpha], call.radiance, wi, wo, bounces, key,
+                                     mf_sample=gradients.detached(m))
+
+        return gradients.attach(estimate, list(call.alphas) + [call.eta])
+
+    def sample_traced(self, call, wi, s1, u1, u2, eval_key):
+        """``sample`` while differentiated: ω_o from the MIS density (single scattering mixed with a cosine
+        lobe on both sides, drawn exactly), weighed by the walk's estimate there (the one ``eval`` gives,
+        lane key ``eval_key(ω_o)``) over that density."""
+        mf, eta = gradients.detached(call.mf), dr.detach(call.eta)
+        k = mis.diffuse_fraction(mf)
+        cosine = s1 < k
+        # s1 rescaled within its branch: the cosine lobe's side, or the single sampler's own choice.
+        r = dr.select(cosine, s1 / k, (s1 - k) / (1.0 - k))
+        r = dr.clip(dr.select(dr.isfinite(r), r, 0.5), 0.0, 0.99999994)
+        wo_s, _, w_s, valid_s = self.analytic_single.sample(mf, eta, call.radiance, wi, r, u1, u2)
+        # A reflection that ends below the surface (or a refraction above) has weight 0 (G1(ω_o, m) = 0) and
+        # is not part of the density single's pdf gives: it is dropped, so the drawn directions have that
+        # density.
+        valid_s &= w_s > 0.0
+        wo_c = mi.warp.square_to_cosine_hemisphere(mi.Point2f(u1, u2))
+        wo_c = mi.Vector3f(wo_c[0], wo_c[1], dr.select(r < 0.5, wo_c[2], -wo_c[2]))
+        wo = dr.select(cosine, wo_c, wo_s)
+        pdf = mis.dielectric_pdf(mf, eta, wi, wo)
+        value = self.walk.eval_pt(call.mf, call.eta, call.radiance, wi, wo, self.bounces(call, wi), eval_key(wo))
+        valid = (cosine | valid_s) & (wo[2] != 0.0) & (pdf > 0.0)
+        return wo, pdf, self.tinted(call, wi, wo, dr.select(valid, value / pdf, 0.0)), valid
 
     def sample(self, call, wi, s1, u1, u2, key):
         walk, mf, eta = self.walk, call.mf, call.eta
@@ -359,8 +403,9 @@ def make_bsdf_factory(variant):
                     self._refresh_ior()
                 # A differentiable walk samples its proposal while any parameter carries gradients (set
                 # here, by the parameter update, so that prb's primal and adjoint passes sample alike).
-                self._traced = self._differentiable_walk is not None and any(
+                self._traced = self._differentiable_walk is not None and (any(
                     dr.grad_enabled(params[k]) for params in map(mi.traverse, self._textures) for k in params.keys())
+                    or (dielectric and dr.grad_enabled(self._ior)))
                 # The perfect mirror (Mitsuba's material='none' with its default η = 0, k = 1) has F = 1; a
                 # constant material's average Fresnel term (compensation) is computed once, here.
                 self._mirror, self._fresnel_average = False, None

@@ -425,7 +425,8 @@ def diffuse_sample(mf, albedo, wi, sample1, u1, u2, max_bounces, key):
 # ------------------------------------------------------------------ dielectric
 
 
-def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bounces, key, counter):
+def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bounces, key, counter,
+                         mf_sample=None):
     """Heitz's dielectric eval walk from a state on (Rust ``eval_from`` with ``Mat::Dielectric``): the ray
     travels along ``wr`` (frame of its side, ``outside``) from height ``t`` towards the vertex of order
     ``order``, carrying ``thr``; the lane's stream goes on at ``counter``. Returns the contributions of
@@ -435,60 +436,84 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
     At each vertex the height step is conditioned on hitting, the next event goes to ω_o with the
     reflection phase function × G1(ω_o, h) on ω_o's side, or the transmission phase function × G1(ω_o,
     flipped h) across, then the walk reflects or refracts about a visible normal (u < F) and plays
-    Russian roulette."""
+    Russian roulette.
+
+    ``mf_sample`` (docs/gradients.md): the statistics with their derivatives detached (η too). The heights,
+    normals and reflect-or-refract choices are then drawn from them, each height step weighted by its
+    density ratio (``height_step_ratio``) and each new direction by the ratio of its phase function — the
+    density of the direction the vertex draws — under the attached parameters to the detached one."""
     last = max_bounces
     eta = mi.Float(eta)
     wo = mi.Vector3f(wo)
     wo_out = wo[2] > 0.0
     # Λ(ω_o) in the frame of ω_o's side (D and Λ are even under v ↦ −v).
     lambda_o = mf.lambda_(dr.select(wo_out, wo, -wo))
+    traced = mf_sample is not None
 
-    def body(order, wr, t, outside, thr, result, active, counter):
+    def body(order, wr, t, outside, thr, result, active, counter, *piped):
+        mfa, mfs, lo, eta_a = mf, mf, lambda_o, eta
+        if traced:  # the differentiated values come through the state
+            au, av, lo, eta_a = piped
+            mfa = Microfacet(mf.dist, au, av)
+            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
         rng = Stream(key, counter)
         u_h, u_rr = rng.next2()
-        tn, p_hit = sample_height_hit(mf, wr, t, u_h)
+        tn, p_hit = sample_height_hit(mfs, wr, t, u_h)
         active &= p_hit > 0.0
-        t = tn
         thr = thr * p_hit
+        if traced:
+            thr = thr * height_step_ratio(mfa, mfs, wr, t, tn)
+        t = tn
         wi_l = -wr
         wo_l = dr.select(outside, wo, -wo)
-        e = eta_seen(eta, outside)
+        e = eta_seen(eta_a, outside)
+        e_s = dr.detach(e) if traced else e
         same = wo_out == outside
         # Next-event estimation towards ω_o.
-        p = dr.select(same, dielectric_phase_reflect(mf, wi_l, wo_l, e),
-                      dielectric_phase_transmit(mf, wi_l, wo_l, e))
+        p = dr.select(same, dielectric_phase_reflect(mfa, wi_l, wo_l, e),
+                      dielectric_phase_transmit(mfa, wi_l, wo_l, e))
         t_o = dr.select(same, t, flip_height(t))
-        contrib = p * masking_at(lambda_o, t_o)
+        contrib = p * masking_at(lo, t_o)
         result = dr.select(active & (contrib > 0.0), result + thr * contrib, result)
         active &= order < last
         # Continue: reflect or refract about a visible normal, then the roulette.
         u1, u2 = rng.next2()
-        m, cos_wm, valid = visible_normal(mf, wi_l, u1, u2)
+        m, cos_wm, valid = visible_normal(mfs, wi_l, u1, u2)
         ua, _ = rng.next2()
-        wr, crossed = dielectric_scatter(wi_l, m, cos_wm, e, ua)
+        wr, crossed = dielectric_scatter(wi_l, m, cos_wm, e_s, ua)
+        if traced:
+            d = dr.select(crossed, -wr, wr)  # the new direction in the current frame
+            pa = dr.select(crossed, dielectric_phase_transmit(mfa, wi_l, d, e),
+                           dielectric_phase_reflect(mfa, wi_l, d, e))
+            ps = dr.select(crossed, dielectric_phase_transmit(mfs, wi_l, d, e_s),
+                           dielectric_phase_reflect(mfs, wi_l, d, e_s))
+            thr = thr * dr.select(ps > 0.0, pa / dr.select(ps > 0.0, ps, 1.0), 1.0)
         outside = outside ^ crossed
         t = dr.select(crossed, flip_height(t), t)
         thr, survived = walk.russian_roulette_keep(thr, u_rr, 1.0)
         active &= valid & survived & dr.all(dr.isfinite(wr))
-        return order + 1, wr, t, outside, thr, result, active, rng.counter
+        return (order + 1, wr, t, outside, thr, result, active, rng.counter) + piped
 
     state = (mi.UInt32(order), mi.Vector3f(wr), mi.Float(t), mi.Bool(outside), mi.Float(thr), mi.Float(0.0),
              mi.Bool(active & (order <= last)), mi.UInt32(counter))
+    if traced:
+        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o), mi.Float(eta))
     state = dr.while_loop(state, lambda *s: s[6], body, label="msx_heitz_dielectric_eval")
     return state[5]
 
 
-def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key):
+def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None):
     """One unbiased estimate of f(ω_i, ω_o)·|cos θ_o| through a rough dielectric, orders
     1..max_bounces (Rust ``eval``), one channel: the walk of ``dielectric_eval_from`` entering from ω_i's
-    side at the top of the microsurface; Radiance mode: × 1/η_r² when ω_o is across."""
+    side at the top of the microsurface; Radiance mode: × 1/η_r² when ω_o is across. ``mf_sample``: see
+    ``dielectric_eval_from``."""
     eta = mi.Float(eta)
     wi, wo = mi.Vector3f(wi), mi.Vector3f(wo)
     wi_out = wi[2] > 0.0
     start = valid_incidence_dielectric(wi, eta) & valid_incidence_dielectric(wo, eta) & (max_bounces > 0)
     w0 = -dr.select(wi_out, wi, -wi)
     v = dielectric_eval_from(mf, eta, wo, w0, mi.Float(0.0), wi_out, mi.UInt32(1), mi.Float(1.0), start,
-                             max_bounces, key, mi.UInt32(0))
+                             max_bounces, key, mi.UInt32(0), mf_sample=mf_sample)
     return v * radiance_scale(eta, radiance, wi_out, wo[2] > 0.0)
 
 
@@ -552,5 +577,5 @@ CONDUCTOR_WALKS = {"heitz": ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, b
 
 # The walks on the other microsurfaces (jit/bsdf.py collects them; their MIS densities are
 # ``mis.dielectric_pdf`` and ``mis.diffuse_pdf``).
-DIELECTRIC_WALKS = {"heitz": DielectricWalk(dielectric_eval, dielectric_sample)}
+DIELECTRIC_WALKS = {"heitz": DielectricWalk(dielectric_eval, dielectric_sample, differentiable=True)}
 DIFFUSE_WALKS = {"heitz": DiffuseWalk(diffuse_eval, diffuse_sample, differentiable=True)}

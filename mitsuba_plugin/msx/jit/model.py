@@ -56,10 +56,12 @@ class DielectricWalk:
     - ``sample_walk(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key)`` → (ω_o, weight, valid).
 
     Its MIS density is ``mis.dielectric_pdf`` (the single-scattering density mixed with a cosine lobe).
+    - ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md).
     """
 
-    def __init__(self, eval_pt, sample_walk):
+    def __init__(self, eval_pt, sample_walk, differentiable=False):
         self.eval_pt, self.sample_walk = eval_pt, sample_walk
+        self.differentiable = differentiable
 
 
 class DiffuseWalk:

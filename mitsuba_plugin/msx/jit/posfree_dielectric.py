@@ -37,7 +37,7 @@ import mitsuba as mi
 
 from . import walk
 from .dielectric import eta_seen, radiance_scale, reflect_or_refract
-from .microfacet import dot
+from .microfacet import Microfacet, dot
 from .model import DielectricWalk
 from .posfree import CORRELATED, RR_START, UNCORRELATED, roulette_importance
 from .rng import Stream
@@ -237,23 +237,62 @@ def valid_inputs(eta, wi):
 # ------------------------------------------------------------------ the estimators
 
 
-def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key):
+def step_density(mf, eta_f, w, d, refracted):
+    """The density of ``scatter``'s new direction d (in the current frame, before a refraction switches it)
+    from w: m ~ D_w, then reflection with probability F (density F·D_w(h)/(4 w·h), h = m) or refraction
+    (density (1 − F)·D_w(h)·η_f²|d·h|/(w·h + η_f d·h)², Walter's Jacobian), with Mitsuba's Fresnel term as
+    ``reflect_or_refract`` draws it. Used for the density ratios of the differentiated walk."""
+    h_r = dr.normalize(w + d)
+    h_t = -(w + eta_f * d)
+    h_t = dr.normalize(dr.select(h_t[2] < 0.0, -h_t, h_t))
+    h = dr.select(refracted, h_t, h_r)
+    cw, cd = dot(w, h), dot(d, h)
+    f = mi.fresnel(cw, eta_f)[0]
+    denom = cw + eta_f * cd
+    p_t = (1.0 - f) * mf.d_visible(w, h) * eta_f * eta_f * dr.abs(cd) / (denom * denom)
+    p_r = f * mf.d_visible(w, h) / (4.0 * cw)
+    p = dr.select(refracted, p_t, p_r)
+    return dr.select((cw > 0.0) & dr.isfinite(p), p, 0.0)
+
+
+def step_ratio(mfa, mfs, eta_a, eta_s, w, d, refracted):
+    """``step_density`` under the attached statistics over the same under the detached ones it was drawn
+    from: value 1, derivative the score; 1 where the drawn step has no finite positive density."""
+    ps = step_density(mfs, eta_s, w, d, refracted)
+    ok = ps > 0.0
+    return dr.select(ok, step_density(mfa, eta_a, w, d, refracted) / dr.select(ok, ps, 1.0), 1.0)
+
+
+def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None):
     """One PT estimate of f(ω_i, ω_o)·|cos θ_o| (orders 1..max_bounces) with next-event estimation to ω_o
     at every vertex (by reflection on ω_o's side, by transmission across), Russian roulette from vertex
-    ``RR_START`` on; Radiance mode's 1/η_r² applied once (dielectric.rs ``eval_pt`` and ``pt_walk``)."""
+    ``RR_START`` on; Radiance mode's 1/η_r² applied once (dielectric.rs ``eval_pt`` and ``pt_walk``).
+
+    ``mf_sample`` (docs/gradients.md): the statistics with their derivatives detached (the IOR too). Each
+    vertex then draws its normal and its reflect-or-refract choice from them, and the throughput carries
+    the ratio of the new direction's density under the attached parameters to its density under the
+    detached ones (``step_ratio``); the roulette is detached. The estimate's derivative is then unbiased."""
     eta = mi.Float(eta)
     wi, wo = mi.Vector3f(wi), mi.Vector3f(wo)
     start = valid_inputs(eta, wi) & (wo[2] != 0.0) & dr.all(dr.isfinite(wo))
     # ω_o's Λ in the frame of the medium it exits into (upward there).
     lambda_o = mf.lambda_(dr.select(wo[2] > 0.0, wo, -wo))
     w0, l0, side0, eta_f0 = initial_state(mf, eta, wi)
+    traced = mf_sample is not None
 
-    def body(j, w, l, side, eta_f, thr, result, active, counter):
+    def body(j, w, l, side, eta_f, thr, result, active, counter, *piped):
+        mfa, mfs, lo, efa, efs = mf, mf, lambda_o, eta_f, eta_f
+        if traced:  # the differentiated values come through the state (drjit rejects implicit wide reads)
+            au, av, lo, eta_a = piped
+            mfa = Microfacet(mf.dist, au, av)
+            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
+            efa = eta_seen(eta_a, side > 0.0)
+            efs = dr.detach(efa)
         rng = Stream(key, counter)
         o = side * wo  # ω_o in the current frame
         transmit = o[2] < 0.0
-        lst = last(segments, transmit, l, lambda_o)
-        v = lst * dr.select(transmit, vertex_transmit(mf, eta_f, w, o), vertex_reflect(mf, eta_f, w, o))
+        lst = last(segments, transmit, l, lo)
+        v = lst * dr.select(transmit, vertex_transmit(mfa, efa, w, o), vertex_reflect(mfa, efa, w, o))
         u_rr, u_choice = rng.next2()
         kept, survived = walk.russian_roulette_keep(thr, u_rr, 1.0 / roulette_importance(v, lst, RR_NEE_GAIN))
         play = j >= RR_START
@@ -262,15 +301,20 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key):
         result = dr.select(active, result + thr * v, result)
         active &= j + 1 < max_bounces
         u1, u2 = rng.next2()
-        d, refracted, _, side, eta_f, valid = scatter(mf, w, side, eta_f, u_choice, u1, u2)
+        w_here = w
+        d, refracted, _, side, eta_f, valid = scatter(mfs, w, side, efs, u_choice, u1, u2)
         active &= valid
+        if traced:
+            thr = thr * step_ratio(mfa, mfs, efa, efs, w_here, dr.select(refracted, -d, d), refracted)
         up = d[2] > 0.0
-        lam = mf.abs_lambda(d)
+        lam = mfa.abs_lambda(d)
         thr = dr.select(up, thr * continue_up(segments, refracted, l, lam), thr)
         active &= ~up | ((lam > 0.0) & (thr > 0.0))
-        return j + 1, -d, lam, side, eta_f, thr, result, active, rng.counter
+        return (j + 1, -d, lam, side, eta_f, thr, result, active, rng.counter) + piped
 
     state = (mi.UInt32(0), w0, l0, side0, eta_f0, mi.Float(1.0), mi.Float(0.0), mi.Bool(start), mi.UInt32(0))
+    if traced:
+        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o), mi.Float(eta))
     state = dr.while_loop(state, lambda *s: s[7], body, label="msx_posfree_dielectric_pt")
     return state[6] * radiance_scale(eta, radiance, wi[2] > 0.0, wo[2] > 0.0)
 
@@ -314,6 +358,6 @@ def sample_walk(segments, mf, eta, radiance, wi, sample1, u1, u2, max_bounces, k
 
 # The dielectric walks this module provides, by model name (jit/bsdf.py collects them).
 DIELECTRIC_WALKS = {
-    name: DielectricWalk(partial(eval_pt, name), partial(sample_walk, name))
+    name: DielectricWalk(partial(eval_pt, name), partial(sample_walk, name), differentiable=True)
     for name in (UNCORRELATED, CORRELATED)
 }

@@ -67,11 +67,12 @@ class Settings:
         return max(self.spps) * self.extend.get(scene_name, self.extend_default)
 
 
-# Caps of the adaptive sweep in the full run (× the top fixed spp, 64), from the full run on the default
-# route (docs/evaluation.md, "Times to a target"): the copper sphere's unbiased rows reach 3 % RMS by
-# 256–512 spp and the slab's rows 10 % by 128–256, each within 1–7 × its fixed sweep's time; the dielectric
-# sphere's renders take 5–10 × the others' and need ≥ 300 spp even for 10 %, which would add ~30 minutes: it
-# is not extended (its times stay marked extrapolated).
+# Caps of the adaptive sweep in the full run (× the top fixed spp, 64). Measured on the full run of
+# docs/evaluation.md (llvm_ad_rgb): the copper sphere's unbiased rows reached 3 % RMS at 256–512 spp, the
+# slab's rows 10 % at 128 spp (their 3 % needs 1090–1370 spp: beyond 1024, extrapolated ×8.5–10.7); the two
+# extensions rendered 69 s. The dielectric sphere's rows need 240–330 spp for 10 % and 2800–5200 for 3 %, at
+# 1.6–3.2 s per 64-spp render with PT (9–15 s with BDPT, scalar_rgb): extending it to 512 spp for 10 % alone
+# would render about 25 more minutes; it is not extended (its times stay marked extrapolated).
 FULL_EXTEND = {"fig09_copper_sphere": 16, "fig01_dielectric_slab": 16, "fig01_dielectric_sphere": 1}
 
 

@@ -346,11 +346,11 @@ def _scene_section(rep):
                f"({_e(ref['smallest'])}). Object pixels: {rep['mask_pixels']}.</p>")
     out.append("<h4>Closest to the Smith reference</h4>" + _ranking_section(rep))
     targets = sorted(next(iter(rep["table"]))["times"], reverse=True)
-    out.append("<h4>Every row</h4><table><tr><th class=l>model</th><th>RMS error at top spp</th>"
+    out.append("<h4>Every row</h4><table><tr><th class=l>model</th><th>RMS error at the largest spp</th>"
                "<th>mean radiance error ± s.e.</th><th class=l></th><th>bias² ± s.e.</th>"
                "<th>render time per sample ÷ built-in</th>" +
                "".join(f"<th>time to {x:g} % RMS</th>" for x in targets) +
-               "<th>largest spp</th><th>slope of the variance against spp</th><th>relative MSE at top spp</th></tr>")
+               "<th>largest spp</th><th>slope of the variance against spp</th><th>relative MSE at the largest spp</th></tr>")
     for t in rep["table"]:
         out.append(f"<tr><td class=l>{t['label']}{' (unbiased)' if t['unbiased'] else ''}</td>"
                    f"<td>{t['top']['rel_rms_pct']:.1f} %</td><td>{_pct(t['mean_error'], t['mean_error_se'], 2)}</td>"
@@ -371,7 +371,7 @@ def _scene_section(rep):
                "the target by more than 3 standard errors. Per row and target in "
                f'<a href="{html.escape(_rel(Path(_OUT[0] or ".") / "times.csv"))}">times.csv</a>. '
                "RMS error = √(relative MSE) at the row's largest spp; the mean radiance "
-               "error is that of the seed mean at the top spp over the object's pixels (signed: negative = too "
+               "error is that of the seed mean at the largest spp over the object's pixels (signed: negative = too "
                "dark).</p>")
     out.append(_img(rep["pngs"]["crops"], f"equal-time crops, {sc.name}"))
     out.append(_img(rep["pngs"]["models"], f"converged renders per model, {sc.name}"))

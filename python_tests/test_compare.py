@@ -11,7 +11,7 @@ import sys
 
 import pytest
 
-FILES = ["index.html", "results.csv", "atlas.csv", "energy.csv", "energy.png", "stability_conductor.png",
+FILES = ["index.html", "results.csv", "times.csv", "atlas.csv", "energy.csv", "energy.png", "stability_conductor.png",
          "stability_dielectric_outside.png", "stability_dielectric_inside.png", "stability_extras.png",
          "lobes_conductor.png", "lobes_dielectric.png", "lobes_diffuse.png"]
 SCENES = ["fig09_copper_sphere", "fig01_dielectric_slab", "fig01_dielectric_sphere"]
@@ -108,7 +108,7 @@ def test_physics_checks_ran(two_runs):
 
 def test_same_command_same_numbers(two_runs):
     a, b, _, _ = two_runs
-    for name in ("results.csv", "atlas.csv", "energy.csv"):
+    for name in ("results.csv", "times.csv", "atlas.csv", "energy.csv"):
         ra, rb = rows(a / name), rows(b / name)
         assert len(ra) == len(rb)
         for x, y in zip(ra, rb):
@@ -119,3 +119,39 @@ def test_same_command_same_numbers(two_runs):
                     fx, fy = float(x[k]), float(y[k])
                     assert math.isclose(fx, fy, rel_tol=0, abs_tol=0) or (math.isnan(fx) and math.isnan(fy)), \
                         (name, k, x, y)
+
+
+def test_times_say_measured_or_extrapolated(two_runs):
+    """Issue 18 item 3: every row's time to each target says what it is (times.csv, and the page's cells):
+    measured (the spp the fit needs ≤ the row's largest spp), extrapolated with f = needed ÷ largest > 1, or
+    not reachable (the bias floor above the target by more than 3 standard errors); and the adaptive sweep
+    stopped only where its rule says so (no row left extrapolated with its target predicted inside the cap
+    and room to double)."""
+    out = two_runs[0]
+    times = rows(out / "times.csv")
+    res = rows(out / "results.csv")
+    largest = {}
+    for r in res:
+        key = (r["scene"], r["model"], r["estimator"])
+        largest[key] = max(largest.get(key, 0), int(r["spp"]))
+    assert {(r["scene"], r["model"], r["estimator"]) for r in times} == set(largest)
+    seen = set()
+    for t in times:
+        key = (t["scene"], t["model"], t["estimator"])
+        top, need, cap = int(t["largest_spp"]), float(t["spp_needed"]), int(t["cap_spp"])
+        assert top == largest[key]
+        seen.add(t["status"])
+        if t["status"] == "measured":
+            assert need <= top and float(t["factor"]) == 1.0
+        elif t["status"] == "extrapolated":
+            assert need > top and math.isclose(float(t["factor"]), need / top, rel_tol=1e-9)
+            assert need > cap or 2 * top > cap, t  # the sweep would have gone on
+        elif t["status"] == "not reachable":
+            floor, se = float(t["bias_floor_pct"]), float(t["bias_floor_se_pct"])
+            b2, b2_se = (floor / 100) ** 2, 2 * (floor / 100) * (se / 100)
+            assert b2 - 3 * b2_se > (float(t["target_rms_pct"]) / 100) ** 2 * (1 - 1e-9), t
+        else:
+            assert t["status"] == "undecided", t
+    assert "measured" in seen  # --quick measures some (its 10 % targets on the copper sphere)
+    html = (out / "index.html").read_text()
+    assert "(measured)" in html and "not reachable: bias floor" in html

@@ -165,3 +165,92 @@ def test_same_computation_up_to_float_rounding_is_tied(scene):
     assert len(U.rank([a, b])) == 1 and not U.differ(a, b)
     c = entry("uncorrelated", synthetic_renders(rng, ref, -0.45, 0.05), ref, mask)
     assert U.differ(a, c)
+
+
+class FakeRenderer:
+    """renders.sweep's renderer on synthetic images: row `model` renders reference·(1 + bias) plus Gaussian
+    noise σ/√spp per pixel and channel, from a generator seeded by the render's seed (reproducible, like
+    mi.render with a seed); a render takes 1 ms per spp."""
+
+    def __init__(self, reference, rows):
+        self.reference, self.rows, self.calls = reference, rows, []
+
+    def params(self, scene, row, size=None):
+        return {"model": row[0]}
+
+    def warm_up(self, name, params):
+        pass
+
+    def release(self):
+        pass
+
+    def render(self, name, params, spp, seed):
+        bias, sigma = self.rows[params["model"]]
+        self.calls.append((params["model"], spp, seed))
+        rng = np.random.default_rng(seed)
+        noise = rng.normal(0.0, sigma / math.sqrt(spp), self.reference.shape)
+        return self.reference * (1.0 + bias) + noise, 1e-3 * spp
+
+
+def test_adaptive_sweep_measured_extrapolated_not_reachable(scene):
+    """Issue 18 item 3: the adaptive sweep (renders.sweep with compare's rule) doubles a row's spp while a
+    target is predicted within the cap; a row whose 3 % target lies inside its (extended) sweep comes out
+    "measured", one whose target the fit puts beyond the cap "extrapolated ×f" with f = the spp needed ÷ the
+    largest spp, a row with a 5 % bias "not reachable" with its floor measured. The same command renders the
+    same spps (the decision uses the images only)."""
+    from types import SimpleNamespace
+
+    from msx import compare
+    from msx.evaluation import renders
+    from msx.evaluation.common import TARGETS_RMS
+
+    _, ref, mask = scene
+    r2 = float(np.mean(ref[mask] ** 2))
+    # rel MSE at n spp = bias² + σ² / (n · mean(R²)); the spp for 3 % RMS: σ² / (9e-4 · mean(R²)).
+    rows = {"builtin": (0.0, 1e-3), "fine": (0.0, 0.1), "noisy": (0.0, 0.4), "biased": (0.05, 0.05)}
+    need = {m: s * s / ((0.03 ** 2 - b * b) * r2) for m, (b, s) in rows.items()}
+    assert 16 < need["fine"] <= 32 and need["noisy"] > 128  # inside the cap (8 × 16) / beyond it
+    st = SimpleNamespace(size=40, spps=[1, 2, 4, 8], seeds=3)
+    sc = renders.SweepScene("synthetic", "test", "conductor", "roughconductor",
+                            [(m, "pt" if m != "builtin" else "-") for m in rows], "direct")
+    cap = 8 * 16
+
+    def more(row, by_spp):
+        rs, _ = renders.statistics(sc, {row: by_spp}, ref, 0.0, mask)
+        return U.wants_more(compare._statuses(rs), max(by_spp), cap)
+
+    runs = []
+    for _ in range(2):
+        fake = FakeRenderer(ref, rows)
+        data = renders.sweep(fake, sc, st, more=more, cap_spp=cap)
+        runs.append(fake.calls)
+    assert runs[0] == runs[1]  # reproducible: same spps, same seeds
+    stats, _ = renders.statistics(sc, data, ref, 0.0, mask)
+    status = {}
+    for m in rows:
+        rs = [r for r in stats if r["model"] == m]
+        status[m] = {s["target"]: s for s in compare._statuses(rs)}
+        assert [r["spp"] for r in rs] == sorted(data[(m, "pt" if m != "builtin" else "-")])
+    # "fine": 3 % not reached at 8 spp (rel RMS ≈ 5.5 %), so the sweep went on to 32 spp and measured it.
+    assert max(data[("fine", "pt")]) == 32
+    assert status["fine"][3.0]["status"] == U.MEASURED and status["fine"][3.0]["factor"] == 1.0
+    # "noisy": 3 % needs ≈ 430 spp > the cap, so the sweep extended only for 10 % (≈ 39 spp: to 64).
+    assert max(data[("noisy", "pt")]) == 64
+    assert status["noisy"][10.0]["status"] == U.MEASURED
+    s = status["noisy"][3.0]
+    assert s["status"] == U.EXTRAPOLATED
+    # k from the seed variances (3 seeds × 2700 pixel channels per spp: relative s.e. of a variance ≈ 2 %),
+    # the median over 7 spps: 10 % is > 4 standard errors.
+    assert s["factor"] == pytest.approx(need["noisy"] / 64, rel=0.1)
+    # "biased": 5 % bias (floor 5 % RMS) above 3 %: not reachable, the floor measured within 3 s.e.
+    s = status["biased"][3.0]
+    assert s["status"] == U.NOT_REACHABLE
+    assert abs(s["floor_pct"] - 5.0) <= 3 * s["floor_se_pct"] + 0.05
+    assert max(data[("biased", "pt")]) == 8  # nothing to gain from more spp: not extended
+    assert {t for t in TARGETS_RMS} == set(status["fine"])
+    # The page's cells say which is which.
+    from msx.evaluation import report
+
+    assert "(measured)" in report._time_cell((1.0, 1.0), status["fine"][3.0])
+    assert "extrapolated ×" in report._time_cell((4.0, status["noisy"][3.0]["factor"]), status["noisy"][3.0])
+    assert "not reachable: bias floor 5.0" in report._time_cell((float("inf"), float("nan")), status["biased"][3.0])

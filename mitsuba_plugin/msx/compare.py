@@ -84,16 +84,18 @@ def run(args):
     stages = [f"sweep {s.name}" for s in SWEEP_SCENES] + ["side-by-side scenes", "stability atlas", "lobes",
                                                           "energy curves"]
     stages += ([] if st.quick else ["microgeometry"]) + ["report"]
-    # Shares of a run's time per stage (measured on full and quick runs), for the run's ETA.
-    weights = [0.05, 0.05, 0.35, 0.1, 0.08, 0.01, 0.01] + ([] if st.quick else [0.35]) + [0.002]
+    # Shares of a run's time per stage, for the run's ETA: the full run of docs/evaluation.md (adaptive sweep,
+    # default route) spent 102, 146, 310, 229, 234, 49 and 18 s in its first stages; the microgeometry took
+    # 1377 s there with other work on the cores, about 600 s without (README), the share used here.
+    weights = [0.06, 0.09, 0.18, 0.13, 0.14, 0.03, 0.01] + ([] if st.quick else [0.35]) + [0.002]
     prog = common.Progress(stages, weights)
     print(f"msx compare{' --quick' if st.quick else ''}: route {route}; report in {out}", flush=True)
 
     renderer = renders.Renderer(variant, sdir)
-    results, scene_reports = [], []
+    results, scene_reports, times_rows = [], [], []
     for scene in SWEEP_SCENES:
         prog.stage(f"sweep {scene.name}")
-        scene_reports.append(_sweep_scene(renderer, scene, st, cache, out, prog, results))
+        scene_reports.append(_sweep_scene(renderer, scene, st, cache, out, prog, results, times_rows))
 
     prog.stage("side-by-side scenes")
     side_reports = [_side_scene(renderer, key, name, title, builtin, models, extra, st, out, prog)
@@ -140,6 +142,8 @@ def run(args):
     _write_csv(out / "results.csv", results, ["scene", "model", "estimator", "spp", "seconds", "rel_mse",
                                               "rel_mse_se", "rel_rms_pct", "bias2", "bias2_se", "mean_error_pct",
                                               "mean_error_se_pct", "variance", "unbiased", "route"])
+    # Per row and target: the time to it and whether it is measured, extrapolated (×factor) or not reachable.
+    _write_csv(out / "times.csv", times_rows, TIMES_COLUMNS)
     from .evaluation import report
 
     checks = _physics_checks(scene_reports)
@@ -162,6 +166,10 @@ def run(args):
         raise RenderError(f"{len(bad)} physics check(s) failed: " + "; ".join(c["name"] for c in bad))
 
 
+TIMES_COLUMNS = ["scene", "model", "estimator", "target_rms_pct", "seconds", "status", "factor", "spp_needed",
+                 "largest_spp", "cap_spp", "bias_floor_pct", "bias_floor_se_pct"]
+
+
 def _machine():
     """CPU model (Linux: /proc/cpuinfo), architecture and cores, for the page."""
     name = platform.processor() or ""
@@ -176,41 +184,81 @@ def _machine():
 # ---------------------------------------------------------------- sweep scenes
 
 
-def _sweep_scene(renderer, scene, st, cache, out, prog, results):
+def _statuses(rs):
+    """Each target's status (uncertainty.target_status) for one row's statistics rows (sorted by spp): its
+    fit rel_mse(n) = bias² + k/n, k = the median of variance × spp over its spps."""
+    k = common.fit_variance_constant([r["spp"] for r in rs], [r["variance"] for r in rs])
+    return [uncertainty.target_status(rms, rs[-1]["bias2"], rs[-1]["bias2_se"], k, rs[-1]["spp"])
+            for rms in common.TARGETS_RMS]
+
+
+def _time_ratio(rs, builtin_top, top):
+    """Render time per sample ÷ the built-in's, both at the top fixed spp."""
+    mine = next(r["seconds"] for r in rs if r["spp"] == top)
+    return mine / builtin_top["seconds"] if builtin_top["seconds"] > 0 else float("nan")
+
+
+def _sweep_scene(renderer, scene, st, cache, out, prog, results, times_rows):
     size = (st.size, st.size)
     base = renderer.params(scene, ("single", "pt"), size)
     mask = renderer.object_mask(scene.name, base)
-    data = renders.sweep(renderer, scene, st, progress=prog.update)
     top = max(st.spps)
 
     # The reference: invariance PT (Cui 2023: Heitz's BSDF with the heights integrated out; the most
-    # efficient unbiased estimator in the benchmarks, and measured again below) at ref_factor × the top spp,
-    # doubled until its own noise is ≤ 1/10 of the smallest error plotted (or the cap is reached). A fixed
-    # choice keeps the numbers reproducible; a choice by measured time would depend on the machine's load.
+    # efficient unbiased estimator in the benchmarks, and measured again below) at ref_factor × the top fixed
+    # spp, rendered first: the adaptive sweep decides with it. After the sweep it is doubled until its own
+    # noise is ≤ 1/10 of the smallest error the sweep measured (or the cap, ref_max_factor × the largest spp
+    # rendered, is reached): where a row's time to a target is measured, its error at its largest spp is at
+    # most the target, so the reference's noise is ≤ 1/10 of the target's rel MSE there. A fixed choice keeps
+    # the numbers reproducible; a choice by measured time would depend on the machine's load.
+    ref_row = ("invariance", "pt")
+    ref_spp = st.ref_factor * top
+
+    def render_reference(spp):
+        prog.update(0, spp, f"reference ({row_label(ref_row)}, {spp} spp)")
+        h1, h2, seconds, cached = _references.reference(renderer, scene, size, ref_row, spp, cache,
+                                                        progress=lambda d, t: prog.update(d, t, "reference spp"))
+        ref = 0.5 * (h1 + h2)
+        return ref, renders.reference_noise(h1, h2, ref, mask), seconds, cached
+
+    ref, noise, ref_seconds, cached = render_reference(ref_spp)
+    cap = st.cap_spp(scene.name)
+
+    def more(row, by_spp):
+        """The adaptive sweep's rule (uncertainty.wants_more) on this row's fit so far."""
+        rs, _ = renders.statistics(scene, {row: by_spp}, ref, noise, mask)
+        return uncertainty.wants_more(_statuses(rs), max(by_spp), cap)
+
+    data = renders.sweep(renderer, scene, st, progress=prog.update, more=more, cap_spp=cap)
+    largest = max(max(by) for by in data.values())
+
     def efficiency(row):
         im = data[row][top]
         return 1.0 / (renders.seed_variance(im.images, mask) * float(np.mean(im.seconds)))
 
-    ref_row = ("invariance", "pt")
     eff_ratio = efficiency(("invariance", "pt")) / efficiency(("heitz", "pt"))
-    ref_spp = st.ref_factor * top
-    while True:
-        prog.update(0, ref_spp, f"reference ({row_label(ref_row)}, {ref_spp} spp)")
-        h1, h2, ref_seconds, cached = _references.reference(renderer, scene, size, ref_row, ref_spp, cache,
-                                                            progress=lambda d, t: prog.update(d, t, "reference spp"))
-        ref = 0.5 * (h1 + h2)
-        noise = renders.reference_noise(h1, h2, ref, mask)
-        stats, terms = renders.statistics(scene, data, ref, noise, mask)
-        smallest = min(r["rel_mse"] for r in stats)
-        if noise <= smallest / 10 or ref_spp >= st.ref_max_factor * top:
+    # The reference refined, then the rows' decisions again with it (its noise moves their bias²), until no
+    # row asks for more (at most 3 passes; the reference is refined after the last one).
+    for passes in range(4):
+        while True:
+            stats, terms = renders.statistics(scene, data, ref, noise, mask)
+            smallest = min(r["rel_mse"] for r in stats)
+            if noise <= smallest / 10 or ref_spp >= st.ref_max_factor * largest:
+                break
+            ref_spp *= 2
+            ref, noise, ref_seconds, cached = render_reference(ref_spp)
+        if passes == 3 or not renders.extend(renderer, scene, st, data, more, cap, progress=prog.update):
             break
-        ref_spp *= 2
+        largest = max(max(by) for by in data.values())
     for r in stats:  # the variant each row was rendered in (the engine's refusals: scalar_rgb)
         r["route"] = renderer.routes.get((scene.name, r["model"], r["estimator"]), renderer.variant)
     results.extend(stats)
 
-    # Time to reach each target relative RMS error: rel_mse(t) = bias² + c/t, c from the measured variances;
-    # a time beyond the longest measured render of the row is an extrapolation, flagged with its factor.
+    # Time to reach each target relative RMS error: rel_mse(t) = bias² + c/t, c from the measured variances
+    # and times. Whether it is measured (the target's spp inside the row's sweep) or extrapolated (with the
+    # factor: the spp needed ÷ the largest spp) or not reachable (the bias floor above it) comes from the
+    # same fit in spp, rel_mse(n) = bias² + k/n (uncertainty.target_status), which does not depend on the
+    # machine's load.
     builtin_top = next(r for r in stats if (r["model"], r["estimator"]) == ("builtin", "-") and r["spp"] == top)
     table = []
     for row in scene.rows:
@@ -221,11 +269,16 @@ def _sweep_scene(renderer, scene, st, cache, out, prog, results):
         t = dict(label=row_label(row), row=row, bias2=b2, bias2_se=rs[-1]["bias2_se"], c=c, top=rs[-1],
                  mean_error=rs[-1]["mean_error_pct"], mean_error_se=rs[-1]["mean_error_se_pct"],
                  unbiased=row in UNBIASED, terms=terms[row], seconds_range=(min(secs), max(secs)),
-                 time_ratio=rs[-1]["seconds"] / builtin_top["seconds"] if builtin_top["seconds"] > 0 else float("nan"),
-                 slope=_slope([r["spp"] for r in rs], [r["variance"] for r in rs]), times={})
+                 time_ratio=_time_ratio(rs, builtin_top, top),
+                 slope=_slope([r["spp"] for r in rs], [r["variance"] for r in rs]), times={},
+                 status={s["target"]: s for s in _statuses(rs)}, spp_max=rs[-1]["spp"], cap=cap)
         for rms in common.TARGETS_RMS:
-            t["times"][rms] = uncertainty.time_in_range(
-                common.time_to_reach((rms / 100.0) ** 2, b2, c), secs)
+            s = t["status"][rms]
+            t["times"][rms] = (common.time_to_reach((rms / 100.0) ** 2, b2, c), s["factor"])
+            times_rows.append(dict(scene=scene.name, model=row[0], estimator=row[1], target_rms_pct=rms,
+                                   seconds=t["times"][rms][0], status=s["status"], factor=s["factor"],
+                                   spp_needed=s["spp"], largest_spp=rs[-1]["spp"], cap_spp=cap,
+                                   bias_floor_pct=s["floor_pct"], bias_floor_se_pct=s["floor_se_pct"]))
         table.append(t)
     groups = _model_groups(scene, table, sdir=renderer.scenes_dir)
     ranking = uncertainty.rank(groups)
@@ -257,7 +310,7 @@ def _sweep_scene(renderer, scene, st, cache, out, prog, results):
                                   title=f"Equal time ≈ {budget:.2f} s (heitz at {mid} spp), seed 0")
     evt_png = charts.error_vs_time(out / f"error_vs_time_{scene.name}.png", scene.title, stats)
     renders.write_exr(out / f"{scene.name}_reference.exr", ref)
-    return dict(scene=scene, stats=stats, table=table, ref=dict(row=ref_row, spp=ref_spp, noise=noise,
+    return dict(scene=scene, stats=stats, table=table, cap=cap, fixed_spps=list(st.spps), ref=dict(row=ref_row, spp=ref_spp, noise=noise,
                 seconds=ref_seconds, cached=cached, smallest=smallest, efficiency_vs_heitz=eff_ratio),
                 mask_pixels=int(mask.sum()),
                 groups=groups, ranking=ranking,

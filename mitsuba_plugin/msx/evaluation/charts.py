@@ -70,7 +70,9 @@ def error_vs_time(path, title, stats):
     if (~sig).any():
         bx.plot(xs[~sig] - 0.2, np.maximum(b2[~sig], 0.0) + z * se[~sig], "v", mfc="none", mec="tab:red", ms=6,
                 label="bias² zero within noise: upper bound (3 s.e.)")
-    bx.bar(xs + 0.2, var, 0.4, label=f"variance of one render at {top[labels[0]]['spp']} spp", color="tab:blue")
+    spps = sorted({top[lb]["spp"] for lb in labels})
+    at = f"{spps[0]} spp" if len(spps) == 1 else f"the row's largest spp ({spps[0]}–{spps[-1]}, adaptive sweep)"
+    bx.bar(xs + 0.2, var, 0.4, label=f"variance of one render at {at}", color="tab:blue")
     bx.set_yscale("log")
     bx.set_xticks(xs, labels, rotation=60, ha="right", fontsize=7)
     bx.set_ylabel("relative squared error (relative MSE units)")

@@ -251,31 +251,80 @@ def reference_noise(h1, h2, ref, mask):
 # ---------------------------------------------------------------- sweep
 
 
-def sweep(renderer: Renderer, scene: SweepScene, st, progress=None):
-    """{row: {spp: Image}} over every row, spp and seed of the settings."""
+def _seed_base(scene: SweepScene, row):
+    """Independent renders per row (a shared seed correlates the noise of two models), except that `single`
+    shares the built-in's seeds: with the same samples the two images must be equal."""
+    return 0 if row[0] in ("builtin", "single") else 100_000 * scene.rows.index(row)
+
+
+class _Counter:
+    """Renders done and planned, for the progress lines (the adaptive part adds to `total` as it goes)."""
+
+    def __init__(self, total, progress):
+        self.done, self.total, self.progress = 0, total, progress
+
+
+def _render_spp(renderer, scene, st, params, row, spp, out, counter):
+    imgs, secs = [], []
+    base = _seed_base(scene, row)
+    for k in range(st.seeds):
+        # spp a power of two (two powers differ by a multiple of 1000 = 2³·5³ never), k < 3 and
+        # spp ≤ 65 536: base + 1000 k + spp repeats neither within a row nor across rows.
+        img, s = renderer.render(scene.name, params, spp, seed=base + 1000 * k + spp)
+        imgs.append(img)
+        secs.append(s)
+        counter.done += 1
+        if counter.progress:
+            counter.progress(counter.done, counter.total, f"renders ({row_label(row)}, {spp} spp)")
+    out[row][spp] = Image(imgs, secs)
+
+
+def _next_spps(scene, row, out, more, cap_spp):
+    """Whether the row's sweep doubles once more: `single` follows the built-in's spps (same samples, same
+    images: the check "single = built-in"); every other row by ``more`` (uncertainty.wants_more)."""
+    spp = max(out[row])
+    if row[0] == "single" and ("builtin", "-") in out:
+        return spp * 2 in out[("builtin", "-")]
+    return 2 * spp <= cap_spp and bool(more(row, out[row]))
+
+
+def sweep(renderer: Renderer, scene: SweepScene, st, progress=None, more=None, cap_spp=None):
+    """{row: {spp: Image}} over every row, spp and seed of the settings; then, adaptively, each row's spp
+    doubled while ``more(row, {spp: Image})`` says a target is still to be measured (the rule:
+    uncertainty.wants_more) and the doubling stays ≤ cap_spp. The seeds follow the same scheme at every spp
+    (reproducible: a render at a given row, spp and seed is the same in every run), and the decision depends
+    on the images only, not on measured times, so the same command renders the same spps."""
     size = (st.size, st.size)
     out = {}
-    total = len(scene.rows) * len(st.spps) * st.seeds
-    done = 0
-    for index, row in enumerate(scene.rows):
+    counter = _Counter(len(scene.rows) * len(st.spps) * st.seeds, progress)
+    for row in scene.rows:
         params = renderer.params(scene, row, size)
         renderer.warm_up(scene.name, params)
         out[row] = {}
-        # Independent renders per row (a shared seed correlates the noise of two models), except that
-        # `single` shares the built-in's seeds: with the same samples the two images must be equal.
-        base = 0 if row[0] in ("builtin", "single") else 100_000 * index
         for spp in st.spps:
-            imgs, secs = [], []
-            for k in range(st.seeds):
-                img, s = renderer.render(scene.name, params, spp, seed=base + 1000 * k + spp)
-                imgs.append(img)
-                secs.append(s)
-                done += 1
-                if progress:
-                    progress(done, total, f"renders ({row_label(row)}, {spp} spp)")
-            out[row][spp] = Image(imgs, secs)
+            _render_spp(renderer, scene, st, params, row, spp, out, counter)
+        while more is not None and cap_spp and _next_spps(scene, row, out, more, cap_spp):
+            counter.total += st.seeds
+            _render_spp(renderer, scene, st, params, row, 2 * max(out[row]), out, counter)
     renderer.release()
     return out
+
+
+def extend(renderer: Renderer, scene: SweepScene, st, out, more, cap_spp, progress=None):
+    """The adaptive part of ``sweep`` again on its result (after a better reference changed the fits): rows
+    whose rule now asks for more are doubled further. Returns the renders added."""
+    size = (st.size, st.size)
+    counter = _Counter(0, progress)
+    for row in scene.rows:
+        params = None
+        while _next_spps(scene, row, out, more, cap_spp):
+            if params is None:
+                params = renderer.params(scene, row, size)
+                renderer.warm_up(scene.name, params)
+            counter.total += st.seeds
+            _render_spp(renderer, scene, st, params, row, 2 * max(out[row]), out, counter)
+    renderer.release()
+    return counter.done
 
 
 def statistics(scene: SweepScene, data, ref, ref_noise, mask):

@@ -78,11 +78,21 @@ def _rms_bias(b2, se):
     return f"{100 * math.sqrt(b2):.1f} %"
 
 
-def _time_cell(tf):
+def _time_cell(tf, status=None):
+    """A time to a target and what it is: measured (inside the row's sweep), extrapolated ×f (f = the spp it
+    needs ÷ the row's largest spp), or not reachable with the measured bias floor (uncertainty.target_status)."""
     t, f = tf
+    s = (status or {}).get("status")
+    if s == uncertainty.NOT_REACHABLE:
+        return (f"<span class=warn>not reachable: bias floor {status['floor_pct']:.1f} ± "
+                f"{status['floor_se_pct']:.1f} %</span>")
+    if s == uncertainty.UNDECIDED and math.isfinite(status.get("floor_pct", float("nan"))) and status["floor_pct"] > 0:
+        return f"— (bias floor {status['floor_pct']:.1f} ± {status['floor_se_pct']:.1f} %: at the target within noise)"
     if t is None or not math.isfinite(t):
         return _sec(t)
-    return _sec(t) if f <= 1.0 else f"{_sec(t)} <span class=warn>(extrapolated ×{f:.0f})</span>" if f >= 10 else \
+    if f <= 1.0:
+        return f"{_sec(t)} (measured)"
+    return f"{_sec(t)} <span class=warn>(extrapolated ×{f:.0f})</span>" if f >= 10 else \
         f"{_sec(t)} <span class=warn>(extrapolated ×{f:.1f})</span>"
 
 
@@ -213,11 +223,11 @@ def _scene_advice(rep):
             (tt, f), t = min(ext, key=lambda x: x[0][0])
             lines.append(f"<b>Fastest to a clean render</b> ({rms:g} % RMS error): no row reached it inside the "
                          f"measured renders; the fit's fastest is {t['label']}, {_time_cell((tt, f))}.")
-    never = [t["label"] for t in rep["table"] if t["times"][rms][0] == float("inf")
-             and t["bias2"] - z * t["bias2_se"] > (rms / 100) ** 2]
+    never = [t for t in rep["table"] if t["status"][rms]["status"] == uncertainty.NOT_REACHABLE]
     if never:
-        lines.append(f"Cannot reach {rms:g} % RMS at any render time (bias floor above it beyond noise): "
-                     f"{', '.join(never)}.")
+        lines.append(f"Cannot reach {rms:g} % RMS at any render time (bias floor above it beyond noise): " +
+                     ", ".join(f"{t['label']} (floor {t['status'][rms]['floor_pct']:.1f} ± "
+                               f"{t['status'][rms]['floor_se_pct']:.1f} %)" for t in never) + ".")
     return lines
 
 
@@ -336,25 +346,32 @@ def _scene_section(rep):
                f"({_e(ref['smallest'])}). Object pixels: {rep['mask_pixels']}.</p>")
     out.append("<h4>Closest to the Smith reference</h4>" + _ranking_section(rep))
     targets = sorted(next(iter(rep["table"]))["times"], reverse=True)
-    out.append("<h4>Every row</h4><table><tr><th class=l>model</th><th>RMS error at top spp</th>"
+    out.append("<h4>Every row</h4><table><tr><th class=l>model</th><th>RMS error at the largest spp</th>"
                "<th>mean radiance error ± s.e.</th><th class=l></th><th>bias² ± s.e.</th>"
                "<th>render time per sample ÷ built-in</th>" +
                "".join(f"<th>time to {x:g} % RMS</th>" for x in targets) +
-               "<th>slope of the variance against spp</th><th>relative MSE at top spp</th></tr>")
+               "<th>largest spp</th><th>slope of the variance against spp</th><th>relative MSE at the largest spp</th></tr>")
     for t in rep["table"]:
         out.append(f"<tr><td class=l>{t['label']}{' (unbiased)' if t['unbiased'] else ''}</td>"
                    f"<td>{t['top']['rel_rms_pct']:.1f} %</td><td>{_pct(t['mean_error'], t['mean_error_se'], 2)}</td>"
                    f"<td class=l>{_mean_word(t)}</td><td>{_bias(t)}</td><td>{t['time_ratio']:.2f}</td>" +
-                   "".join(f"<td>{_time_cell(t['times'][x])}</td>" for x in targets) +
-                   f"<td>{t['slope']:.2f}</td><td>{_e(t['top']['rel_mse'])}</td></tr>")
+                   "".join(f"<td>{_time_cell(t['times'][x], t.get('status', {}).get(x))}</td>" for x in targets) +
+                   f"<td>{t.get('spp_max', '—')}</td><td>{t['slope']:.2f}</td><td>{_e(t['top']['rel_mse'])}</td></tr>")
     out.append("</table>")
     lo = min(t["seconds_range"][0] for t in rep["table"])
     hi = max(t["seconds_range"][1] for t in rep["table"])
-    out.append(f"<p class=note>Renders of this sweep took {_sec(lo)} to {_sec(hi)} each. Times to a target come "
-               "from the fit error(t) = bias² + c/t of each row's sweep; a time beyond the row's longest measured "
-               "render is marked <span class=warn>extrapolated ×f</span> (f = that time ÷ the longest render). "
-               "“never”: the row's bias floor is above the target. RMS error = √(relative MSE); the mean radiance "
-               "error is that of the seed mean at the top spp over the object's pixels (signed: negative = too "
+    cap = rep.get("cap")
+    out.append(f"<p class=note>Renders of this sweep took {_sec(lo)} to {_sec(hi)} each. The sweep is adaptive: "
+               f"after the fixed spps {rep.get('fixed_spps', '')} a row's spp doubles "
+               f"(up to {cap} spp here) while a target it has not reached is predicted within that cap. Times to a "
+               "target come from the fit error(t) = bias² + c/t of each row's sweep: <b>measured</b> when the "
+               "target lies inside the row's sweep (its error at its largest spp is at or below it), else "
+               "<span class=warn>extrapolated ×f</span> (f = the spp the fit needs ÷ the row's largest spp); "
+               "<span class=warn>not reachable</span>: the row's bias floor (√bias², ± its standard error) is above "
+               "the target by more than 3 standard errors. Per row and target in "
+               f'<a href="{html.escape(_rel(Path(_OUT[0] or ".") / "times.csv"))}">times.csv</a>. '
+               "RMS error = √(relative MSE) at the row's largest spp; the mean radiance "
+               "error is that of the seed mean at the largest spp over the object's pixels (signed: negative = too "
                "dark).</p>")
     out.append(_img(rep["pngs"]["crops"], f"equal-time crops, {sc.name}"))
     out.append(_img(rep["pngs"]["models"], f"converged renders per model, {sc.name}"))
@@ -474,9 +491,10 @@ def page(ctx):
              "</head><body>",
              f"<h1>msx evaluation{' (quick)' if st.quick else ''}: speed against accuracy</h1>",
              f'<p class="note">Route: {html.escape(ctx["route"])}. Machine: {ctx["machine"]}. Total time of this run: '
-             f"{ctx['seconds']:.0f} s. Sweep: {st.size}×{st.size} pixels, spp {st.spps}, {st.seeds} seeds per spp. "
+             f"{ctx['seconds']:.0f} s. Sweep: {st.size}×{st.size} pixels, spp {st.spps}, {st.seeds} seeds per spp, then "
+             "adaptive (each row doubles its spp while a target is still to be measured, up to a cap per scene). "
              "Every number and chart on this page was computed by this run; the CSV files beside it hold them "
-             "(<a href='results.csv'>results.csv</a>, <a href='atlas.csv'>atlas.csv</a>, "
+             "(<a href='results.csv'>results.csv</a>, <a href='times.csv'>times.csv</a>, <a href='atlas.csv'>atlas.csv</a>, "
              "<a href='energy.csv'>energy.csv</a>).</p>"]
     parts.append(_advice(ctx))
     parts.append("<h2>Physics checks of this run</h2><ul>")

@@ -113,6 +113,52 @@ def sign_word(value, se, z=Z, words=("too dark", "too bright")):
     return words[0] if value < 0 else words[1]
 
 
+def spp_to_reach(target, bias2, k):
+    """spp for rel MSE = target under rel_mse(n) = bias² + k/n, k = variance × spp of one render (inf below
+    the bias floor, nan without a variance)."""
+    if not (math.isfinite(k) and k > 0):
+        return float("nan")
+    room = target - max(bias2, 0.0)
+    return k / room if room > 0 else float("inf")
+
+
+# What a time to a target is (the page and times.csv say it for every row and target).
+MEASURED, EXTRAPOLATED, NOT_REACHABLE, UNDECIDED = "measured", "extrapolated", "not reachable", "undecided"
+
+
+def target_status(rms_pct, bias2, bias2_se, k, top_spp, z=Z):
+    """Where a row stands against a target relative RMS error (in %), from its fit rel_mse(n) = bias² + k/n:
+    status MEASURED when the target's spp lies inside the row's sweep (at or below its largest spp, whose
+    error is then at or below the target), EXTRAPOLATED with factor = the spp needed ÷ the largest spp,
+    NOT_REACHABLE when the bias floor exceeds the target by more than z standard errors (the floor itself is
+    measured: floor_pct ± floor_se_pct), UNDECIDED when the fit puts the floor above the target but within
+    noise. spp: the spp the fit needs (inf below the floor)."""
+    target = (rms_pct / 100.0) ** 2
+    floor = 100.0 * math.sqrt(max(bias2, 0.0))
+    floor_se = 100.0 * bias2_se / (2.0 * math.sqrt(bias2)) if bias2 > 0 else float("nan")
+    out = dict(target=rms_pct, spp=spp_to_reach(target, bias2, k), factor=float("nan"), floor_pct=floor,
+               floor_se_pct=floor_se)
+    if bias2 - z * bias2_se > target:
+        return dict(out, status=NOT_REACHABLE)
+    n = out["spp"]
+    if math.isnan(n):
+        return dict(out, status=UNDECIDED)
+    if n == float("inf"):
+        return dict(out, status=UNDECIDED)
+    if n <= top_spp:
+        return dict(out, status=MEASURED, factor=1.0)
+    return dict(out, status=EXTRAPOLATED, factor=n / top_spp)
+
+
+def wants_more(statuses, top_spp, cap_spp):
+    """The adaptive sweep's rule (renders.sweep): double the row's spp when a target it has not measured is
+    predicted within the cap (its spp ≤ cap_spp) and the doubling stays within the cap. Targets the bias floor
+    makes unreachable, and targets predicted beyond the cap, stop it."""
+    if 2 * top_spp > cap_spp:
+        return False
+    return any(s["status"] == EXTRAPOLATED and s["spp"] <= cap_spp for s in statuses)
+
+
 def time_in_range(t, seconds):
     """(t, extrapolation factor): factor 1 when t lies inside the measured span of render times (or below
     its top: the sweep measured longer renders), else t / the longest measured render."""

@@ -15,6 +15,7 @@ contributes (half the L1 between two independent halves). Also the integral of e
 hemisphere (before normalisation).
 
     python3 benches/mis_density_bench.py [--quick] [--only render|lobe] [--models correlated,invariance]
+        [--alphas 0.1,0.2,0.3,0.6,1.0,1.5] [--renders 32]
 """
 
 import argparse
@@ -177,10 +178,12 @@ def main():
     ap.add_argument("--quick", action="store_true", help="small settings (a smoke run, not for the tables)")
     ap.add_argument("--only", choices=("render", "lobe"), help="one of the two tables")
     ap.add_argument("--models", default="correlated,invariance", help="the walks of the render table")
+    ap.add_argument("--alphas", default="0.1,0.2,0.3,0.6,1.0,1.5", help="the roughnesses of the render table")
+    ap.add_argument("--renders", type=int, default=32, help="independent renders per density")
     args = ap.parse_args()
     args.models = tuple(args.models.split(","))
-    args.alphas = (0.1, 0.2, 0.3, 0.6, 1.0, 1.5)
-    args.res, args.spp, args.renders = 64, 16, 32
+    args.alphas = tuple(float(a) for a in args.alphas.split(","))
+    args.res, args.spp = 64, 16
     args.lobe_models = ("correlated",)
     args.lobe_alphas = (0.1, 0.5, 1.0, 1.5)
     args.thetas = (0, 45, 75)

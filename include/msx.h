@@ -44,6 +44,17 @@
 
 #define MSX_ESTIMATOR_BDPT 1
 
+/*
+ `MsxParams::mis_density`: 0 = the library's default (single_cosine).
+ */
+#define MSX_MIS_DENSITY_DEFAULT 0
+
+#define MSX_MIS_DENSITY_SINGLE_COSINE 1
+
+#define MSX_MIS_DENSITY_CUI 2
+
+#define MSX_MIS_DENSITY_CUI_TYPO 3
+
 #define MSX_MODE_RADIANCE 0
 
 #define MSX_MODE_IMPORTANCE 1
@@ -176,6 +187,12 @@ typedef struct MsxParams {
    single scattering alone may omit, in (0, 1) (0 = MSX_DEFAULT_AUTO_TOLERANCE)
    */
   double auto_tolerance;
+  /*
+   MSX_MIS_DENSITY_*: the density the conductor walks (uncorrelated,
+   correlated, heitz, invariance, auto) report for MIS; any other
+   surface or model accepts MSX_MIS_DENSITY_DEFAULT (0) only
+   */
+  uint32_t mis_density;
 } MsxParams;
 
 /*

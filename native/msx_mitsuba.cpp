@@ -6,7 +6,8 @@
 // _native_backend.py) registers "msx_posfree" as a Python factory that parses
 // and validates the scene parameters exactly like the Python back end, then
 // instantiates this class ("msx_posfree_native") with the parsed values:
-//   strings  surface, distribution, model, estimator, seed (decimal u64)
+//   strings  surface, distribution, model, estimator, seed (decimal u64),
+//            mis_density ("default" where it does not apply)
 //   int      max_bounces (0 = library default)
 //   float    auto_tolerance (0 = library default), ior (dielectric)
 //   bool     isotropic
@@ -48,6 +49,12 @@ enum class Model : uint32_t {
     Auto = MSX_MODEL_AUTO,
 };
 enum class Estimator : uint32_t { PT = MSX_ESTIMATOR_PT, BDPT = MSX_ESTIMATOR_BDPT };
+enum class MisDensity : uint32_t {
+    Default = MSX_MIS_DENSITY_DEFAULT,
+    SingleCosine = MSX_MIS_DENSITY_SINGLE_COSINE,
+    Cui = MSX_MIS_DENSITY_CUI,
+    CuiTypo = MSX_MIS_DENSITY_CUI_TYPO,
+};
 
 template <typename E> using Names = std::initializer_list<std::pair<const char *, E>>;
 
@@ -60,6 +67,10 @@ const Names<Model> MODELS = { { "single", Model::Single },         { "uncorrelat
                               { "invariance", Model::Invariance }, { "fastmsx", Model::FastMsx },
                               { "compensated", Model::Compensated }, { "auto", Model::Auto } };
 const Names<Estimator> ESTIMATORS = { { "pt", Estimator::PT }, { "bdpt", Estimator::BDPT } };
+const Names<MisDensity> MIS_DENSITIES = { { "default", MisDensity::Default },
+                                          { "single_cosine", MisDensity::SingleCosine },
+                                          { "cui", MisDensity::Cui },
+                                          { "cui_typo", MisDensity::CuiTypo } };
 
 template <typename E> E parse(const std::string &value, Names<E> names) {
     for (auto &[name, code] : names)
@@ -92,6 +103,7 @@ public:
         m_distribution = parse(props.get<std::string>("distribution"), DISTRIBUTIONS);
         m_model = parse(props.get<std::string>("model"), MODELS);
         m_estimator = parse(props.get<std::string>("estimator"), ESTIMATORS);
+        m_mis_density = parse(props.get<std::string>("mis_density"), MIS_DENSITIES);
         MsxParams p{};
         p.surface = (uint32_t) m_surface;
         p.distribution = (uint32_t) m_distribution;
@@ -101,6 +113,7 @@ public:
         p.channels = (uint32_t) Channels;
         p.seed = std::stoull(props.get<std::string>("seed"));
         p.auto_tolerance = props.get<double>("auto_tolerance");
+        p.mis_density = (uint32_t) m_mis_density;
 
         char err[512] = { 0 };
         MsxBsdf *handle = nullptr;
@@ -249,6 +262,7 @@ public:
             << "  distribution = \"" << name_of(m_distribution, DISTRIBUTIONS) << "\"," << std::endl
             << "  model = \"" << name_of(m_model, MODELS) << "\"," << std::endl
             << "  estimator = \"" << name_of(m_estimator, ESTIMATORS) << "\"," << std::endl
+            << "  mis_density = \"" << name_of(m_mis_density, MIS_DENSITIES) << "\"," << std::endl
             << "  alpha_u = " << string::indent(m_alpha_u) << "," << std::endl
             << "  alpha_v = " << string::indent(m_alpha_v) << std::endl
             << "]";
@@ -338,6 +352,7 @@ private:
     Distribution m_distribution = Distribution::Beckmann;
     Model m_model = Model::Correlated;
     Estimator m_estimator = Estimator::PT;
+    MisDensity m_mis_density = MisDensity::Default;
     uint32_t m_lobe = +BSDFFlags::GlossyReflection;
     bool m_isotropic = true, m_constant = false;
     float m_ior = (float) MSX_DEFAULT_IOR;

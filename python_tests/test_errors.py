@@ -42,6 +42,9 @@ BAD = [
     (dict(model="auto", auto_tolerance=0.0), ["auto_tolerance", "(0, 1)"]),
     (dict(model="auto", auto_tolerance=1.0), ["auto_tolerance", "(0, 1)"]),
     (dict(model="auto", auto_tolerance="low"), ["auto_tolerance"]),
+    (dict(mis_density="lambert"), ["mis_density", "single_cosine, cui, cui_typo"]),
+    (dict(surface="dielectric", mis_density="cui"), ["mis_density", "conductor walks only", "dielectric"]),
+    (dict(model="single", mis_density="single_cosine"), ["mis_density", "conductor walks only", "single"]),
     (dict(model="Single"), ["model", "single"]),
     (dict(estimator="bdpt", model="single"), ["estimator", "bdpt", "uncorrelated"]),
     (dict(surface="dielectric", model="heitz", estimator="bdpt"), ["estimator", "bdpt", "uncorrelated"]),
@@ -77,6 +80,8 @@ def test_good_parameters_load(rgb):
         dict(eta=1.2, k=3.4, specular_reflectance=0.8),
         dict(eta={"type": "rgb", "value": [0.2, 0.9, 1.1]}, k={"type": "rgb", "value": [3.9, 2.4, 2.1]}),
         dict(material="none", max_bounces=1024),
+        dict(model="heitz", mis_density="cui"),
+        dict(model="auto", mis_density="cui_typo"),
         dict(alpha={"type": "checkerboard", "color0": 0.1, "color1": 0.4}),
     ]:
         b = mi.load_dict(dict(type="msx_posfree", **params))

@@ -250,6 +250,7 @@ impl Bsdf {
             max_bounces: self.cfg.max_bounces,
             orders: (orders.0.max(1), orders.1.min(self.cfg.max_bounces)),
             stream: Stream::new(self.cfg.seed, words),
+            mis: self.cfg.mis_density,
         }
     }
 

@@ -41,6 +41,22 @@ pub enum Estimator {
     Bdpt,
 }
 
+/// The density the conductor walks report for multiple importance sampling
+/// (`src/models/mis.rs`). It changes the noise of a render, never its
+/// expected value. Dielectric and diffuse walks and the analytic models have
+/// one density each and ignore it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MisDensity {
+    /// Exact order-1 exit density plus a cosine lobe carrying 1 − E_1.
+    SingleCosine,
+    /// Cui et al. 2023: visible-normal reflection density plus Chandrasekhar's
+    /// multiple-scattering term with the classic H approximation.
+    Cui,
+    /// `Cui` with the H approximation as the authors' released code prints it
+    /// (docs/paper-notes.md): kept for the measurement in benches/README.md.
+    CuiTypo,
+}
+
 impl Surface {
     pub fn name(self) -> &'static str {
         match self {
@@ -65,6 +81,22 @@ impl Model {
         }
     }
 }
+
+impl MisDensity {
+    pub fn name(self) -> &'static str {
+        match self {
+            MisDensity::SingleCosine => "single_cosine",
+            MisDensity::Cui => "cui",
+            MisDensity::CuiTypo => "cui_typo",
+        }
+    }
+}
+
+/// Every MIS density, in the order of the docs.
+pub const ALL_MIS_DENSITIES: [MisDensity; 3] = [MisDensity::SingleCosine, MisDensity::Cui, MisDensity::CuiTypo];
+
+/// The MIS density of the conductor walks when the user gives none.
+pub const DEFAULT_MIS_DENSITY: MisDensity = MisDensity::SingleCosine;
 
 /// Every surface, in the order of the docs (and of `Surface as usize`).
 pub const ALL_SURFACES: [Surface; 3] = [Surface::Conductor, Surface::Dielectric, Surface::Diffuse];
@@ -92,6 +124,8 @@ pub struct Config {
     pub seed: u64,
     /// `auto` only: fraction of the scattered energy order 1 alone may omit.
     pub tolerance: f64,
+    /// The conductor walks' MIS density (ignored by every other model).
+    pub mis_density: MisDensity,
 }
 
 impl Default for Config {
@@ -105,6 +139,7 @@ impl Default for Config {
             channels: 3,
             seed: 0,
             tolerance: DEFAULT_TOLERANCE,
+            mis_density: DEFAULT_MIS_DENSITY,
         }
     }
 }

@@ -70,6 +70,7 @@ fn params(model: u32, distribution: u32) -> MsxParams {
         channels: 4,
         seed: 1234,
         auto_tolerance: 0.0,
+        mis_density: 0,
     }
 }
 
@@ -422,6 +423,15 @@ fn invalid_configuration_is_reported_by_name() {
     }
     for v in [-0.5, 1.0, 3.0, f64::NAN, f64::INFINITY] {
         expect_error(&MsxParams { model: MSX_MODEL_AUTO, auto_tolerance: v, ..base }, "auto_tolerance");
+    }
+    for v in [4, 99, u32::MAX] {
+        expect_error(&MsxParams { mis_density: v, ..base }, "mis_density");
+    }
+    // An explicit MIS density where it changes nothing (not a conductor walk) is refused by name.
+    expect_error(&MsxParams { model: MSX_MODEL_SINGLE, mis_density: MSX_MIS_DENSITY_CUI, ..base }, "mis_density");
+    expect_error(&MsxParams { surface: MSX_SURFACE_DIELECTRIC, mis_density: MSX_MIS_DENSITY_SINGLE_COSINE, ..base }, "mis_density");
+    for mis_density in [MSX_MIS_DENSITY_DEFAULT, MSX_MIS_DENSITY_SINGLE_COSINE, MSX_MIS_DENSITY_CUI, MSX_MIS_DENSITY_CUI_TYPO] {
+        new(&MsxParams { mis_density, ..base });
     }
     // The boundaries are accepted.
     for max_bounces in [0, 1, MSX_DEFAULT_MAX_BOUNCES, MSX_MAX_BOUNCES_LIMIT] {

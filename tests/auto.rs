@@ -22,7 +22,8 @@ const CU_ETA: [f64; 3] = [0.200438, 0.924033, 1.10221];
 const CU_K: [f64; 3] = [3.91295, 2.45285, 2.14219];
 
 fn bsdf(surface: Surface, distribution: Distribution, model: Model, max_bounces: u32, tolerance: f64) -> Bsdf {
-    Bsdf::new(Config { surface, distribution, model, max_bounces, tolerance, estimator: Estimator::Pt, channels: 3, seed: 7 }).unwrap()
+    Bsdf::new(Config { surface, distribution, model, max_bounces, tolerance, estimator: Estimator::Pt, channels: 3, seed: 7, ..Config::default() })
+        .unwrap()
 }
 
 /// Material of a surface: copper (conductor), glass of relative IOR `ior`
@@ -221,6 +222,7 @@ fn tolerance_is_validated() {
         channels: 3,
         seed: 0,
         auto_tolerance: 0.05,
+        mis_density: 0,
     };
     let mut out: *mut msx::ffi::MsxBsdf = std::ptr::null_mut();
     let mut err = [0 as std::os::raw::c_char; 256];

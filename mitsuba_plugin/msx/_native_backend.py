@@ -278,7 +278,7 @@ def _native_props(cfg) -> dict:
     d = dict(surface=cfg.surface, distribution=cfg.distribution, model=cfg.model, estimator=cfg.estimator,
              max_bounces=int(cfg.max_bounces), seed=str(cfg.seed),
              auto_tolerance=float(cfg.auto_tolerance if cfg.model == "auto" else 0.0), isotropic=bool(cfg.isotropic),
-             alpha_u=cfg.alpha_u)
+             alpha_u=cfg.alpha_u, mis_density=cfg.mis_density if cfg.mis_density_applies() else "default")
     if not cfg.isotropic:
         d["alpha_v"] = cfg.alpha_v
     if cfg.specular_reflectance is not None:

@@ -31,13 +31,25 @@ MODELS = {
 
 ESTIMATORS = {"pt": lib.MSX_ESTIMATOR_PT, "bdpt": lib.MSX_ESTIMATOR_BDPT}
 
+# The conductor walks' MIS density (src/models/mis.rs); `cui_typo` is Cui's density with the H-function as the
+# authors' code prints it, kept for the measurement in benches/README.md (docs/paper-notes.md).
+MIS_DENSITIES = {
+    "single_cosine": lib.MSX_MIS_DENSITY_SINGLE_COSINE,
+    "cui": lib.MSX_MIS_DENSITY_CUI,
+    "cui_typo": lib.MSX_MIS_DENSITY_CUI_TYPO,
+}
+DEFAULT_MIS_DENSITY = "single_cosine"
+# The models whose conductor walk reports the chosen density (elsewhere the parameter is refused).
+MIS_DENSITY_MODELS = ("uncorrelated", "correlated", "heitz", "invariance", "auto")
+
 # The surface-specific parameters each surface accepts (the others are errors).
 SURFACE_PARAMS = {
     "conductor": ("material", "eta", "k", "specular_reflectance"),
     "dielectric": ("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"),
     "diffuse": ("reflectance",),
 }
-COMMON_PARAMS = "surface, distribution, alpha, alpha_u, alpha_v, model, estimator, max_bounces, seed, auto_tolerance"
+COMMON_PARAMS = ("surface, distribution, alpha, alpha_u, alpha_v, model, estimator, max_bounces, seed, auto_tolerance, "
+                 "mis_density")
 
 MAX_BOUNCES_LIMIT = lib.MSX_MAX_BOUNCES_LIMIT
 SEED_LIMIT = 2**64
@@ -264,6 +276,16 @@ class Config:
                 "%s: parameter 'auto_tolerance' applies to model='auto' only (model is '%s')" % (PLUGIN, self.model)
             )
         self.auto_tolerance = _fraction(props, "auto_tolerance", lib.MSX_DEFAULT_AUTO_TOLERANCE)
+        self.mis_density = _choice(props, "mis_density", DEFAULT_MIS_DENSITY, MIS_DENSITIES)
+        if ("mis_density" in props) and not self.mis_density_applies():
+            raise MsxParameterError(
+                "%s: parameter 'mis_density' applies to the conductor walks only (surface='conductor' with model %s; "
+                "here surface='%s', model='%s')" % (PLUGIN, ", ".join(MIS_DENSITY_MODELS), self.surface, self.model)
+            )
+
+    def mis_density_applies(self):
+        """Whether ``mis_density`` changes anything: a conductor walk reports it for MIS."""
+        return self.surface == "conductor" and self.model in MIS_DENSITY_MODELS
 
     def _conductor(self, mi, props):
         material = props.get("material", "none") if ("material" in props) else "none"
@@ -292,5 +314,6 @@ class Config:
             "channels": channels,
             "seed": self.seed,
             "auto_tolerance": self.auto_tolerance if self.model == "auto" else 0.0,
+            "mis_density": MIS_DENSITIES[self.mis_density] if self.mis_density_applies() else 0,
         }
 

@@ -205,11 +205,12 @@ def make_bsdf_class(mi, variant):
                     "MsxPosfree[\n"
                     "  surface = \"%s\",\n  distribution = \"%s\",\n%s"
                     "  material = \"%s\",\n  eta = %s,\n  k = %s,\n  specular_reflectance = %s,\n"
-                    "  model = \"%s\",%s\n  estimator = \"%s\",\n  max_bounces = %s,\n  seed = %d\n]"
+                    "  model = \"%s\",%s%s\n  estimator = \"%s\",\n  max_bounces = %s,\n  seed = %d\n]"
                     % (
                         cfg.surface, cfg.distribution, alpha, cfg.material,
                         _indent(self._eta), _indent(self._k), _indent(self._specular_reflectance),
                         cfg.model, "\n  auto_tolerance = %g," % cfg.auto_tolerance if cfg.model == "auto" else "",
+                        "\n  mis_density = \"%s\"," % cfg.mis_density if cfg.mis_density_applies() else "",
                         cfg.estimator,
                         cfg.max_bounces if cfg.max_bounces else "%d (library default)" % lib.MSX_DEFAULT_MAX_BOUNCES,
                         cfg.seed,

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._native import ffi, lib
-from ._params import DISTRIBUTIONS, ESTIMATORS, MODELS, SURFACES
+from ._params import DISTRIBUTIONS, ESTIMATORS, MIS_DENSITIES, MODELS, SURFACES
 
 _ERR_LEN = 512
 
@@ -31,16 +31,19 @@ class CoreBsdf:
 
     def __init__(self, surface="conductor", distribution="ggx", model="correlated", estimator="pt", *,
                  channels=1, seed=0, max_bounces=0, auto_tolerance=0.0, alpha=0.5, alpha_v=None, eta=0.0, k=1.0,
-                 ior=1.5, reflectance=1.0, radiance=True):
+                 ior=1.5, reflectance=1.0, radiance=True, mis_density=None):
         for name, value, allowed in (("surface", surface, SURFACES), ("distribution", distribution, DISTRIBUTIONS),
                                      ("model", model, MODELS), ("estimator", estimator, ESTIMATORS)):
             if value not in allowed:
                 raise CoreError(f"unknown {name} '{value}'; allowed: {', '.join(allowed)}")
+        if mis_density is not None and mis_density not in MIS_DENSITIES:
+            raise CoreError(f"unknown mis_density '{mis_density}'; allowed: {', '.join(MIS_DENSITIES)}")
         self.surface, self.model, self.estimator, self.channels = surface, model, estimator, int(channels)
         params = ffi.new("MsxParams *", {
             "surface": SURFACES[surface], "distribution": DISTRIBUTIONS[distribution], "model": MODELS[model],
             "estimator": ESTIMATORS[estimator], "max_bounces": max_bounces, "channels": self.channels,
             "seed": seed, "auto_tolerance": auto_tolerance,
+            "mis_density": 0 if mis_density is None else MIS_DENSITIES[mis_density],  # None: the core's default
         })
         handle = ffi.new("MsxBsdf **")
         self._err = ffi.new("char[]", _ERR_LEN)

@@ -2,7 +2,7 @@
 //! with, and their conversion to the core's `Config` and `Material`.
 
 use crate::bsdf::Material;
-use crate::config::{Config, Distribution, Estimator, Model, Surface, DEFAULT_MAX_BOUNCES};
+use crate::config::{Config, Distribution, Estimator, MisDensity, Model, Surface, DEFAULT_MAX_BOUNCES, DEFAULT_MIS_DENSITY};
 use crate::spectrum::{Spectrum, MAX_CHANNELS};
 use glam::DVec3;
 
@@ -24,6 +24,12 @@ pub const MSX_MODEL_AUTO: u32 = 7;
 
 pub const MSX_ESTIMATOR_PT: u32 = 0;
 pub const MSX_ESTIMATOR_BDPT: u32 = 1;
+
+/// `MsxParams::mis_density`: 0 = the library's default (single_cosine).
+pub const MSX_MIS_DENSITY_DEFAULT: u32 = 0;
+pub const MSX_MIS_DENSITY_SINGLE_COSINE: u32 = 1;
+pub const MSX_MIS_DENSITY_CUI: u32 = 2;
+pub const MSX_MIS_DENSITY_CUI_TYPO: u32 = 3;
 
 pub const MSX_MODE_RADIANCE: u32 = 0;
 pub const MSX_MODE_IMPORTANCE: u32 = 1;
@@ -72,6 +78,10 @@ pub struct MsxParams {
     /// MSX_MODEL_AUTO only: fraction of the scattered energy that evaluating
     /// single scattering alone may omit, in (0, 1) (0 = MSX_DEFAULT_AUTO_TOLERANCE)
     pub auto_tolerance: f64,
+    /// MSX_MIS_DENSITY_*: the density the conductor walks (uncorrelated,
+    /// correlated, heitz, invariance, auto) report for MIS; any other
+    /// surface or model accepts MSX_MIS_DENSITY_DEFAULT (0) only
+    pub mis_density: u32,
 }
 
 /// Per-hit material values (textures evaluated at the hit).
@@ -197,7 +207,29 @@ pub(super) fn config_from(p: &MsxParams) -> Result<Config, (&'static str, String
         return Err(("auto_tolerance", format!("applies to model 'auto' only (model is '{}')", model.name())));
     }
     let tolerance = if p.auto_tolerance == 0.0 { MSX_DEFAULT_AUTO_TOLERANCE } else { p.auto_tolerance };
-    Ok(Config { surface, distribution, model, estimator, max_bounces, channels: p.channels as usize, seed: p.seed, tolerance })
+    let mis_density = match p.mis_density {
+        MSX_MIS_DENSITY_DEFAULT => DEFAULT_MIS_DENSITY,
+        MSX_MIS_DENSITY_SINGLE_COSINE => MisDensity::SingleCosine,
+        MSX_MIS_DENSITY_CUI => MisDensity::Cui,
+        MSX_MIS_DENSITY_CUI_TYPO => MisDensity::CuiTypo,
+        v => return Err(("mis_density", format!("unknown value {v}; allowed: default (0), single_cosine (1), cui (2), cui_typo (3)"))),
+    };
+    if p.mis_density != MSX_MIS_DENSITY_DEFAULT && !mis_density_applies(surface, model) {
+        return Err((
+            "mis_density",
+            format!(
+                "applies to the conductor walks only (uncorrelated, correlated, heitz, invariance, auto on a conductor; here {} {})",
+                surface.name(),
+                model.name()
+            ),
+        ));
+    }
+    Ok(Config { surface, distribution, model, estimator, max_bounces, channels: p.channels as usize, seed: p.seed, tolerance, mis_density })
+}
+
+/// Whether `MsxParams::mis_density` changes anything: the conductor walks.
+pub(super) fn mis_density_applies(surface: Surface, model: Model) -> bool {
+    surface == Surface::Conductor && matches!(model, Model::Uncorrelated | Model::Correlated | Model::Heitz | Model::Invariance | Model::Auto)
 }
 
 pub(super) fn vec3(v: MsxVec3) -> DVec3 {

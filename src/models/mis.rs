@@ -8,6 +8,7 @@
 
 use super::single::dielectric::pdf as single_dielectric_pdf;
 use super::Call;
+use crate::config::MisDensity;
 use crate::microfacet::Microfacet;
 use crate::microfacet::Microsurface;
 use crate::tables::albedo::AlbedoTable;
@@ -26,7 +27,8 @@ pub enum OrderOneExit {
 }
 
 /// The MIS density of the random walks:
-/// - conductor: [`conductor_walk_pdf`] for ω_i above the surface; below it
+/// - conductor: [`conductor_walk_pdf`] (`single_cosine`) or [`cui_pdf`]
+///   (`cui`, `cui_typo`), as `call.mis` says, for ω_i above the surface; below it
 ///   (normal mapping, position-free walks only: `below`) a cosine lobe;
 /// - dielectric: the single-scattering density mixed with a cosine lobe on
 ///   both sides, weighted by [`diffuse_fraction`] (Heitz 2016);
@@ -44,7 +46,11 @@ pub fn walk_pdf(call: &Call, exit: OrderOneExit, below: bool, wi: DVec3, wo: DVe
                     0.0
                 }
             } else {
-                conductor_walk_pdf(exit, mf, wi, wo)
+                match call.mis {
+                    MisDensity::SingleCosine => conductor_walk_pdf(exit, mf, wi, wo),
+                    MisDensity::Cui => cui_pdf(mf, wi, wo, HForm::Classic),
+                    MisDensity::CuiTypo => cui_pdf(mf, wi, wo, HForm::Printed),
+                }
             }
         }
         Microsurface::Dielectric { eta, .. } => {
@@ -76,6 +82,57 @@ pub fn conductor_walk_pdf(exit: OrderOneExit, mf: &Microfacet, wi: DVec3, wo: DV
         OrderOneExit::HeightCorrelated => l0 / (l0 + lambda_o),
     };
     mf.reflect_pdf(wi, wo) * exit + (1.0 - e1).max(1e-3) * wo.z * FRAC_1_PI
+}
+
+/// Which approximation of Chandrasekhar's H-function [`cui_pdf`] uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum HForm {
+    /// H(μ) = (1 + 2μ)/(1 + 2√(1 − ϖ) μ), the classic approximation: H ≥ 1,
+    /// so the multiple-scattering term is ≥ 0.
+    Classic,
+    /// H(μ) = (1 + 2μ)/(1 + 2 + √(1 − ϖ) μ), as the authors' released code
+    /// prints it: H < 1 on (0, 1), so the "multiple-scattering" term is
+    /// negative (docs/paper-notes.md). Floored like `single_cosine`.
+    Printed,
+}
+
+/// Largest single-scattering albedo ϖ Cui's density maps a roughness to.
+pub const CUI_ALBEDO_MAX: f64 = 0.975;
+
+/// Cui et al. 2023's MIS density of the multiple-bounce conductors
+/// (docs/paper-notes.md): the visible-normal reflection density of single
+/// scattering, p_1 = D(h) G1(ω_i)/(4 μ_i), plus Chandrasekhar's
+/// multiple-scattering term of a half space of isotropic scatterers,
+/// (ϖ/4π)·(H(μ_i) H(μ_o) − 1)/(μ_i + μ_o), with the roughness mapped to the
+/// albedo ϖ = min((α_u + α_v)/2, 0.975). Note the term has no factor μ_o.
+///
+/// `Classic`: H − 1 = 2μ(1 − s)/(1 + 2sμ) with s = √(1 − ϖ) and
+/// 1 − s = ϖ/(1 + s), and H_i H_o − 1 = (H_i − 1)(H_o − 1) + (H_i − 1) +
+/// (H_o − 1): a sum of positive terms, so the density is > 0 for every
+/// μ_i, μ_o > 0 without cancellation, and finite at grazing angles (the
+/// ratio (H − 1)/(μ_i + μ_o) stays ≤ 2(1 − s)).
+/// `Printed`: may be negative; floored at the 1e-3 cosine lobe of
+/// [`conductor_walk_pdf`], so that the density is > 0 wherever the walk goes
+/// (the C ABI rejects a sample whose pdf is not > 0).
+pub fn cui_pdf(mf: &Microfacet, wi: DVec3, wo: DVec3, form: HForm) -> f64 {
+    let (mu_i, mu_o) = (wi.z, wo.z);
+    let albedo = (0.5 * (mf.alpha_u + mf.alpha_v)).min(CUI_ALBEDO_MAX);
+    let s = (1.0 - albedo).sqrt();
+    let p1 = mf.reflect_pdf(wi, wo);
+    let scale = albedo * 0.25 * FRAC_1_PI;
+    match form {
+        HForm::Classic => {
+            let one_minus_s = albedo / (1.0 + s);
+            let hm1 = |mu: f64| 2.0 * mu * one_minus_s / (1.0 + 2.0 * s * mu);
+            let (a, b) = (hm1(mu_i), hm1(mu_o));
+            p1 + scale * (a * b + a + b) / (mu_i + mu_o)
+        }
+        HForm::Printed => {
+            let h = |mu: f64| (1.0 + 2.0 * mu) / (3.0 + s * mu);
+            let p = p1 + scale * (h(mu_i) * h(mu_o) - 1.0) / (mu_i + mu_o);
+            p.max(1e-3 * mu_o * FRAC_1_PI)
+        }
+    }
 }
 
 /// (L_0 = 1 + Λ(ω_i), the order-1 albedo E_1(ω_i)) of [`conductor_walk_pdf`],
@@ -159,5 +216,47 @@ mod tests {
             let direct = mf.reflect_pdf(wi, wo) * exit_p + (1.0 - e1).max(1e-3) * wo.z * FRAC_1_PI;
             assert_eq!(conductor_walk_pdf(exit, mf, wi, wo).to_bits(), direct.to_bits());
         }
+    }
+
+    /// Cui's density, both H forms, is finite and > 0 wherever a conductor
+    /// walk can leave (μ_i, μ_o > 0): grazing to normal incidence, α from the
+    /// clamp's 1e-4 to its 1e4, isotropic and anisotropic, both distributions.
+    /// The classic H makes the multiple-scattering term ≥ 0 (density ≥ p_1),
+    /// the printed H makes it < 0; at α = 1e-4 the classic density is p_1 to
+    /// 1e-3 relative wherever p_1 is not negligible.
+    #[test]
+    fn cui_density_is_positive_and_finite() {
+        let mus = [1e-9, 1e-6, 1e-3, 0.05, 0.3, 0.7, 1.0];
+        let phis = [0.0, 0.4, 1.7, std::f64::consts::PI];
+        let dir = |mu: f64, phi: f64| {
+            let s = (1.0 - mu * mu).max(0.0).sqrt();
+            DVec3::new(s * phi.cos(), s * phi.sin(), mu)
+        };
+        let mut printed_negative = 0;
+        for dist in [Distribution::Ggx, Distribution::Beckmann] {
+            for (au, av) in [(1e-4, 1e-4), (0.01, 0.01), (0.1, 0.1), (0.5, 0.5), (1.0, 1.0), (1.5, 1.5), (4.0, 4.0), (1e4, 1e4), (0.05, 1.2)] {
+                let mf = Microfacet::new(dist, au, av);
+                for &mi in &mus {
+                    for &mo in &mus {
+                        for &phi in &phis {
+                            let (wi, wo) = (dir(mi, 0.0), dir(mo, phi));
+                            let p1 = mf.reflect_pdf(wi, wo);
+                            let c = cui_pdf(&mf, wi, wo, HForm::Classic);
+                            let t = cui_pdf(&mf, wi, wo, HForm::Printed);
+                            let what = format!("{dist:?} α ({au}, {av}) μ_i {mi} μ_o {mo} φ {phi}: p1 {p1} classic {c} printed {t}");
+                            assert!(c.is_finite() && c > 0.0 && c >= p1, "{what}");
+                            assert!(t.is_finite() && t > 0.0, "{what}");
+                            if (t - 1e-3 * mo * FRAC_1_PI).abs() > 0.0 && t < p1 {
+                                printed_negative += 1;
+                            }
+                            if au == 1e-4 && p1 > 1e-6 {
+                                assert!((c - p1) <= 1e-3 * p1, "{what}");
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(printed_negative > 0, "the printed H never lowered the density below p_1");
     }
 }

@@ -23,7 +23,7 @@ pub mod mis;
 pub mod posfree;
 pub mod single;
 
-use crate::config::{Estimator, Surface};
+use crate::config::{Estimator, MisDensity, Surface};
 use crate::microfacet::{Microfacet, Microsurface};
 use crate::rng::{hash_words, Sampler};
 use crate::spectrum::Spectrum;
@@ -43,6 +43,8 @@ pub struct Call {
     pub orders: (u32, u32),
     /// What the call's random stream is derived from ([`Call::rng`]).
     pub stream: Stream,
+    /// The conductor walks' MIS density (`mis.rs`).
+    pub mis: MisDensity,
 }
 
 /// The inputs a call's random stream is derived from: the BSDF's `seed` and up

@@ -162,6 +162,9 @@ class ConductorModel:
             self.estimate = self.walk.eval_bdpt if cfg.estimator == "bdpt" else self.walk.eval_pt
         self.max_bounces = cfg.max_bounces or DEFAULT_MAX_BOUNCES
         self.rule = auto.OrderOneRule("conductor", cfg.distribution, cfg.auto_tolerance) if cfg.model == "auto" else None
+        # The walks' MIS density (``mis.conductor_pdf``); differentiated walks sample their proposal instead and
+        # report its own density (jit/gradients.py).
+        self.mis_density = cfg.mis_density
 
     def bounces(self, call, wi):
         """The bounce cap of each lane (``auto``: 1 where order 1 suffices; ω_i below: the full model)."""
@@ -178,7 +181,7 @@ class ConductorModel:
             pdf = gradients.proposal_pdf(walk.exit, mf, wi, wo) if want_pdf else None
         else:
             value = self.estimate(mf, call.fresnel, wi, wo, self.bounces(call, wi), key) if want_value else None
-            pdf = mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo) if want_pdf else None
+            pdf = mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo, self.mis_density) if want_pdf else None
         return (value * call.tint_r if want_value else None), pdf
 
     def differentiable_estimate(self, call, wi, wo, key):
@@ -213,7 +216,7 @@ class ConductorModel:
             wo, pdf, weight, valid = self.analytic.sample(mf, call.fresnel, wi, u1, u2)
         else:
             wo, weight, valid = walk.sample_walk(mf, call.fresnel, wi, s1, u1, u2, self.bounces(call, wi), key)
-            pdf = mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo)
+            pdf = mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo, self.mis_density)
         return wo, pdf, weight * call.tint_r, valid
 
 

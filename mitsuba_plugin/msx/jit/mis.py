@@ -33,10 +33,41 @@ def conductor_walk_pdf(exit, mf, wi, wo):
     return mf.reflect_pdf(wi, wo) * p_exit + dr.maximum(1.0 - e1, 1e-3) * wo[2] * INV_PI
 
 
-def conductor_pdf(exit, below, mf, wi, wo):
+CUI_ALBEDO_MAX = 0.975  # largest single-scattering albedo Cui's density maps a roughness to
+
+
+def cui_pdf(mf, wi, wo, printed=False):
+    """Cui et al. 2023's density (``cui_pdf`` in ``src/models/mis.rs``, docs/paper-notes.md): the
+    visible-normal reflection density D(h) G1(ω_i)/(4 μ_i) plus (ϖ/4π)(H(μ_i) H(μ_o) − 1)/(μ_i + μ_o) with
+    ϖ = min((α_u + α_v)/2, 0.975). ``printed=False``: the classic H = (1 + 2μ)/(1 + 2sμ), s = √(1 − ϖ), with
+    H − 1 = 2μ(1 − s)/(1 + 2sμ) and 1 − s = ϖ/(1 + s), so the term is a sum of positive parts; ``True``: the
+    H printed in the authors' code, (1 + 2μ)/(3 + sμ) < 1, floored at the 1e-3 cosine lobe."""
+    mu_i, mu_o = wi[2], wo[2]
+    albedo = dr.minimum(0.5 * (mf.alpha_u + mf.alpha_v), CUI_ALBEDO_MAX)
+    s = dr.sqrt(1.0 - albedo)
+    p1 = mf.reflect_pdf(wi, wo)
+    scale = albedo * (0.25 * INV_PI)
+    if not printed:
+        one_minus_s = albedo / (1.0 + s)
+        a = 2.0 * mu_i * one_minus_s / (1.0 + 2.0 * s * mu_i)
+        b = 2.0 * mu_o * one_minus_s / (1.0 + 2.0 * s * mu_o)
+        return p1 + scale * (a * b + a + b) / (mu_i + mu_o)
+    h_i = (1.0 + 2.0 * mu_i) / (3.0 + s * mu_i)
+    h_o = (1.0 + 2.0 * mu_o) / (3.0 + s * mu_o)
+    return dr.maximum(p1 + scale * (h_i * h_o - 1.0) / (mu_i + mu_o), 1e-3 * mu_o * INV_PI)
+
+
+SINGLE_COSINE, CUI, CUI_TYPO = "single_cosine", "cui", "cui_typo"  # the values of ``mis_density``
+
+
+def conductor_pdf(exit, below, mf, wi, wo, density=SINGLE_COSINE):
     """``walk_pdf`` of a conductor: 0 for ω_o below; ω_i below the surface (normal mapping) gets a cosine
-    lobe when the walk starts there (``below``, the position-free walks), else 0."""
-    pdf = conductor_walk_pdf(exit, mf, wi, wo)
+    lobe when the walk starts there (``below``, the position-free walks), else 0. ``density``: the
+    ``mis_density`` parameter (``conductor_walk_pdf`` or ``cui_pdf``)."""
+    if density == SINGLE_COSINE:
+        pdf = conductor_walk_pdf(exit, mf, wi, wo)
+    else:
+        pdf = cui_pdf(mf, wi, wo, printed=density == CUI_TYPO)
     if below:
         pdf = dr.select(wi[2] < 0.0, wo[2] * INV_PI, pdf)
     else:

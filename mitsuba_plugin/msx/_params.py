@@ -87,6 +87,10 @@ def models(surface=None, *, estimator="pt", distribution=None, **flags):
     """The names of the models (in the table's order) that run on ``surface`` (any if None) with
     ``estimator`` and ``distribution`` (any if None), and whose flags (``random_walk``, ``per_order``,
     ``exact``; ``shortcut``: it runs another model's walk, as ``auto``) have the given values."""
+    unknown = set(flags) - {"random_walk", "per_order", "exact", "shortcut"}
+    if unknown:
+        raise TypeError("models(): unknown capability %s; known: random_walk, per_order, exact, shortcut"
+                        % ", ".join(sorted(unknown)))
     out = []
     for c in TABLE["model"]:
         if surface is not None and surface not in (c.bdpt_surfaces if estimator == "bdpt" else c.surfaces):

@@ -24,6 +24,11 @@
 
 #define MSX_DISTRIBUTION_GGX 1
 
+/*
+ The models' codes as constants, kept for C callers that use them; every
+ model's code (these and any newer) is in the table of names, read with
+ `msx_choice` (src/ffi/choices.rs).
+ */
 #define MSX_MODEL_SINGLE 0
 
 #define MSX_MODEL_UNCORRELATED 1

@@ -13,6 +13,9 @@ pub const MSX_SURFACE_DIFFUSE: u32 = 2;
 pub const MSX_DISTRIBUTION_BECKMANN: u32 = 0;
 pub const MSX_DISTRIBUTION_GGX: u32 = 1;
 
+/// The models' codes as constants, kept for C callers that use them; every
+/// model's code (these and any newer) is in the table of names, read with
+/// `msx_choice` (src/ffi/choices.rs).
 pub const MSX_MODEL_SINGLE: u32 = 0;
 pub const MSX_MODEL_UNCORRELATED: u32 = 1;
 pub const MSX_MODEL_CORRELATED: u32 = 2;

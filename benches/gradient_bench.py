@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 LLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
-MODELS = ["single", "compensated", "fastmsx", "uncorrelated", "correlated"]
+MODELS = ["single", "compensated", "fastmsx", "uncorrelated", "correlated", "heitz", "invariance"]
 
 
 def main():

@@ -19,8 +19,8 @@ use msx::{Bsdf, Config, Distribution, Estimator, Material, Model, Spectrum, Surf
 use std::fmt::Write as _;
 use std::io::Write as _;
 
-const MODELS: [Model; 8] =
-    [Model::Single, Model::Uncorrelated, Model::Correlated, Model::Heitz, Model::Invariance, Model::FastMsx, Model::Compensated, Model::Auto];
+/// Every model of the table (src/config.rs), in its order.
+const MODELS: [Model; msx::config::ALL_MODELS.len()] = msx::config::ALL_MODELS;
 
 fn spectrum(s: Spectrum, channels: usize) -> String {
     s.0[..channels].iter().map(|v| format!("{v:e}")).collect::<Vec<_>>().join(",")

@@ -24,6 +24,11 @@
 
 #define MSX_DISTRIBUTION_GGX 1
 
+/*
+ The models' codes as constants, kept for C callers that use them; every
+ model's code (these and any newer) is in the table of names, read with
+ `msx_choice` (src/ffi/choices.rs).
+ */
 #define MSX_MODEL_SINGLE 0
 
 #define MSX_MODEL_UNCORRELATED 1
@@ -93,6 +98,46 @@
 #define MSX_ALPHA_MAX 1e4
 
 /*
+ The parameters `msx_choice` describes (its `parameter` argument).
+ */
+#define MSX_CHOICE_SURFACE 0
+
+#define MSX_CHOICE_DISTRIBUTION 1
+
+#define MSX_CHOICE_MODEL 2
+
+#define MSX_CHOICE_ESTIMATOR 3
+
+/*
+ The conductor walks' MIS densities (code 0 in `MsxParams::mis_density`, the
+ default, is not a row).
+ */
+#define MSX_CHOICE_MIS_DENSITY 4
+
+/*
+ The number of parameters: MSX_CHOICE_* < MSX_CHOICE_PARAMETERS.
+ */
+#define MSX_CHOICE_PARAMETERS 5
+
+/*
+ `MsxChoice::flags` of a model: `eval` is one unbiased estimate of a random
+ walk (else a deterministic closed form).
+ */
+#define MSX_FLAG_RANDOM_WALK 1
+
+/*
+ `MsxChoice::flags` of a model: evaluating a range of scattering orders gives
+ the model's own value per order (else its whole value counts as order 1).
+ */
+#define MSX_FLAG_PER_ORDER 2
+
+/*
+ `MsxChoice::flags` of a model: it estimates the Smith microsurface's
+ multiple-scattering BSDF without approximation (the reference).
+ */
+#define MSX_FLAG_EXACT 4
+
+/*
  `msx_table` kinds: directional albedos with F = 1 over (α, cos θ_i) — of
  `single` (Mitsuba's G1), and of order 1 of the uncorrelated and the
  height-correlated models (the walks' MIS density, src/models/mis.rs).
@@ -149,6 +194,42 @@ typedef struct MsxBsdf MsxBsdf;
  Opaque simulation handle.
  */
 typedef struct MsxSim MsxSim;
+
+/*
+ One choice of a parameter. The fields after `code` describe a model and
+ are 0 for the other parameters.
+ */
+typedef struct MsxChoice {
+  /*
+   Its name in scenes: a static NUL-terminated string, never freed
+   ("" when `msx_choice` fails)
+   */
+  const char *name;
+  /*
+   Its code (MSX_SURFACE_*, MSX_DISTRIBUTION_*, MSX_MODEL_*, MSX_ESTIMATOR_*)
+   */
+  uint32_t code;
+  /*
+   Model: MSX_FLAG_* bits
+   */
+  uint32_t flags;
+  /*
+   Model: bit (1 << MSX_SURFACE_*) set for every surface it supports
+   */
+  uint32_t surfaces;
+  /*
+   Model: the surfaces (same bits) on which it accepts MSX_ESTIMATOR_BDPT
+   */
+  uint32_t bdpt_surfaces;
+  /*
+   Model: bit (1 << MSX_DISTRIBUTION_*) set for every distribution it is defined for
+   */
+  uint32_t distributions;
+  /*
+   Model: the code of the model whose walk it runs (its own code; `auto`: `correlated`'s)
+   */
+  uint32_t runs;
+} MsxChoice;
 
 /*
  Static configuration of a BSDF.
@@ -447,6 +528,27 @@ extern "C" {
  Library version as a static NUL-terminated string.
  */
 const char *msx_version(void);
+
+/*
+ How many choices a parameter (MSX_CHOICE_*) has; 0 for an unknown parameter.
+ */
+uint32_t msx_choice_count(uint32_t parameter);
+
+/*
+ The scene name of a parameter (MSX_CHOICE_*: "surface", "distribution",
+ "model", "estimator"), a static NUL-terminated string; null for an unknown
+ parameter.
+ */
+const char *msx_choice_parameter(uint32_t parameter);
+
+/*
+ Writes the `index`-th choice (0 ≤ index < msx_choice_count(parameter), in
+ the order of the docs) of a parameter (MSX_CHOICE_*) to `*out`.
+ Returns MSX_OK; MSX_ERR_NULL_POINTER if `out` is null;
+ MSX_ERR_INVALID_PARAMETER for an unknown parameter or an index out of
+ range (then `*out` is zeroed, with `name` = "").
+ */
+int32_t msx_choice(uint32_t parameter, uint32_t index, struct MsxChoice *out);
 
 /*
  Creates a BSDF. On success writes the handle to `*out` and returns MSX_OK;

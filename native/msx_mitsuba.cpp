@@ -22,6 +22,7 @@
 #include <mitsuba/render/bsdf.h>
 #include <mitsuba/render/texture.h>
 
+#include <stdexcept>
 #include <string>
 
 #include "msx.h"
@@ -30,60 +31,36 @@ NAMESPACE_BEGIN(mitsuba)
 
 namespace {
 
-// The configuration, parsed once in the constructor (the per-call code compares these, never strings).
-// The values are the core's codes (msx.h), so that they go to msx_bsdf_new as they are.
+// The surface, parsed once in the constructor (the per-call code compares it, never strings); its values
+// are the core's codes (msx.h), so that it goes to msx_bsdf_new as it is.
 enum class Surface : uint32_t {
     Conductor = MSX_SURFACE_CONDUCTOR,
     Dielectric = MSX_SURFACE_DIELECTRIC,
     Diffuse = MSX_SURFACE_DIFFUSE,
 };
-enum class Distribution : uint32_t { Beckmann = MSX_DISTRIBUTION_BECKMANN, GGX = MSX_DISTRIBUTION_GGX };
-enum class Model : uint32_t {
-    Single = MSX_MODEL_SINGLE,
-    Uncorrelated = MSX_MODEL_UNCORRELATED,
-    Correlated = MSX_MODEL_CORRELATED,
-    Heitz = MSX_MODEL_HEITZ,
-    Invariance = MSX_MODEL_INVARIANCE,
-    FastMsx = MSX_MODEL_FASTMSX,
-    Compensated = MSX_MODEL_COMPENSATED,
-    Auto = MSX_MODEL_AUTO,
-};
-enum class Estimator : uint32_t { PT = MSX_ESTIMATOR_PT, BDPT = MSX_ESTIMATOR_BDPT };
-enum class MisDensity : uint32_t {
-    Default = MSX_MIS_DENSITY_DEFAULT,
-    SingleCosine = MSX_MIS_DENSITY_SINGLE_COSINE,
-    Cui = MSX_MIS_DENSITY_CUI,
-    CuiTypo = MSX_MIS_DENSITY_CUI_TYPO,
-};
 
-template <typename E> using Names = std::initializer_list<std::pair<const char *, E>>;
-
-const Names<Surface> SURFACES = { { "conductor", Surface::Conductor },
-                                  { "dielectric", Surface::Dielectric },
-                                  { "diffuse", Surface::Diffuse } };
-const Names<Distribution> DISTRIBUTIONS = { { "beckmann", Distribution::Beckmann }, { "ggx", Distribution::GGX } };
-const Names<Model> MODELS = { { "single", Model::Single },         { "uncorrelated", Model::Uncorrelated },
-                              { "correlated", Model::Correlated }, { "heitz", Model::Heitz },
-                              { "invariance", Model::Invariance }, { "fastmsx", Model::FastMsx },
-                              { "compensated", Model::Compensated }, { "auto", Model::Auto } };
-const Names<Estimator> ESTIMATORS = { { "pt", Estimator::PT }, { "bdpt", Estimator::BDPT } };
-const Names<MisDensity> MIS_DENSITIES = { { "default", MisDensity::Default },
-                                          { "single_cosine", MisDensity::SingleCosine },
-                                          { "cui", MisDensity::Cui },
-                                          { "cui_typo", MisDensity::CuiTypo } };
-
-template <typename E> E parse(const std::string &value, Names<E> names) {
-    for (auto &[name, code] : names)
-        if (value == name)
-            return code;
-    // The Python front end validated the value: reaching this is a programming error.
-    throw std::runtime_error("msx_posfree_native: unexpected value '" + value + "'");
+// The code of a parameter's value (MSX_CHOICE_*), from the core's table of names (msx_choice; the table is
+// src/config.rs): a model added there is accepted here without a change to this file.
+uint32_t parse(uint32_t parameter, const std::string &value) {
+    std::string allowed;
+    MsxChoice c;
+    for (uint32_t i = 0; i < msx_choice_count(parameter) && msx_choice(parameter, i, &c) == MSX_OK; ++i) {
+        if (value == c.name)
+            return c.code;
+        allowed += (allowed.empty() ? "" : ", ") + std::string(c.name);
+    }
+    // The Python front end validates the values first; the same one line as its (_params.py, _choice).
+    const char *name = msx_choice_parameter(parameter);
+    throw std::runtime_error("msx_posfree: unknown value '" + value + "' for parameter '" +
+                             (name ? name : "?") + "'; allowed values: " + allowed);
 }
 
-template <typename E> const char *name_of(E value, Names<E> names) {
-    for (auto &[name, code] : names)
-        if (value == code)
-            return name;
+// The name of a code, for to_string.
+std::string name_of(uint32_t parameter, uint32_t code) {
+    MsxChoice c;
+    for (uint32_t i = 0; i < msx_choice_count(parameter) && msx_choice(parameter, i, &c) == MSX_OK; ++i)
+        if (c.code == code)
+            return c.name;
     return "?";
 }
 
@@ -99,21 +76,23 @@ public:
     static_assert(Channels >= 1 && Channels <= MSX_MAX_CHANNELS, "unsupported spectrum size");
 
     explicit MsxNativeBSDF(const Properties &props) : Base(props) {
-        m_surface = parse(props.get<std::string>("surface"), SURFACES);
-        m_distribution = parse(props.get<std::string>("distribution"), DISTRIBUTIONS);
-        m_model = parse(props.get<std::string>("model"), MODELS);
-        m_estimator = parse(props.get<std::string>("estimator"), ESTIMATORS);
-        m_mis_density = parse(props.get<std::string>("mis_density"), MIS_DENSITIES);
+        m_surface = (Surface) parse(MSX_CHOICE_SURFACE, props.get<std::string>("surface"));
+        m_distribution = parse(MSX_CHOICE_DISTRIBUTION, props.get<std::string>("distribution"));
+        m_model = parse(MSX_CHOICE_MODEL, props.get<std::string>("model"));
+        m_estimator = parse(MSX_CHOICE_ESTIMATOR, props.get<std::string>("estimator"));
+        // "default" (the Python front end's value where the parameter does not apply) is the ABI's 0.
+        const std::string mis = props.get<std::string>("mis_density");
+        m_mis_density = mis == "default" ? MSX_MIS_DENSITY_DEFAULT : parse(MSX_CHOICE_MIS_DENSITY, mis);
         MsxParams p{};
         p.surface = (uint32_t) m_surface;
-        p.distribution = (uint32_t) m_distribution;
-        p.model = (uint32_t) m_model;
-        p.estimator = (uint32_t) m_estimator;
+        p.distribution = m_distribution;
+        p.model = m_model;
+        p.estimator = m_estimator;
         p.max_bounces = (uint32_t) props.get<int64_t>("max_bounces");
         p.channels = (uint32_t) Channels;
         p.seed = std::stoull(props.get<std::string>("seed"));
         p.auto_tolerance = props.get<double>("auto_tolerance");
-        p.mis_density = (uint32_t) m_mis_density;
+        p.mis_density = m_mis_density;
 
         char err[512] = { 0 };
         MsxBsdf *handle = nullptr;
@@ -258,11 +237,11 @@ public:
     std::string to_string() const override {
         std::ostringstream oss;
         oss << "MsxPosfree[native," << std::endl
-            << "  surface = \"" << name_of(m_surface, SURFACES) << "\"," << std::endl
-            << "  distribution = \"" << name_of(m_distribution, DISTRIBUTIONS) << "\"," << std::endl
-            << "  model = \"" << name_of(m_model, MODELS) << "\"," << std::endl
-            << "  estimator = \"" << name_of(m_estimator, ESTIMATORS) << "\"," << std::endl
-            << "  mis_density = \"" << name_of(m_mis_density, MIS_DENSITIES) << "\"," << std::endl
+            << "  surface = \"" << name_of(MSX_CHOICE_SURFACE, (uint32_t) m_surface) << "\"," << std::endl
+            << "  distribution = \"" << name_of(MSX_CHOICE_DISTRIBUTION, m_distribution) << "\"," << std::endl
+            << "  model = \"" << name_of(MSX_CHOICE_MODEL, m_model) << "\"," << std::endl
+            << "  estimator = \"" << name_of(MSX_CHOICE_ESTIMATOR, m_estimator) << "\"," << std::endl
+            << "  mis_density = \"" << (m_mis_density == MSX_MIS_DENSITY_DEFAULT ? std::string("default") : name_of(MSX_CHOICE_MIS_DENSITY, m_mis_density)) << "\"," << std::endl
             << "  alpha_u = " << string::indent(m_alpha_u) << "," << std::endl
             << "  alpha_v = " << string::indent(m_alpha_v) << std::endl
             << "]";
@@ -349,10 +328,11 @@ private:
 
     MsxBsdf *m_handle = nullptr;
     Surface m_surface = Surface::Conductor;
-    Distribution m_distribution = Distribution::Beckmann;
-    Model m_model = Model::Correlated;
-    Estimator m_estimator = Estimator::PT;
-    MisDensity m_mis_density = MisDensity::Default;
+    // MSX_DISTRIBUTION_*, MSX_MODEL_*, MSX_ESTIMATOR_* codes (the per-call code does not branch on them).
+    uint32_t m_distribution = MSX_DISTRIBUTION_BECKMANN;
+    uint32_t m_model = MSX_MODEL_CORRELATED;
+    uint32_t m_estimator = MSX_ESTIMATOR_PT;
+    uint32_t m_mis_density = MSX_MIS_DENSITY_DEFAULT;  // MSX_MIS_DENSITY_* (0: the default)
     uint32_t m_lobe = +BSDFFlags::GlossyReflection;
     bool m_isotropic = true, m_constant = false;
     float m_ior = (float) MSX_DEFAULT_IOR;

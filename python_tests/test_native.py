@@ -15,11 +15,10 @@ import pytest
 
 from conftest import set_variant
 
-SURFACE_MODELS = [("conductor", m) for m in ("single", "uncorrelated", "correlated", "heitz", "invariance", "fastmsx",
-                                             "compensated", "auto")] + \
-                 [("dielectric", m) for m in ("single", "uncorrelated", "correlated", "heitz", "invariance",
-                                              "compensated", "auto")] + \
-                 [("diffuse", m) for m in ("uncorrelated", "correlated", "heitz", "invariance", "auto")]
+from msx._params import SURFACES, models
+
+# Every model on every surface of the core's table of names (src/config.rs).
+SURFACE_MODELS = [(s, m) for s in SURFACES for m in models(s, distribution="ggx")]
 
 
 def native(mi):

@@ -2,7 +2,7 @@
 //! Per-hit values (roughness, IOR, reflectance) arrive with every call as a
 //! [`Material`], since Mitsuba evaluates textures at the hit.
 
-use crate::config::{Config, Distribution, Estimator, Model, ParamError, Surface, ALL_MODELS, ALL_SURFACES, DEFAULT_TOLERANCE, MAX_BOUNCES_LIMIT};
+use crate::config::{Config, Distribution, Estimator, Model, ModelInfo, ParamError, Surface, ALL_SURFACES, MAX_BOUNCES_LIMIT, MODELS};
 use crate::microfacet::Microfacet;
 use crate::microfacet::{ConductorFresnel, Microsurface};
 use crate::models::analytic::{Compensated, FastMsx};
@@ -33,18 +33,13 @@ fn implementation(model: Model, estimator: Estimator, surface: Surface, dist: Di
 }
 
 /// Per surface: its models, and those of them that accept `estimator="bdpt"`,
-/// as the implementations declare them.
+/// as the table of models declares them (`MODELS` in config.rs).
 fn support() -> &'static [(Vec<Model>, Vec<Model>); 3] {
     static SUPPORT: OnceLock<[(Vec<Model>, Vec<Model>); 3]> = OnceLock::new();
     SUPPORT.get_or_init(|| {
         ALL_SURFACES.map(|surface| {
-            let imps: Vec<_> = ALL_MODELS
-                .iter()
-                .map(|&m| (m, implementation(m, Estimator::Pt, surface, Distribution::Ggx, DEFAULT_TOLERANCE)))
-                .filter(|(_, imp)| imp.surfaces().contains(&surface))
-                .collect();
-            let bdpt = imps.iter().filter(|(_, imp)| imp.estimators(surface).contains(&Estimator::Bdpt)).map(|(m, _)| *m).collect();
-            (imps.into_iter().map(|(m, _)| m).collect(), bdpt)
+            let on = |list: fn(&ModelInfo) -> &[Surface]| MODELS.iter().filter(|m| list(m).contains(&surface)).map(|m| m.model).collect();
+            (on(|m| m.surfaces), on(|m| m.bdpt))
         })
     })
 }
@@ -201,10 +196,12 @@ impl Bsdf {
                 ),
             });
         }
-        if cfg.model == Model::FastMsx && cfg.distribution != Distribution::Ggx {
+        let distributions = cfg.model.info().distributions;
+        if !distributions.contains(&cfg.distribution) {
+            let names = distributions.iter().map(|d| format!("'{}'", d.name())).collect::<Vec<_>>().join(", ");
             return Err(ParamError {
                 parameter: "distribution",
-                message: "model 'fastmsx' (Rosales 2023) is defined for distribution 'ggx' only".into(),
+                message: format!("model '{}' is defined for distribution {} only", cfg.model.name(), names),
             });
         }
         if cfg.estimator == Estimator::Bdpt && !bdpt_models(cfg.surface).contains(&cfg.model) {

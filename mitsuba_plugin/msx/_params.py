@@ -10,37 +10,109 @@ from ._native import lib
 
 PLUGIN = "msx_posfree"
 
-SURFACES = {
-    "conductor": lib.MSX_SURFACE_CONDUCTOR,
-    "dielectric": lib.MSX_SURFACE_DIELECTRIC,
-    "diffuse": lib.MSX_SURFACE_DIFFUSE,
-}
+class Choice:
+    """One row of the core's table of names (src/config.rs, read through ``msx_choice`` in include/msx.h):
+    a name, its code and, for a model, what it supports."""
 
-DISTRIBUTIONS = {"beckmann": lib.MSX_DISTRIBUTION_BECKMANN, "ggx": lib.MSX_DISTRIBUTION_GGX}
+    __slots__ = ("name", "code", "flags", "surfaces", "bdpt_surfaces", "distributions", "runs")
 
-MODELS = {
-    "single": lib.MSX_MODEL_SINGLE,
-    "uncorrelated": lib.MSX_MODEL_UNCORRELATED,
-    "correlated": lib.MSX_MODEL_CORRELATED,
-    "heitz": lib.MSX_MODEL_HEITZ,
-    "invariance": lib.MSX_MODEL_INVARIANCE,
-    "fastmsx": lib.MSX_MODEL_FASTMSX,
-    "compensated": lib.MSX_MODEL_COMPENSATED,
-    "auto": lib.MSX_MODEL_AUTO,
-}
+    def __init__(self, name, code, flags=0, surfaces=(), bdpt_surfaces=(), distributions=(), runs=None):
+        self.name, self.code, self.flags = name, code, flags
+        self.surfaces, self.bdpt_surfaces, self.distributions, self.runs = (
+            surfaces, bdpt_surfaces, distributions, runs)
 
-ESTIMATORS = {"pt": lib.MSX_ESTIMATOR_PT, "bdpt": lib.MSX_ESTIMATOR_BDPT}
+    @property
+    def random_walk(self):
+        """``eval`` is one unbiased estimate of a random walk (else a deterministic closed form)."""
+        return bool(self.flags & lib.MSX_FLAG_RANDOM_WALK)
+
+    @property
+    def per_order(self):
+        """Its value splits by scattering order (else the whole value counts as order 1)."""
+        return bool(self.flags & lib.MSX_FLAG_PER_ORDER)
+
+    @property
+    def exact(self):
+        """It estimates the Smith microsurface's multiple-scattering BSDF itself (the reference)."""
+        return bool(self.flags & lib.MSX_FLAG_EXACT)
+
+    def __repr__(self):
+        return "Choice(%r, %d)" % (self.name, self.code)
+
+
+def _read_table():
+    """{parameter name: [Choice, ...]} in the core's order (the order of the docs)."""
+    from ._native import ffi
+
+    def rows(parameter):
+        out = []
+        c = ffi.new("MsxChoice *")
+        for i in range(lib.msx_choice_count(parameter)):
+            if lib.msx_choice(parameter, i, c) != lib.MSX_OK:
+                raise RuntimeError("msx: the core's table of names has no row %d of parameter %d" % (i, parameter))
+            out.append((ffi.string(c.name).decode(), c.code, c.flags, c.surfaces, c.bdpt_surfaces, c.distributions,
+                        c.runs))
+        return out
+
+    names = {p: ffi.string(lib.msx_choice_parameter(p)).decode() for p in range(lib.MSX_CHOICE_PARAMETERS)}
+    raw = {names[p]: rows(p) for p in names}
+    by_code = {p: {r[1]: r[0] for r in raw[p]} for p in raw}
+
+    def decode(mask, parameter):
+        return tuple(name for code, name in by_code[parameter].items() if mask >> code & 1)
+
+    table = {}
+    for parameter, rs in raw.items():
+        if parameter == "model":
+            table[parameter] = [Choice(n, code, flags, decode(surf, "surface"), decode(bdpt, "surface"),
+                                       decode(dist, "distribution"), by_code["model"].get(runs, n))
+                                for n, code, flags, surf, bdpt, dist, runs in rs]
+        else:
+            table[parameter] = [Choice(r[0], r[1]) for r in rs]
+    return table
+
+
+# The core's table of names: every choice of every parameter (src/config.rs; docs/adding-a-model.md).
+TABLE = _read_table()
+# {name: code} per parameter, in the core's order.
+SURFACES = {c.name: c.code for c in TABLE["surface"]}
+DISTRIBUTIONS = {c.name: c.code for c in TABLE["distribution"]}
+MODELS = {c.name: c.code for c in TABLE["model"]}
+ESTIMATORS = {c.name: c.code for c in TABLE["estimator"]}
+# {name: Choice} of every model: the surfaces, estimators and distributions it supports, its flags.
+MODEL_INFO = {c.name: c for c in TABLE["model"]}
+
+
+def models(surface=None, *, estimator="pt", distribution=None, **flags):
+    """The names of the models (in the table's order) that run on ``surface`` (any if None) with
+    ``estimator`` and ``distribution`` (any if None), and whose flags (``random_walk``, ``per_order``,
+    ``exact``; ``shortcut``: it runs another model's walk, as ``auto``) have the given values."""
+    unknown = set(flags) - {"random_walk", "per_order", "exact", "shortcut"}
+    if unknown:
+        raise TypeError("models(): unknown capability %s; known: random_walk, per_order, exact, shortcut"
+                        % ", ".join(sorted(unknown)))
+    out = []
+    for c in TABLE["model"]:
+        if surface is not None and surface not in (c.bdpt_surfaces if estimator == "bdpt" else c.surfaces):
+            continue
+        if surface is None and estimator == "bdpt" and not c.bdpt_surfaces:
+            continue
+        if distribution is not None and distribution not in c.distributions:
+            continue
+        have = {"random_walk": c.random_walk, "per_order": c.per_order, "exact": c.exact,
+                "shortcut": c.runs != c.name}
+        if any(have[k] != bool(v) for k, v in flags.items()):
+            continue
+        out.append(c.name)
+    return out
+
 
 # The conductor walks' MIS density (src/models/mis.rs); `cui_typo` is Cui's density with the H-function as the
 # authors' code prints it, kept for the measurement in benches/README.md (docs/paper-notes.md).
-MIS_DENSITIES = {
-    "single_cosine": lib.MSX_MIS_DENSITY_SINGLE_COSINE,
-    "cui": lib.MSX_MIS_DENSITY_CUI,
-    "cui_typo": lib.MSX_MIS_DENSITY_CUI_TYPO,
-}
+MIS_DENSITIES = {c.name: c.code for c in TABLE["mis_density"]}
 DEFAULT_MIS_DENSITY = "single_cosine"
 # The models whose conductor walk reports the chosen density (elsewhere the parameter is refused).
-MIS_DENSITY_MODELS = ("uncorrelated", "correlated", "heitz", "invariance", "auto")
+MIS_DENSITY_MODELS = tuple(models("conductor", random_walk=True))
 
 # The surface-specific parameters each surface accepts (the others are errors).
 SURFACE_PARAMS = {

@@ -27,6 +27,7 @@ from .evaluation import energy as energy_mod
 from .evaluation import lobes as lobes_mod
 from .evaluation import renders, two_references
 from .evaluation import uncertainty
+from ._params import models
 from .evaluation.common import CONDUCTOR_ROWS, DIELECTRIC_ROWS, UNBIASED, row_label
 
 SWEEP_SCENES = [
@@ -40,7 +41,7 @@ SWEEP_SCENES = [
 # Side-by-side only (no sweep): (key, scene file, title, built-in twin, models, scene parameters)
 SIDE_SCENES = [
     ("furnace_sphere", "furnace_sphere", "White furnace: F = 1, GGX α = 1.5 — an energy-conserving BSDF vanishes (value 1)",
-     "roughconductor", ["single", "uncorrelated", "correlated", "heitz", "invariance", "auto", "compensated", "fastmsx"], {}),
+     "roughconductor", models("conductor"), {}),  # every conductor model of the core's table
     ("roughness_ramp", "roughness_ramp", "Copper, GGX α = 0.02, 0.05, 0.1, 0.3, 1 (top to bottom): where model='auto' drops the walk",
      "roughconductor", ["single", "correlated", "auto", "invariance"], {}),
     ("fig01_metals", "fig01_metals", "Wang 2022 Fig. 1 (a, b): copper α 0.1, aluminium α 0.6, gold α 0.5 on aluminium α 0.1",

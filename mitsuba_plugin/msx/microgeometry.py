@@ -32,20 +32,19 @@ from pathlib import Path
 
 import numpy as np
 
-SURFACES = ("conductor", "dielectric", "diffuse")
+from . import _params
+
+SURFACES = tuple(_params.SURFACES)
 ORDER_LABELS = ("1", "2", "3", "4+", "total")
-# Models compared per surface (fastmsx is defined for GGX only, and the
-# simulated surfaces are Beckmann; auto is correlated with a shortcut).
-MODELS = {
-    "conductor": ("single", "uncorrelated", "correlated", "heitz", "invariance", "compensated"),
-    "dielectric": ("single", "uncorrelated", "correlated", "heitz", "invariance", "compensated"),
-    "diffuse": ("uncorrelated", "correlated", "heitz", "invariance"),
-}
-# Analytic models have no orders beyond their whole value.
-ANALYTIC = ("single", "compensated", "fastmsx")
+# Models compared per surface, from the core's table of names (src/config.rs): those defined for
+# Beckmann (the simulated surfaces are Beckmann; fastmsx is GGX only), but the shortcuts of another
+# model's walk (auto is correlated with a shortcut).
+MODELS = {s: tuple(_params.models(s, distribution="beckmann", shortcut=False)) for s in SURFACES}
+# Closed forms have no orders beyond their whole value.
+ANALYTIC = tuple(_params.models(random_walk=False))
 # Of these, single *is* order 1 (Walter 2007); the others are a whole lobe
 # with no order decomposition: only their total is compared.
-WHOLE = ("compensated", "fastmsx")
+WHOLE = tuple(_params.models(per_order=False))
 
 
 def _has_order(model, lab):

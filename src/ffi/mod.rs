@@ -4,6 +4,7 @@
 //! | file | what |
 //! |---|---|
 //! | `params.rs` | the codes (MSX_SURFACE_*, MSX_MODEL_*, …), the parameter and material structs, their conversion to the core's `Config` and `Material` |
+//! | `choices.rs` | the table of names (`src/config.rs`) for C: every choice's name, code and a model's capabilities (`msx_choice`) |
 //! | `handles.rs` | a BSDF handle (`msx_bsdf_new`, `msx_bsdf_free`) and its single calls (`msx_eval`, `msx_pdf`, `msx_sample`, …) |
 //! | `batch.rs` | the batched calls over arrays of inputs (`msx_*_batch`), run over threads |
 //! | `output.rs` | the one place that cleans values for the renderer, and its counters (`msx_diagnostics`) |
@@ -33,6 +34,7 @@
 
 // Declared in the order of the header's sections (cbindgen follows it).
 mod params;
+mod choices;
 mod handles;
 mod batch;
 mod output;
@@ -40,6 +42,7 @@ mod tables;
 mod research;
 
 pub use batch::*;
+pub use choices::*;
 pub use handles::*;
 pub use output::*;
 pub use params::*;

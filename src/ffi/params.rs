@@ -2,7 +2,7 @@
 //! with, and their conversion to the core's `Config` and `Material`.
 
 use crate::bsdf::Material;
-use crate::config::{Config, Distribution, Estimator, MisDensity, Model, Surface, DEFAULT_MAX_BOUNCES, DEFAULT_MIS_DENSITY};
+use crate::config::{Choice, Config, Distribution, Estimator, MisDensity, Model, Surface, DEFAULT_MAX_BOUNCES, DEFAULT_MIS_DENSITY, MODELS};
 use crate::spectrum::{Spectrum, MAX_CHANNELS};
 use glam::DVec3;
 
@@ -13,6 +13,9 @@ pub const MSX_SURFACE_DIFFUSE: u32 = 2;
 pub const MSX_DISTRIBUTION_BECKMANN: u32 = 0;
 pub const MSX_DISTRIBUTION_GGX: u32 = 1;
 
+/// The models' codes as constants, kept for C callers that use them; every
+/// model's code (these and any newer) is in the table of names, read with
+/// `msx_choice` (src/ffi/choices.rs).
 pub const MSX_MODEL_SINGLE: u32 = 0;
 pub const MSX_MODEL_UNCORRELATED: u32 = 1;
 pub const MSX_MODEL_CORRELATED: u32 = 2;
@@ -155,70 +158,38 @@ impl Default for MsxMaterial {
     }
 }
 
-/// The surface of an MSX_SURFACE_* code.
-pub(super) fn surface_from(code: u32) -> Option<Surface> {
-    match code {
-        MSX_SURFACE_CONDUCTOR => Some(Surface::Conductor),
-        MSX_SURFACE_DIELECTRIC => Some(Surface::Dielectric),
-        MSX_SURFACE_DIFFUSE => Some(Surface::Diffuse),
-        _ => None,
-    }
-}
-
 /// The distribution of an MSX_DISTRIBUTION_* code.
 pub(super) fn distribution_from(code: u32) -> Option<Distribution> {
-    match code {
-        MSX_DISTRIBUTION_BECKMANN => Some(Distribution::Beckmann),
-        MSX_DISTRIBUTION_GGX => Some(Distribution::Ggx),
-        _ => None,
-    }
+    Distribution::from_code(code)
+}
+
+/// The choice of a code, or the error naming the parameter and every allowed
+/// value of the table (src/config.rs).
+pub(super) fn choice<T: Choice>(code: u32) -> Result<T, (&'static str, String)> {
+    T::from_code(code).ok_or_else(|| (T::PARAMETER, format!("unknown value {code}; allowed: {}", T::allowed())))
 }
 
 pub(super) fn config_from(p: &MsxParams) -> Result<Config, (&'static str, String)> {
-    let Some(surface) = surface_from(p.surface) else {
-        return Err(("surface", format!("unknown value {}; allowed: conductor (0), dielectric (1), diffuse (2)", p.surface)));
-    };
-    let Some(distribution) = distribution_from(p.distribution) else {
-        return Err(("distribution", format!("unknown value {}; allowed: beckmann (0), ggx (1)", p.distribution)));
-    };
-    let model = match p.model {
-        MSX_MODEL_SINGLE => Model::Single,
-        MSX_MODEL_UNCORRELATED => Model::Uncorrelated,
-        MSX_MODEL_CORRELATED => Model::Correlated,
-        MSX_MODEL_HEITZ => Model::Heitz,
-        MSX_MODEL_INVARIANCE => Model::Invariance,
-        MSX_MODEL_FASTMSX => Model::FastMsx,
-        MSX_MODEL_COMPENSATED => Model::Compensated,
-        MSX_MODEL_AUTO => Model::Auto,
-        v => {
-            return Err((
-                "model",
-                format!("unknown value {v}; allowed: single (0), uncorrelated (1), correlated (2), heitz (3), invariance (4), fastmsx (5), compensated (6), auto (7)"),
-            ))
-        }
-    };
-    let estimator = match p.estimator {
-        MSX_ESTIMATOR_PT => Estimator::Pt,
-        MSX_ESTIMATOR_BDPT => Estimator::Bdpt,
-        v => return Err(("estimator", format!("unknown value {v}; allowed: pt (0), bdpt (1)"))),
-    };
+    let surface = choice::<Surface>(p.surface)?;
+    let distribution = choice::<Distribution>(p.distribution)?;
+    let model = choice::<Model>(p.model)?;
+    let estimator = choice::<Estimator>(p.estimator)?;
     let max_bounces = if p.max_bounces == 0 { DEFAULT_MAX_BOUNCES } else { p.max_bounces };
     if p.auto_tolerance != 0.0 && model != Model::Auto {
         return Err(("auto_tolerance", format!("applies to model 'auto' only (model is '{}')", model.name())));
     }
     let tolerance = if p.auto_tolerance == 0.0 { MSX_DEFAULT_AUTO_TOLERANCE } else { p.auto_tolerance };
-    let mis_density = match p.mis_density {
-        MSX_MIS_DENSITY_DEFAULT => DEFAULT_MIS_DENSITY,
-        MSX_MIS_DENSITY_SINGLE_COSINE => MisDensity::SingleCosine,
-        MSX_MIS_DENSITY_CUI => MisDensity::Cui,
-        MSX_MIS_DENSITY_CUI_TYPO => MisDensity::CuiTypo,
-        v => return Err(("mis_density", format!("unknown value {v}; allowed: default (0), single_cosine (1), cui (2), cui_typo (3)"))),
+    let mis_density = if p.mis_density == MSX_MIS_DENSITY_DEFAULT {
+        DEFAULT_MIS_DENSITY
+    } else {
+        choice::<MisDensity>(p.mis_density).map_err(|(name, message)| (name, format!("{message}, or default ({MSX_MIS_DENSITY_DEFAULT})")))?
     };
     if p.mis_density != MSX_MIS_DENSITY_DEFAULT && !mis_density_applies(surface, model) {
         return Err((
             "mis_density",
             format!(
-                "applies to the conductor walks only (uncorrelated, correlated, heitz, invariance, auto on a conductor; here {} {})",
+                "applies to the conductor walks only ({} on a conductor; here {} {})",
+                MODELS.iter().filter(|m| mis_density_applies(Surface::Conductor, m.model)).map(|m| m.name).collect::<Vec<_>>().join(", "),
                 surface.name(),
                 model.name()
             ),
@@ -229,7 +200,8 @@ pub(super) fn config_from(p: &MsxParams) -> Result<Config, (&'static str, String
 
 /// Whether `MsxParams::mis_density` changes anything: the conductor walks.
 pub(super) fn mis_density_applies(surface: Surface, model: Model) -> bool {
-    surface == Surface::Conductor && matches!(model, Model::Uncorrelated | Model::Correlated | Model::Heitz | Model::Invariance | Model::Auto)
+    // The conductor's random walks (the table's `random_walk` models that run on a conductor).
+    surface == Surface::Conductor && model.info().random_walk && model.info().surfaces.contains(&Surface::Conductor)
 }
 
 pub(super) fn vec3(v: MsxVec3) -> DVec3 {
@@ -252,5 +224,58 @@ pub(super) fn material(m: &MsxMaterial) -> Material {
         specular_transmittance: spectrum4(m.specular_transmittance),
         reflectance: spectrum4(m.reflectance),
         radiance: m.mode != MSX_MODE_IMPORTANCE,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The header's MSX_* codes (kept for compatibility) are the table's codes.
+    #[test]
+    fn header_codes_are_the_tables() {
+        let pairs = [
+            (MSX_MODEL_SINGLE, Model::Single),
+            (MSX_MODEL_UNCORRELATED, Model::Uncorrelated),
+            (MSX_MODEL_CORRELATED, Model::Correlated),
+            (MSX_MODEL_HEITZ, Model::Heitz),
+            (MSX_MODEL_INVARIANCE, Model::Invariance),
+            (MSX_MODEL_FASTMSX, Model::FastMsx),
+            (MSX_MODEL_COMPENSATED, Model::Compensated),
+            (MSX_MODEL_AUTO, Model::Auto),
+        ];
+        for (code, model) in pairs {
+            assert_eq!(model.code(), code, "{model:?}");
+        }
+        for (code, s) in
+            [(MSX_SURFACE_CONDUCTOR, Surface::Conductor), (MSX_SURFACE_DIELECTRIC, Surface::Dielectric), (MSX_SURFACE_DIFFUSE, Surface::Diffuse)]
+        {
+            assert_eq!(s.code(), code);
+        }
+        assert_eq!((Distribution::Beckmann.code(), Distribution::Ggx.code()), (MSX_DISTRIBUTION_BECKMANN, MSX_DISTRIBUTION_GGX));
+        assert_eq!((Estimator::Pt.code(), Estimator::Bdpt.code()), (MSX_ESTIMATOR_PT, MSX_ESTIMATOR_BDPT));
+        assert_eq!(
+            (MisDensity::SingleCosine.code(), MisDensity::Cui.code(), MisDensity::CuiTypo.code()),
+            (MSX_MIS_DENSITY_SINGLE_COSINE, MSX_MIS_DENSITY_CUI, MSX_MIS_DENSITY_CUI_TYPO)
+        );
+        assert_eq!(MisDensity::from_code(MSX_MIS_DENSITY_DEFAULT), None, "0 asks for the default");
+    }
+
+    #[test]
+    fn unknown_codes_list_the_table() {
+        let p = MsxParams {
+            surface: 0,
+            distribution: 0,
+            model: 99,
+            estimator: 0,
+            max_bounces: 0,
+            channels: 3,
+            seed: 0,
+            auto_tolerance: 0.0,
+            mis_density: 0,
+        };
+        let (parameter, message) = config_from(&p).unwrap_err();
+        assert_eq!(parameter, "model");
+        assert_eq!(message, format!("unknown value 99; allowed: {}", Model::allowed()));
     }
 }

@@ -93,7 +93,12 @@ fn sim_config(p: &MsxSimParams) -> Result<crate::microgeometry::SimConfig, Strin
         MSX_SURFACE_CONDUCTOR => Facet::Conductor { eta: p.eta, k: p.k },
         MSX_SURFACE_DIELECTRIC => Facet::Dielectric { ior: p.ior },
         MSX_SURFACE_DIFFUSE => Facet::Diffuse { albedo: p.albedo },
-        v => return Err(format!("invalid parameter 'surface': unknown value {v}; allowed: conductor (0), dielectric (1), diffuse (2)")),
+        v => {
+            return Err(format!(
+                "invalid parameter 'surface': unknown value {v}; allowed: {}",
+                <crate::config::Surface as crate::config::Choice>::allowed()
+            ))
+        }
     };
     let or = |v: u32, d: u32| if v == 0 { d } else { v };
     let alpha_v = if p.alpha_v == 0.0 { p.alpha_u } else { p.alpha_v };

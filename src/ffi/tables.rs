@@ -84,9 +84,12 @@ pub extern "C" fn msx_table(
             write_error(err, err_len, "null pointer passed to msx_table");
             return MSX_ERR_NULL_POINTER;
         }
-        let Some(dist) = distribution_from(distribution) else {
-            write_error(err, err_len, &format!("invalid parameter 'distribution': unknown value {distribution}"));
-            return MSX_ERR_INVALID_PARAMETER;
+        let dist = match choice::<crate::config::Distribution>(distribution) {
+            Ok(v) => v,
+            Err((parameter, message)) => {
+                write_error(err, err_len, &format!("invalid parameter '{parameter}': {message}"));
+                return MSX_ERR_INVALID_PARAMETER;
+            }
         };
         let albedo = || crate::tables::albedo::AlbedoTable::get(dist);
         let dielectric = || crate::models::analytic::dielectric_albedo::DielectricAlbedoTable::get(dist).grids();
@@ -146,13 +149,19 @@ pub extern "C" fn msx_auto_rule(
             write_error(err, err_len, "null pointer passed to msx_auto_rule");
             return MSX_ERR_NULL_POINTER;
         }
-        let Some(surface) = surface_from(surface) else {
-            write_error(err, err_len, &format!("invalid parameter 'surface': unknown value {surface}"));
-            return MSX_ERR_INVALID_PARAMETER;
+        let surface = match choice::<crate::config::Surface>(surface) {
+            Ok(v) => v,
+            Err((parameter, message)) => {
+                write_error(err, err_len, &format!("invalid parameter '{parameter}': {message}"));
+                return MSX_ERR_INVALID_PARAMETER;
+            }
         };
-        let Some(dist) = distribution_from(distribution) else {
-            write_error(err, err_len, &format!("invalid parameter 'distribution': unknown value {distribution}"));
-            return MSX_ERR_INVALID_PARAMETER;
+        let dist = match choice::<crate::config::Distribution>(distribution) {
+            Ok(v) => v,
+            Err((parameter, message)) => {
+                write_error(err, err_len, &format!("invalid parameter '{parameter}': {message}"));
+                return MSX_ERR_INVALID_PARAMETER;
+            }
         };
         let tolerance = if tolerance == 0.0 { MSX_DEFAULT_AUTO_TOLERANCE } else { tolerance };
         if !(tolerance > 0.0 && tolerance < 1.0 && eta.is_finite()) {

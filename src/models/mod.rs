@@ -23,7 +23,7 @@ pub mod mis;
 pub mod posfree;
 pub mod single;
 
-use crate::config::{Estimator, MisDensity, Surface};
+use crate::config::MisDensity;
 use crate::microfacet::{Microfacet, Microsurface};
 use crate::rng::{hash_words, Sampler};
 use crate::spectrum::Spectrum;
@@ -103,12 +103,8 @@ pub struct Sampled {
 /// (`bsdf.rs` applies them); dielectric models return the same value in every
 /// channel.
 pub trait ScatteringModel: Send + Sync + std::fmt::Debug {
-    /// The surfaces the model is defined for.
-    fn surfaces(&self) -> &'static [Surface];
-    /// The estimators `eval` accepts on a surface (every model has `Pt`).
-    fn estimators(&self, _surface: Surface) -> &'static [Estimator] {
-        &[Estimator::Pt]
-    }
+    // The surfaces, estimators and distributions a model supports are its row
+    // of `MODELS` in config.rs (the one table of names), not methods here.
     /// One estimate of f(ω_i, ω_o)·|cos θ_o| restricted to `call.orders`
     /// (deterministic for the analytic models).
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum;

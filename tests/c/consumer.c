@@ -262,8 +262,32 @@ static void test_single_sample(const MsxBsdf *bsdf, const MsxMaterial *mat, int 
     }
 }
 
+/* The table of names (msx_choice): every model's name and code, and one past the largest code, which is no
+   model. */
+static uint32_t test_choices(void) {
+    MsxChoice c;
+    uint32_t i, n = msx_choice_count(MSX_CHOICE_MODEL), past = 0;
+    const char *parameter = msx_choice_parameter(MSX_CHOICE_MODEL);
+
+    CHECK(parameter != NULL && strcmp(parameter, "model") == 0, "msx_choice_parameter(MSX_CHOICE_MODEL)");
+    CHECK(n >= 8, "at least the 8 models of the header: %u", (unsigned)n);
+    for (i = 0; i < n; i++) {
+        CHECK(msx_choice(MSX_CHOICE_MODEL, i, &c) == MSX_OK && c.name != NULL && c.name[0] != 0, "model row %u",
+              (unsigned)i);
+        if (c.code == MSX_MODEL_SINGLE)
+            CHECK(strcmp(c.name, "single") == 0 && (c.surfaces >> MSX_SURFACE_CONDUCTOR & 1), "single's row");
+        if (c.code + 1 > past)
+            past = c.code + 1;
+    }
+    CHECK(msx_choice(MSX_CHOICE_MODEL, n, &c) == MSX_ERR_INVALID_PARAMETER && c.name != NULL && c.name[0] == 0,
+          "row past the end");
+    CHECK(msx_choice(MSX_CHOICE_PARAMETERS, 0, &c) == MSX_ERR_INVALID_PARAMETER, "unknown parameter");
+    CHECK(msx_choice(MSX_CHOICE_MODEL, 0, NULL) == MSX_ERR_NULL_POINTER, "null out");
+    return past;
+}
+
 static void test_errors(void) {
-    MsxParams p = make_params(MSX_MODEL_AUTO + 1); /* not a model */
+    MsxParams p = make_params(test_choices()); /* not a model */
     MsxBsdf *out = NULL;
     char err[256];
     int32_t rc;

@@ -29,10 +29,11 @@ import numpy as np
 import msx
 from msx.core import CoreBsdf, pexit_study
 
-CONDUCTOR_MODELS = [("single", "pt"), ("uncorrelated", "pt"), ("uncorrelated", "bdpt"), ("correlated", "pt"),
-                    ("correlated", "bdpt"), ("heitz", "pt"), ("invariance", "pt"), ("invariance", "bdpt"),
-                    ("auto", "pt"), ("compensated", "pt"), ("fastmsx", "pt")]
-DIELECTRIC_MODELS = [m for m in CONDUCTOR_MODELS if m[0] != "fastmsx" and m != ("invariance", "bdpt")]
+from .common import model_rows
+
+# Every model × estimator of the evaluation (common.model_rows: the core's table of names).
+CONDUCTOR_MODELS = model_rows("conductor")
+DIELECTRIC_MODELS = model_rows("dielectric")
 SURFACES = {"conductor": CONDUCTOR_MODELS, "dielectric_outside": DIELECTRIC_MODELS,
             "dielectric_inside": DIELECTRIC_MODELS}
 ETA = 1.5

@@ -10,17 +10,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._params import models
+
 # A model row of the evaluation: (model, estimator); model "builtin" is Mitsuba's own BSDF.
 Row = tuple
 
-CONDUCTOR_ROWS = [("builtin", "-"), ("single", "pt"), ("uncorrelated", "pt"), ("uncorrelated", "bdpt"),
-                  ("correlated", "pt"), ("correlated", "bdpt"), ("heitz", "pt"), ("invariance", "pt"),
-                  ("invariance", "bdpt"), ("auto", "pt"), ("compensated", "pt"), ("fastmsx", "pt")]
-# fastmsx is conductor-only; invariance's BDPT needs the whole path's segment term, which a
-# dielectric path only has up to its first refraction (src/models/invariance/mod.rs).
-DIELECTRIC_ROWS = [r for r in CONDUCTOR_ROWS if r[0] != "fastmsx" and r != ("invariance", "bdpt")]
-# Estimators of the Smith multiple-scattering BSDF itself (unbiased against the reference).
-UNBIASED = {("heitz", "pt"), ("invariance", "pt"), ("invariance", "bdpt")}
+
+def model_rows(surface):
+    """Every model of the core's table (src/config.rs) on a surface with estimator 'pt', each followed by its
+    'bdpt' row where the table gives it one — except for a model that shortcuts another's walk (``auto``), whose
+    BDPT is that model's."""
+    bdpt = set(models(surface, estimator="bdpt", shortcut=False))
+    return [row for m in models(surface) for row in [(m, "pt")] + ([(m, "bdpt")] if m in bdpt else [])]
+
+
+CONDUCTOR_ROWS = [("builtin", "-")] + model_rows("conductor")
+DIELECTRIC_ROWS = [("builtin", "-")] + model_rows("dielectric")
+# Estimators of the Smith multiple-scattering BSDF itself (unbiased against the reference): the table's exact models.
+UNBIASED = {row for row in CONDUCTOR_ROWS + DIELECTRIC_ROWS if row[0] in models(exact=True)}
 
 
 # Targets of the time-to-error columns, as relative RMS error in % (rel MSE = (x / 100)²): 10 % is a

@@ -9,15 +9,14 @@ import math
 
 import numpy as np
 
+from msx._params import models
 from msx.core import CoreBsdf
 
 from .atlas import ETA, Proposal
 
 THETAS = [0.0, 60.0, 85.0]
-MODELS = {
-    "conductor": ["single", "uncorrelated", "correlated", "heitz", "invariance", "auto", "compensated", "fastmsx"],
-    "dielectric": ["single", "uncorrelated", "correlated", "heitz", "invariance", "auto", "compensated"],
-}
+# Every model of the core's table of names on each surface (src/config.rs).
+MODELS = {s: models(s) for s in ("conductor", "dielectric")}
 
 
 def copper_rgb(mi):

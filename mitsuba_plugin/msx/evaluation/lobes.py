@@ -13,19 +13,18 @@ import math
 
 import numpy as np
 
+from msx._params import models
 from msx.core import CoreBsdf
 
 from .atlas import ETA, Proposal
 
 ORDERS = [("1", (1, 1)), ("2", (2, 2)), ("3", (3, 3)), ("4+", (4, 1 << 30))]
 THETAS_I = [0.0, 0.5, 1.0, 1.5]
-MODELS = {
-    "conductor": ["single", "uncorrelated", "correlated", "heitz", "invariance", "compensated", "fastmsx"],
-    "dielectric": ["single", "uncorrelated", "correlated", "heitz", "invariance", "compensated"],
-    "diffuse": ["uncorrelated", "correlated", "heitz", "invariance"],
-}
-# Analytic models have no decomposition into orders: their whole value is shown as order 1.
-ANALYTIC = {"single", "compensated", "fastmsx"}
+# Every model of the core's table of names on each surface, but those that shortcut another's walk (auto:
+# its lobes are correlated's).
+MODELS = {s: models(s, shortcut=False) for s in ("conductor", "dielectric", "diffuse")}
+# Closed forms have no decomposition into orders: their whole value is shown as order 1.
+ANALYTIC = set(models(random_walk=False))
 
 
 def _bsdf(surface, model, alpha):

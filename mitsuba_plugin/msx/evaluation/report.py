@@ -12,6 +12,7 @@ from pathlib import Path
 from . import uncertainty
 from .atlas import FAIL
 from .common import TARGETS_RMS, row_label
+from .two_references import SMITH
 
 CSS = """
 body{font-family:system-ui,sans-serif;max-width:1250px;margin:2em auto;padding:0 1em;color:#222;line-height:1.45}
@@ -295,7 +296,7 @@ def _diffuse_advice(rep):
     """Fig. 8 has no sweep: each model's mean over the object against the Smith model (mean of heitz and
     invariance), with the standard error from the seeds."""
     by = {e["label"]: e for e in rep["energy"]}
-    ref = [by[m] for m in ("heitz", "invariance") if m in by]
+    ref = [by[m] for m in SMITH if m in by]
     if not ref:
         return []
     import numpy as np
@@ -304,7 +305,7 @@ def _diffuse_advice(rep):
     rse = math.sqrt(sum(np.var(e["seeds"], ddof=1) / len(e["seeds"]) for e in ref)) / len(ref)
     lines = []
     for e in rep["energy"]:
-        if e["label"] in ("heitz", "invariance"):
+        if e["label"] in SMITH:
             continue
         v = float(np.mean(e["seeds"]))
         se = math.hypot(float(np.std(e["seeds"], ddof=1) / math.sqrt(len(e["seeds"]))), rse)

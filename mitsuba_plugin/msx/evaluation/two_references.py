@@ -11,12 +11,14 @@ import math
 
 import numpy as np
 
+from .._params import models
 from . import uncertainty
 
 ORDERS = ("1", "2", "3", "4+")
 # Sweep scene standing for each microgeometry surface.
 SURFACE_SCENES = {"conductor": ["fig09_copper_sphere"], "dielectric": ["fig01_dielectric_slab", "fig01_dielectric_sphere"]}
-SMITH = ("heitz", "invariance")
+# The models that estimate the Smith BSDF itself (the table's exact models: heitz, invariance).
+SMITH = tuple(models(exact=True))
 
 
 def micro_ranking(rows, surface):

@@ -15,7 +15,7 @@ import math
 import drjit as dr
 import mitsuba as mi
 
-from .._params import PLUGIN, MsxParameterError
+from .._params import MODEL_INFO, PLUGIN, MsxParameterError
 from .._plugin_base import make_base_class, make_factory, native_channels
 from .._vectorized_config import vectorized_config
 from . import analytic, auto, gradients, heitz, invariance, mis, posfree, posfree_dielectric
@@ -30,16 +30,29 @@ DIELECTRIC_WALKS = {**posfree_dielectric.DIELECTRIC_WALKS, **heitz.DIELECTRIC_WA
 DIFFUSE_WALKS = {**posfree.DIFFUSE_WALKS, **heitz.DIFFUSE_WALKS, **invariance.DIFFUSE_WALKS}
 
 
+def _check_names(surface, models):
+    """The engine's names are the core's (its table of names, src/config.rs via ``_params.MODEL_INFO``): a
+    model the engine runs on a surface is one the core implements there."""
+    for name in models:
+        info = MODEL_INFO.get(name)
+        if info is None or surface not in info.surfaces:
+            raise RuntimeError("msx.jit: the engine runs model %r on surface '%s', which the core's table of names "
+                               "does not list there (its models there: %s)"
+                               % (name, surface, ", ".join(n for n, c in MODEL_INFO.items() if surface in c.surfaces)))
+    return models
+
+
 def _with_auto(models):
-    """``auto`` runs wherever ``correlated`` does (it is ``correlated`` with a per-lane bounce cap)."""
-    return models + (("auto",) if "correlated" in models else ())
+    """``auto`` runs wherever the model it shortcuts (``correlated``, the table's ``runs``) does: it is that
+    model with a per-lane bounce cap (jit/auto.py)."""
+    return models + (("auto",) if MODEL_INFO["auto"].runs in models else ())
 
 
 # The models the engine runs, per surface (the others are refused with a message naming the alternatives).
 ENGINE_MODELS = {
-    "conductor": _with_auto(tuple(CONDUCTOR_ANALYTIC) + tuple(CONDUCTOR_WALKS)),
-    "dielectric": _with_auto(tuple(DIELECTRIC_ANALYTIC) + tuple(DIELECTRIC_WALKS)),
-    "diffuse": _with_auto(tuple(DIFFUSE_WALKS)),
+    "conductor": _check_names("conductor", _with_auto(tuple(CONDUCTOR_ANALYTIC) + tuple(CONDUCTOR_WALKS))),
+    "dielectric": _check_names("dielectric", _with_auto(tuple(DIELECTRIC_ANALYTIC) + tuple(DIELECTRIC_WALKS))),
+    "diffuse": _check_names("diffuse", _with_auto(tuple(DIFFUSE_WALKS))),
 }
 
 # While a walk is differentiated, the eval key sees ω_o on this grid (``_eval_key``).
@@ -133,8 +146,9 @@ def gradient_problem(cfg):
 
 
 def walk_name(cfg):
-    """The walk a model runs: ``auto`` is ``correlated`` with a per-lane bounce cap."""
-    return "correlated" if cfg.model == "auto" else cfg.model
+    """The walk a model runs (the table's ``runs``): ``auto`` is ``correlated`` with a per-lane bounce cap."""
+    info = MODEL_INFO.get(cfg.model)
+    return info.runs if info is not None else cfg.model
 
 
 class Call:

@@ -15,7 +15,6 @@ pub mod fastmsx;
 
 use super::single::{conductor as single, Single};
 use super::{Call, Sampled, ScatteringModel};
-use crate::config::Surface;
 use crate::microfacet::Microsurface;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
@@ -25,10 +24,6 @@ use glam::DVec3;
 pub struct FastMsx;
 
 impl ScatteringModel for FastMsx {
-    fn surfaces(&self) -> &'static [Surface] {
-        &[Surface::Conductor]
-    }
-
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
         match &call.surf {
             Microsurface::Conductor(fresnel) if call.includes_order_one() => fastmsx::eval(&call.mf, fresnel, wi, wo),
@@ -52,10 +47,6 @@ impl ScatteringModel for FastMsx {
 pub struct Compensated;
 
 impl ScatteringModel for Compensated {
-    fn surfaces(&self) -> &'static [Surface] {
-        &[Surface::Conductor, Surface::Dielectric]
-    }
-
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
         if !call.includes_order_one() {
             return Spectrum::ZERO;

@@ -140,14 +140,6 @@ impl Auto {
 }
 
 impl ScatteringModel for Auto {
-    fn surfaces(&self) -> &'static [Surface] {
-        self.full.surfaces()
-    }
-
-    fn estimators(&self, surface: Surface) -> &'static [Estimator] {
-        self.full.estimators(surface)
-    }
-
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
         self.full.eval(&self.capped(call, wi), wi, wo)
     }

@@ -5,7 +5,6 @@
 
 use super::mis::{walk_pdf, OrderOneExit};
 use super::{Call, Sampled, ScatteringModel};
-use crate::config::Surface;
 use crate::microfacet::Microsurface;
 use crate::spectrum::Spectrum;
 use crate::walk::height;
@@ -16,10 +15,6 @@ use glam::DVec3;
 pub struct Heitz;
 
 impl ScatteringModel for Heitz {
-    fn surfaces(&self) -> &'static [Surface] {
-        &[Surface::Conductor, Surface::Dielectric, Surface::Diffuse]
-    }
-
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
         let v = height::eval(&call.mf, &call.surf, wi, wo, &call.walk(), &mut call.rng());
         match call.surf {

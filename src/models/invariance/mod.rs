@@ -18,7 +18,7 @@ pub use recursion::{p_exit, p_exit_error_study, p_exit_with_bound, segment_term,
 
 use super::mis::{walk_pdf, OrderOneExit};
 use super::{Call, Sampled, ScatteringModel};
-use crate::config::{Estimator, Surface};
+use crate::config::Estimator;
 use crate::microfacet::Microsurface;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
@@ -30,21 +30,6 @@ pub struct Invariance {
 }
 
 impl ScatteringModel for Invariance {
-    fn surfaces(&self) -> &'static [Surface] {
-        &[Surface::Conductor, Surface::Dielectric, Surface::Diffuse]
-    }
-
-    /// BDPT on conductors: its segment term S_k is the whole path's exit
-    /// probability (recursion.rs). On a dielectric the heights are integrated
-    /// only up to the first refraction (dielectric.rs), and the diffuse
-    /// microsurface's complete recursion has no BDPT here (yet): PT only.
-    fn estimators(&self, surface: Surface) -> &'static [Estimator] {
-        match surface {
-            Surface::Conductor => &[Estimator::Pt, Estimator::Bdpt],
-            _ => &[Estimator::Pt],
-        }
-    }
-
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
         let (opts, mf, rng) = (&call.walk(), &call.mf, &mut call.rng());
         match &call.surf {

@@ -94,7 +94,7 @@ pub(crate) const RR_LAST_WEIGHT: f64 = 0.05;
 
 use super::mis::{walk_pdf, OrderOneExit};
 use super::{Call, Sampled, ScatteringModel};
-use crate::config::{Estimator, Surface};
+use crate::config::Estimator;
 use crate::microfacet::Microsurface;
 use crate::spectrum::Spectrum;
 use crate::walk::WalkOptions;
@@ -115,14 +115,6 @@ pub struct PosFree {
 }
 
 impl ScatteringModel for PosFree {
-    fn surfaces(&self) -> &'static [Surface] {
-        &[Surface::Conductor, Surface::Dielectric, Surface::Diffuse]
-    }
-
-    fn estimators(&self, _surface: Surface) -> &'static [Estimator] {
-        &[Estimator::Pt, Estimator::Bdpt]
-    }
-
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
         let (opts, mf, rng) = (&Options { segments: self.segments, walk: call.walk() }, &call.mf, &mut call.rng());
         match (&call.surf, self.estimator) {

@@ -7,7 +7,6 @@ pub mod conductor;
 pub mod dielectric;
 
 use super::{Call, Sampled, ScatteringModel};
-use crate::config::Surface;
 use crate::microfacet::Microsurface;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
@@ -17,10 +16,6 @@ use glam::DVec3;
 pub struct Single;
 
 impl ScatteringModel for Single {
-    fn surfaces(&self) -> &'static [Surface] {
-        &[Surface::Conductor, Surface::Dielectric]
-    }
-
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
         if !call.includes_order_one() {
             return Spectrum::ZERO;

@@ -200,19 +200,14 @@ class ConductorModel:
 
     def differentiable_estimate(self, call, wi, wo, key):
         """The walk's PT estimate with its derivative in α, η and k (jit/gradients.py)."""
-        mf, fresnel, n_alpha = call.mf, call.fresnel, len(call.alphas)
-        bounces = self.bounces(call, wi)
+        fresnel, bounces = call.fresnel, self.bounces(call, wi)
 
-        def estimate(*values):
-            alphas = values[:n_alpha]
-            au, av = (alphas[0], alphas[0]) if n_alpha == 1 else alphas
-            m = Microfacet(mf.dist, au, av)
-            f = fresnel if fresnel.mirror else ConductorFresnel(values[n_alpha], values[n_alpha + 1])
-            return self.walk.eval_pt(m, f, wi, wo, bounces, key, mf_sample=gradients.detached(m))
+        def run(m, m_sample, *eta_k):
+            f = fresnel if fresnel.mirror else ConductorFresnel(*eta_k)
+            return self.walk.eval_pt(m, f, wi, wo, bounces, key, mf_sample=m_sample)
 
-        params = list(call.alphas) + ([] if fresnel.mirror else [fresnel.eta, fresnel.k])
         with invariance.unrolled():  # its forward derivative and the run's branch do not mix (invariance.py)
-            return gradients.attach(estimate, params)
+            return gradients.attach_walk(call, [] if fresnel.mirror else [fresnel.eta, fresnel.k], run)
 
     def sample_traced(self, call, wi, s1, u1, u2, eval_key):
         """``sample`` while differentiated: ω_o from the proposal, weighed by the walk's estimate there (the
@@ -280,17 +275,12 @@ class DielectricModel:
 
     def differentiable_estimate(self, call, wi, wo, key):
         """The walk's PT estimate with its derivative in α and η (jit/gradients.py)."""
-        mf, n_alpha = call.mf, len(call.alphas)
         bounces = self.bounces(call, wi)
 
-        def estimate(*values):
-            alphas = values[:n_alpha]
-            au, av = (alphas[0], alphas[0]) if n_alpha == 1 else alphas
-            m = Microfacet(mf.dist, au, av)
-            return self.walk.eval_pt(m, values[n_alpha], call.radiance, wi, wo, bounces, key,
-                                     mf_sample=gradients.detached(m))
+        def run(m, m_sample, eta):
+            return self.walk.eval_pt(m, eta, call.radiance, wi, wo, bounces, key, mf_sample=m_sample)
 
-        return gradients.attach(estimate, list(call.alphas) + [call.eta])
+        return gradients.attach_walk(call, [call.eta], run)
 
     def sample_traced(self, call, wi, s1, u1, u2, eval_key):
         """``sample`` while differentiated: ω_o from the MIS density (single scattering mixed with a cosine
@@ -348,16 +338,12 @@ class DiffuseModel:
 
     def differentiable_estimate(self, call, wi, wo, key):
         """The walk's PT estimate with its derivative in α and the albedo (jit/gradients.py)."""
-        mf, n_alpha = call.mf, len(call.alphas)
         bounces = self.bounces(call, wi)
 
-        def estimate(*values):
-            alphas = values[:n_alpha]
-            au, av = (alphas[0], alphas[0]) if n_alpha == 1 else alphas
-            m = Microfacet(mf.dist, au, av)
-            return self.walk.eval_pt(m, values[n_alpha], wi, wo, bounces, key, mf_sample=gradients.detached(m))
+        def run(m, m_sample, albedo):
+            return self.walk.eval_pt(m, albedo, wi, wo, bounces, key, mf_sample=m_sample)
 
-        return gradients.attach(estimate, list(call.alphas) + [call.albedo])
+        return gradients.attach_walk(call, [call.albedo], run)
 
     def sample_traced(self, call, wi, s1, u1, u2, eval_key):
         """``sample`` while differentiated: ω_o from the cosine lobe (the MIS density, exact), weighed by the

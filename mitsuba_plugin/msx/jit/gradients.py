@@ -54,6 +54,21 @@ def attach(estimate, params):
     return value
 
 
+def attach_walk(call, material, run):
+    """A walk's PT estimate with its derivative in the call's α values and in ``material`` (a list of the
+    material values the walk takes after the statistics, as in the call): ``run(mf, mf_sample, *material)``
+    evaluates the walk with the statistics ``mf`` built from the differentiated α and draws its directions
+    from their detached copy ``mf_sample`` (docs/gradients.md)."""
+    mf, n_alpha = call.mf, len(call.alphas)
+
+    def estimate(*values):
+        au, av = (values[0], values[0]) if n_alpha == 1 else values[:2]
+        m = Microfacet(mf.dist, au, av)
+        return run(m, detached(m), *values[n_alpha:])
+
+    return attach(estimate, list(call.alphas) + list(material))
+
+
 def cosine_share(exit, mf, wi):
     e1 = mis._e1_table(exit, mf.dist).at(dr.sqrt(mf.alpha_u * mf.alpha_v), dr.abs(wi[2]))
     return dr.detach(dr.clip(1.0 - e1, COSINE_SHARE_MIN, COSINE_SHARE_MAX))

@@ -371,11 +371,11 @@ def test_eta_updates_like_roughdielectric():
         assert np.all(v == 0.0), f"eta = {bad}: {v[v != 0.0][:4]}"
 
 
-@pytest.mark.parametrize("model, surface, key", [("auto", "conductor", "alpha.value"),
-                                                  ("invariance", "dielectric", "eta")])
-def test_other_walks_refuse_gradients_in_one_line(model, surface, key):
+@pytest.mark.parametrize("model, surface, key, estimator", [("correlated", "conductor", "alpha.value", "bdpt"),
+                                                             ("invariance", "dielectric", "eta", "pt")])
+def test_other_walks_refuse_gradients_in_one_line(model, surface, key, estimator):
     material = {"material": "Cu"} if surface == "conductor" else {"surface": surface}
-    sc = scene({"type": "msx_posfree", **material, "model": model, "alpha": 0.5})
+    sc = scene({"type": "msx_posfree", **material, "model": model, "alpha": 0.5, "estimator": estimator})
     p = mi.traverse(sc)
     key = "ball.bsdf." + key
     dr.enable_grad(p[key])
@@ -389,7 +389,7 @@ def test_other_walks_refuse_gradients_in_one_line(model, surface, key):
         err = err.__cause__ or err.__context__
     text = "\n".join(chain)
     assert f"model='{model}' on surface '{surface}' is not differentiable" in text, text[-2000:]
-    assert "single, fastmsx, compensated, uncorrelated, correlated, heitz, invariance (conductor)" in text
+    assert "single, fastmsx, compensated, uncorrelated, correlated, heitz, invariance, auto (conductor)" in text
     # Without gradients the same scene renders.
     dr.disable_grad(p[key])
     p.update()
@@ -400,13 +400,14 @@ def test_other_walks_refuse_gradients_in_one_line(model, surface, key):
 # ------------------------------------------------------------------ the position-free walks, per call
 
 WALK_LANES = 1 << 20
-WALK_CHECKS = 10 * 2 * 3  # ten walks × two parameters × three channels
+WALK_CHECKS = 12 * 2 * 3  # twelve walks × two parameters × three channels
 Z_WALK = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / WALK_CHECKS)) / 2.0)
 
 
 WALKS = [("correlated", "conductor"), ("uncorrelated", "conductor"), ("heitz", "conductor"),
          ("invariance", "conductor"), ("correlated", "diffuse"), ("uncorrelated", "diffuse"), ("heitz", "diffuse"),
-         ("correlated", "dielectric"), ("uncorrelated", "dielectric"), ("heitz", "dielectric")]
+         ("correlated", "dielectric"), ("uncorrelated", "dielectric"), ("heitz", "dielectric"), ("auto", "conductor"),
+         ("auto", "dielectric")]
 DIFFUSE_ALBEDO = {"type": "rgb", "value": [0.8, 0.6, 0.4]}
 
 

@@ -119,23 +119,28 @@ def engine_support(cfg):
 # jit/gradients.py). AD of any other walk as written is biased (its random decisions depend on the
 # parameters; docs/gradients.md): such a model refuses to be differentiated rather than return a wrong
 # gradient.
+# ``auto`` differentiates where the walk it runs does: its per-lane bounce cap is piecewise constant in α,
+# and its derivative is that of the piece a lane is on (the jump at the rule's threshold is a discontinuity
+# of the model in α, which a gradient does not see, as prb does not see a visibility edge).
 DIFFERENTIABLE_MODELS = {
-    "conductor": tuple(CONDUCTOR_ANALYTIC) + tuple(n for n, w in CONDUCTOR_WALKS.items() if w.differentiable),
-    "dielectric": tuple(DIELECTRIC_ANALYTIC) + tuple(n for n, w in DIELECTRIC_WALKS.items() if w.differentiable),
-    "diffuse": tuple(n for n, w in DIFFUSE_WALKS.items() if w.differentiable),
+    surface: (tuple(analytic) + tuple(n for n, w in walks.items() if w.differentiable)
+              + (("auto",) if getattr(walks.get("correlated"), "differentiable", False) else ()))
+    for surface, analytic, walks in (("conductor", CONDUCTOR_ANALYTIC, CONDUCTOR_WALKS),
+                                     ("dielectric", DIELECTRIC_ANALYTIC, DIELECTRIC_WALKS),
+                                     ("diffuse", {}, DIFFUSE_WALKS))
 }
 
 
 def differentiable_walk(cfg):
     """The walk whose PT estimate the engine differentiates (jit/gradients.py), or None."""
-    walk = WALKS_BY_SURFACE.get(cfg.surface, {}).get(cfg.model) if cfg.estimator == "pt" else None
+    walk = WALKS_BY_SURFACE.get(cfg.surface, {}).get(walk_name(cfg)) if cfg.estimator == "pt" else None
     return walk if walk is not None and walk.differentiable else None
 
 
 def gradient_problem(cfg):
     """None when the engine differentiates this configuration, else the one-line message of the refusal."""
     models = DIFFERENTIABLE_MODELS.get(cfg.surface, ())
-    is_walk = cfg.model in WALKS_BY_SURFACE.get(cfg.surface, {})
+    is_walk = walk_name(cfg) in WALKS_BY_SURFACE.get(cfg.surface, {})
     if cfg.model in models and (not is_walk or differentiable_walk(cfg) is not None):
         return None
     where = ", ".join("%s (%s)" % (", ".join(m), surface) for surface, m in DIFFERENTIABLE_MODELS.items() if m)

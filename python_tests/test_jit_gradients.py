@@ -12,9 +12,10 @@
 - The walks ``uncorrelated``, ``correlated``, ``heitz`` and ``invariance``: their derivative per call, through a symbolic
   call as in a render, forward and reverse, against central differences of the mean estimate (a z-test),
   and rendered as above (including BSDF-sampled paths: the walk samples its proposal while differentiated).
-- The other walks refuse to be differentiated (one line naming the differentiable models) instead of
-  returning a gradient that is wrong: plain AD through a walk gave the opposite sign of the finite
-  difference.
+- A walk not declared differentiable (``heitz`` on Lambertian facets) and the glass walks' IOR refuse to be
+  differentiated (one line naming the differentiable models) instead of returning a gradient that is wrong:
+  plain AD through a walk gave the opposite sign of the finite difference, and the glass walks' score in η
+  misses a moving edge (docs/gradients.md).
 """
 
 import math
@@ -44,7 +45,7 @@ EPS32 = 2.0 ** -24
 # far below 1e-3 of the derivative for smooth f; allowed 1e-3 (a factor 2 or a sign is 1 or 2).
 TRUNCATION = 1e-3
 SEEDS = 12  # render checks: paired per-seed differences
-RENDER_CHECKS = 2 * 2 * 11  # forward and reverse × two losses × the rendered cases below
+RENDER_CHECKS = 2 * 2 * 12  # forward and reverse × two losses × the rendered cases below
 Z_MAX = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / RENDER_CHECKS)) / 2.0)
 
 
@@ -244,6 +245,8 @@ RENDERED = [
     ("diffuse reflectance", {"type": "msx_posfree", "surface": "diffuse", "model": "uncorrelated", "alpha": 0.6,
                                    "reflectance": {"type": "rgb", "value": [0.9, 0.6, 0.2]}},
      "ball.bsdf.reflectance.value"),
+    ("correlated bdpt", {"type": "msx_posfree", "material": "Cu", "model": "correlated", "estimator": "bdpt",
+                         "alpha": 0.5}, "ball.bsdf.alpha.value"),
 ]
 
 
@@ -371,16 +374,8 @@ def test_eta_updates_like_roughdielectric():
         assert np.all(v == 0.0), f"eta = {bad}: {v[v != 0.0][:4]}"
 
 
-@pytest.mark.parametrize("model, surface, key, estimator", [("correlated", "conductor", "alpha.value", "bdpt"),
-                                                             ("heitz", "diffuse", "alpha.value", "pt"),
-                                                             ("invariance", "dielectric", "eta", "pt")])
-def test_other_walks_refuse_gradients_in_one_line(model, surface, key, estimator):
-    material = {"material": "Cu"} if surface == "conductor" else {"surface": surface}
-    sc = scene({"type": "msx_posfree", **material, "model": model, "alpha": 0.5, "estimator": estimator})
-    p = mi.traverse(sc)
-    key = "ball.bsdf." + key
-    dr.enable_grad(p[key])
-    p.update()
+def refusal(sc, p):
+    """The messages (the exception and its causes) of a differentiated render of ``sc`` that must refuse."""
     with pytest.raises(Exception) as e:
         img = mi.render(sc, params=p, spp=4, seed=0)
         dr.backward(dr.mean(img, axis=None))
@@ -388,7 +383,20 @@ def test_other_walks_refuse_gradients_in_one_line(model, surface, key, estimator
     while err is not None:
         chain.append(str(err))
         err = err.__cause__ or err.__context__
-    text = "\n".join(chain)
+    return "\n".join(chain)
+
+
+def test_a_walk_without_gradients_refuses_in_one_line():
+    """A walk the engine does not declare differentiable (``heitz`` on Lambertian facets: docs/gradients.md)
+    refuses in one line at the first differentiated render instead of returning drjit's AD of the walk as
+    written, which is biased; without gradients the same scene renders."""
+    model, surface, key = "heitz", "diffuse", "reflectance.value"
+    sc = scene({"type": "msx_posfree", "surface": surface, "model": model, "alpha": 0.5})
+    p = mi.traverse(sc)
+    key = "ball.bsdf." + key
+    dr.enable_grad(p[key])
+    p.update()
+    text = refusal(sc, p)
     assert f"model='{model}' on surface '{surface}' is not differentiable" in text, text[-2000:]
     assert "single, fastmsx, compensated, uncorrelated, correlated, heitz, invariance, auto (conductor)" in text
     # Without gradients the same scene renders.
@@ -398,18 +406,42 @@ def test_other_walks_refuse_gradients_in_one_line(model, surface, key, estimator
     assert np.all(np.isfinite(np.array(img)))
 
 
+@pytest.mark.parametrize("model", ["correlated", "heitz", "invariance", "auto"])
+def test_glass_walks_refuse_eta_gradients(model):
+    """The glass walks' derivative in η is biased (docs/gradients.md, "The IOR of the glass walks": the
+    density of a refracted direction has an edge that moves with η): a render differentiated in ``eta``
+    refuses in one line, one differentiated in ``alpha`` runs."""
+    sc = scene({"type": "msx_posfree", "surface": "dielectric", "model": model, "alpha": 0.5})
+    p = mi.traverse(sc)
+    dr.enable_grad(p["ball.bsdf.eta"])
+    p.update()
+    text = refusal(sc, p)
+    assert f"model='{model}' on surface 'dielectric' is not differentiable in 'eta'" in text, text[-2000:]
+    assert "single, compensated differentiate in 'eta'" in text, text[-2000:]
+    dr.disable_grad(p["ball.bsdf.eta"])
+    dr.enable_grad(p["ball.bsdf.alpha.value"])
+    p.update()
+    img = mi.render(sc, params=p, spp=4, seed=0)
+    dr.backward(dr.mean(img, axis=None))
+    g = dr.grad(p["ball.bsdf.alpha.value"])
+    assert np.all(np.isfinite(np.array(g))) and float(dr.abs(g)[0]) > 0.0
+
+
 # ------------------------------------------------------------------ the position-free walks, per call
 
 WALK_LANES = 1 << 20
-WALK_CHECKS = 11 * 2 * 3  # eleven walks × two parameters × three channels
-Z_WALK = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / WALK_CHECKS)) / 2.0)
 
 
 WALKS = [("correlated", "conductor"), ("uncorrelated", "conductor"), ("heitz", "conductor"),
          ("invariance", "conductor"), ("correlated", "diffuse"), ("uncorrelated", "diffuse"),
          ("correlated", "dielectric"), ("uncorrelated", "dielectric"), ("heitz", "dielectric"), ("auto", "conductor"),
-         ("auto", "dielectric")]
+         ("auto", "dielectric"), ("invariance", "dielectric"), ("invariance below reflected", "dielectric"),
+         ("correlated bdpt", "conductor"), ("invariance bdpt", "conductor")]
 DIFFUSE_ALBEDO = {"type": "rgb", "value": [0.8, 0.6, 0.4]}
+# Per channel: α and the colour parameter (η, the albedo) of each walk; α only through the glass, whose walks
+# refuse η (test_glass_walks_refuse_eta_gradients).
+WALK_CHECKS = 3 * sum(1 if surface == "dielectric" else 2 for _, surface in WALKS)
+Z_WALK = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / WALK_CHECKS)) / 2.0)
 
 
 @pytest.mark.parametrize("model, surface", WALKS, ids=["%s %s" % w for w in WALKS])
@@ -420,21 +452,25 @@ def test_walks_differentiate_without_bias(model, surface):
     draws other paths)."""
     material = {"conductor": {"material": "Cu"}, "diffuse": {"surface": "diffuse", "reflectance": DIFFUSE_ALBEDO},
                 "dielectric": {"surface": "dielectric", "int_ior": 1.5}}[surface]
-    b = mi.load_dict({"type": "msx_posfree", **material, "model": model, "distribution": "ggx", "alpha": 0.5})
+    # "model [bdpt] [below] [reflected]": the estimator; ω_i below the surface (inside the glass); the
+    # dielectric's ω_o on ω_i's side (by default it is transmitted: the reflected side is the conductor's case).
+    model, *options = model.split()
+    b = mi.load_dict({"type": "msx_posfree", **material, "model": model, "distribution": "ggx", "alpha": 0.5,
+                      "estimator": "bdpt" if "bdpt" in options else "pt"})
     p = mi.traverse(b)
     n = WALK_LANES
     si = dr.zeros(mi.SurfaceInteraction3f, n)
-    si.wi = mi.Vector3f(float(math.sin(0.5)), 0.0, float(math.cos(0.5)))
+    side = -1.0 if "below" in options else 1.0
+    si.wi = mi.Vector3f(float(math.sin(0.5)), 0.0, side * float(math.cos(0.5)))
     si.p = mi.Point3f(mi.Float(np.arange(n, dtype=np.float32)), 0.0, 0.0)
-    # The dielectric's ω_o is transmitted (the reflected side is the conductor's case).
-    wo = dr.normalize(mi.Vector3f(-0.5, 0.4, -0.77 if surface == "dielectric" else 0.77))
+    across = surface == "dielectric" and "reflected" not in options
+    wo = dr.normalize(mi.Vector3f(-0.5, 0.4, side * (-0.77 if across else 0.77)))
     ptr = dr.gather(mi.BSDFPtr, mi.BSDFPtr(b), dr.zeros(mi.UInt32, n))  # as a render calls it
     ctx = mi.BSDFContext()
-    colour = {"conductor": "eta.value", "diffuse": "reflectance.value", "dielectric": "eta"}[surface]
-    # The transmitted lobe curves in η: at h = 0.02 the central difference is 1 % too large (measured over
-    # 2²² lanes at h = 0.005 … 0.04, an h² trend); at h = 0.01 that is a quarter of it, under the noise.
-    h_colour = 0.01 if surface == "dielectric" else 0.02
-    for key, h, v in (("alpha.value", 0.02, None), (colour, h_colour, (1.0, 0.5, -0.7))):
+    keys = [("alpha.value", 0.02, None)]
+    if surface != "dielectric":
+        keys.append(({"conductor": "eta.value", "diffuse": "reflectance.value"}[surface], 0.02, (1.0, 0.5, -0.7)))
+    for key, h, v in keys:
         x0 = type(p[key])(p[key])
         direction = type(x0)(*v) if v and dr.depth_v(x0) > 1 else type(x0)(1.0)
 
@@ -475,8 +511,8 @@ def test_walks_differentiate_without_bias(model, surface):
 
 # ------------------------------------------------------------------ sampling while differentiated
 
-TRACED_SAMPLING = [("correlated", "conductor"), ("correlated", "diffuse"), ("correlated", "dielectric"),
-                   ("heitz", "dielectric")]
+TRACED_SAMPLING = [("correlated", "conductor"), ("correlated bdpt", "conductor"), ("correlated", "diffuse"),
+                   ("correlated", "dielectric"), ("heitz", "dielectric"), ("invariance", "dielectric")]
 Z_SAMPLING = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / len(TRACED_SAMPLING))) / 2.0)
 
 
@@ -488,7 +524,8 @@ def test_traced_sample_weighs_eval_by_its_own_density(model, surface):
     over the directions the proposal reaches (π per hemisphere; a z-test over 2²⁰ lanes)."""
     material = {"conductor": {"material": "Cu"}, "diffuse": {"surface": "diffuse", "reflectance": DIFFUSE_ALBEDO},
                 "dielectric": {"surface": "dielectric", "int_ior": 1.5}}[surface]
-    b = mi.load_dict({"type": "msx_posfree", **material, "model": model, "alpha": 0.6})
+    model, _, estimator = model.partition(" ")
+    b = mi.load_dict({"type": "msx_posfree", **material, "model": model, "alpha": 0.6, "estimator": estimator or "pt"})
     p = mi.traverse(b)
     dr.enable_grad(p["alpha.value"])
     p.update()

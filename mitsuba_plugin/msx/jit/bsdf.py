@@ -133,8 +133,11 @@ DIFFERENTIABLE_MODELS = {
 
 def differentiable_walk(cfg):
     """The walk whose PT estimate the engine differentiates (jit/gradients.py), or None."""
-    walk = WALKS_BY_SURFACE.get(cfg.surface, {}).get(walk_name(cfg)) if cfg.estimator == "pt" else None
-    return walk if walk is not None and walk.differentiable else None
+    walk = WALKS_BY_SURFACE.get(cfg.surface, {}).get(walk_name(cfg))
+    if walk is None or not walk.differentiable:
+        return None
+    # BDPT differentiates with its PT walk's derivative estimate (ConductorModel.differentiable_estimate).
+    return walk if cfg.estimator == "pt" or getattr(walk, "eval_bdpt", None) is not None else None
 
 
 def gradient_problem(cfg):
@@ -144,16 +147,35 @@ def gradient_problem(cfg):
     if cfg.model in models and (not is_walk or differentiable_walk(cfg) is not None):
         return None
     where = ", ".join("%s (%s)" % (", ".join(m), surface) for surface, m in DIFFERENTIABLE_MODELS.items() if m)
-    where += " — the walks with estimator 'pt'"
+    where += " — the walks with estimator 'pt', and 'bdpt' where the engine runs it"
     return ("%s: model='%s' on surface '%s' is not differentiable: gradients of its random walk are not "
             "implemented (docs/gradients.md); the differentiable models are %s — or keep this BSDF's parameters "
             "out of the gradient (dr.disable_grad)" % (PLUGIN, cfg.model, cfg.surface, where))
 
 
+def eta_gradient_problem(cfg):
+    """None unless ``cfg`` is a random walk through the dielectric, whose ``eta`` refuses gradients: the
+    density of a refracted direction jumps to zero where the generalized half-vector turns horizontal (GGX's
+    D there is α²/π, not 0), that edge moves with η, and the walks' score-function estimate misses its term
+    (measured: docs/gradients.md, "The IOR of the glass walks"). Their α differentiates."""
+    if cfg.surface != "dielectric" or walk_name(cfg) not in WALKS_BY_SURFACE.get("dielectric", {}):
+        return None
+    closed = ", ".join(m for m in DIFFERENTIABLE_MODELS["dielectric"]
+                       if walk_name_of(m) not in WALKS_BY_SURFACE["dielectric"])
+    return ("%s: model='%s' on surface 'dielectric' is not differentiable in 'eta': the glass walks' derivative "
+            "in the IOR is biased (docs/gradients.md); their 'alpha' is differentiable, and %s differentiate in "
+            "'eta' — or keep 'eta' out of the gradient (dr.disable_grad)" % (PLUGIN, cfg.model, closed))
+
+
+def walk_name_of(model):
+    """The walk ``model`` runs (``walk_name``)."""
+    info = MODEL_INFO.get(model)
+    return info.runs if info is not None else model
+
+
 def walk_name(cfg):
     """The walk a model runs (the table's ``runs``): ``auto`` is ``correlated`` with a per-lane bounce cap."""
-    info = MODEL_INFO.get(cfg.model)
-    return info.runs if info is not None else cfg.model
+    return walk_name_of(cfg.model)
 
 
 class Call:
@@ -207,12 +229,20 @@ class ConductorModel:
         """The walk's PT estimate with its derivative in α, η and k (jit/gradients.py)."""
         fresnel, bounces = call.fresnel, self.bounces(call, wi)
 
+        def material(eta_k):
+            return fresnel if fresnel.mirror else ConductorFresnel(*eta_k)
+
         def run(m, m_sample, *eta_k):
-            f = fresnel if fresnel.mirror else ConductorFresnel(*eta_k)
-            return self.walk.eval_pt(m, f, wi, wo, bounces, key, mf_sample=m_sample)
+            return self.walk.eval_pt(m, material(eta_k), wi, wo, bounces, key, mf_sample=m_sample)
+
+        # BDPT: its own estimate as the value, the PT walk's derivative (both unbiased; docs/gradients.md).
+        primal = None
+        if self.estimate is not self.walk.eval_pt:
+            def primal(m, *eta_k):
+                return self.estimate(m, material(eta_k), wi, wo, bounces, key)
 
         with invariance.unrolled():  # its forward derivative and the run's branch do not mix (invariance.py)
-            return gradients.attach_walk(call, [] if fresnel.mirror else [fresnel.eta, fresnel.k], run)
+            return gradients.attach_walk(call, [] if fresnel.mirror else [fresnel.eta, fresnel.k], run, primal)
 
     def sample_traced(self, call, wi, s1, u1, u2, eval_key):
         """``sample`` while differentiated: ω_o from the proposal, weighed by the walk's estimate there (the
@@ -285,7 +315,8 @@ class DielectricModel:
         def run(m, m_sample, eta):
             return self.walk.eval_pt(m, eta, call.radiance, wi, wo, bounces, key, mf_sample=m_sample)
 
-        return gradients.attach_walk(call, [call.eta], run)
+        with invariance.unrolled():  # its forward derivative and the run's branch do not mix (invariance.py)
+            return gradients.attach_walk(call, [call.eta], run)
 
     def sample_traced(self, call, wi, s1, u1, u2, eval_key):
         """``sample`` while differentiated: ω_o from the MIS density (single scattering mixed with a cosine
@@ -394,6 +425,7 @@ def make_bsdf_factory(variant):
                     self._ior = mi.Float(self._cfg.ior)
                 self._model = MODELS_BY_SURFACE[kind](self._cfg)
                 self._gradient_problem = gradient_problem(self._cfg)
+                self._eta_problem = eta_gradient_problem(self._cfg) if dielectric else None
                 self._differentiable_walk = differentiable_walk(self._cfg)
                 self._refresh()
 
@@ -478,6 +510,8 @@ def make_bsdf_factory(variant):
                               call.tint_t, call.albedo, call.eta)
                     if any(v is not None and dr.grad_enabled(v) for v in values):
                         raise MsxParameterError(self._gradient_problem)
+                if self._eta_problem is not None and dr.grad_enabled(call.eta):
+                    raise MsxParameterError(self._eta_problem)
                 return call
 
             def _eval_key(self, si, wo):

@@ -29,10 +29,12 @@ def detached(mf):
     return Microfacet(mf.dist, dr.detach(mf.alpha_u), dr.detach(mf.alpha_v))
 
 
-def attach(estimate, params):
+def attach(estimate, params, primal=None):
     """``estimate(*values)`` (a Spectrum) with the derivative with respect to each of ``params`` (Floats or
     Spectra; a Spectrum parameter acts on its own channel only, as η and k do) that has gradients enabled,
-    taken by forward mode inside the call; the others pass through detached."""
+    taken by forward mode inside the call; the others pass through detached. ``primal(*values)``, if given,
+    is the value returned in place of the estimate's own (another unbiased estimate of the same function:
+    the derivative stays the estimate's)."""
     values = [dr.detach(p) for p in params]
     value = None
     tangents = []
@@ -48,25 +50,36 @@ def attach(estimate, params):
         value = dr.detach(y)
         tangents.append((p - values[i]) * dr.detach(g))
     if value is None:
-        return estimate(*values)
+        return estimate(*values) if primal is None else primal(*values)
+    if primal is not None:
+        value = dr.detach(primal(*values))
     for t in tangents:
         value = value + t
     return value
 
 
-def attach_walk(call, material, run):
+def attach_walk(call, material, run, primal=None):
     """A walk's PT estimate with its derivative in the call's α values and in ``material`` (a list of the
     material values the walk takes after the statistics, as in the call): ``run(mf, mf_sample, *material)``
     evaluates the walk with the statistics ``mf`` built from the differentiated α and draws its directions
-    from their detached copy ``mf_sample`` (docs/gradients.md)."""
+    from their detached copy ``mf_sample`` (docs/gradients.md). ``primal(mf, *material)``, if given, is the
+    value returned instead of the PT estimate's (the BDPT estimate: its value with the PT walk's
+    derivative, both unbiased)."""
     mf, n_alpha = call.mf, len(call.alphas)
 
-    def estimate(*values):
+    def split(values):
         au, av = (values[0], values[0]) if n_alpha == 1 else values[:2]
-        m = Microfacet(mf.dist, au, av)
-        return run(m, detached(m), *values[n_alpha:])
+        return Microfacet(mf.dist, au, av), values[n_alpha:]
 
-    return attach(estimate, list(call.alphas) + list(material))
+    def estimate(*values):
+        m, rest = split(values)
+        return run(m, detached(m), *rest)
+
+    def value(*values):
+        m, rest = split(values)
+        return primal(m, *rest)
+
+    return attach(estimate, list(call.alphas) + list(material), None if primal is None else value)
 
 
 def cosine_share(exit, mf, wi):

@@ -341,36 +341,49 @@ def sample(mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
 # ------------------------------------------------------------------ Lambertian facets (diffuse)
 
 
-def diffuse_eval(mf, albedo, wi, wo, max_bounces, key):
+def diffuse_eval(mf, albedo, wi, wo, max_bounces, key, mf_sample=None):
     """One unbiased estimate of f(ω_i, ω_o)·cos θ_o on Lambertian facets of albedo ``albedo``, orders
     1..max_bounces (Rust ``eval_from`` with ``Mat::Diffuse``): per vertex the height step conditioned on
     hitting, a visible normal m of the incoming ray shared by the next event, (a/π)⟨ω_o, m⟩⁺·G1(ω_o, h),
-    and the continuation, a cosine lobe about m with weight a; roulette after every vertex."""
+    and the continuation, a cosine lobe about m with weight a; roulette after every vertex. ``mf_sample``:
+    as in ``eval`` (the cosine lobe about m does not depend on the parameters)."""
     last = max_bounces
     lambda_o = mf.lambda_(wo)
     start = valid_incidence(wi) & valid_incidence(wo) & (last > 0)
+    traced = mf_sample is not None
 
-    def body(order, wr, t, thr, result, active, counter):
+    def body(order, wr, t, thr, result, active, counter, *piped):
+        mfa, mfs, lo, a = mf, mf, lambda_o, albedo
+        if traced:  # the differentiated values come through the state
+            au, av, lo, a = piped
+            mfa = Microfacet(mf.dist, au, av)
+            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
         rng = Stream(key, counter)
         u_h, u_rr = rng.next2()
-        tn, p_hit = sample_height_hit(mf, wr, t, u_h)
+        tn, p_hit = sample_height_hit(mfs, wr, t, u_h)
         active &= p_hit > 0.0
-        t = tn
         thr = thr * p_hit
+        if traced:
+            thr = thr * height_step_ratio(mfa, mfs, wr, t, tn)
+        t = tn
         wi_l = -wr
         u1, u2 = rng.next2()
-        m, _, valid = visible_normal(mf, wi_l, u1, u2)
-        contrib = albedo * (dr.maximum(dot(m, wo), 0.0) * INV_PI * masking_at(lambda_o, t))
+        m, _, valid = visible_normal(mfs, wi_l, u1, u2)
+        if traced:
+            thr = thr * visible_ratio(mfa, mfs, wi_l, m)
+        contrib = a * (dr.maximum(dot(m, wo), 0.0) * INV_PI * masking_at(lo, t))
         result = dr.select(active & valid, result + thr * contrib, result)
         active &= order < last
         ua, ub = rng.next2()
         wr = walk.cosine_about(m, ua, ub)
-        thr, survived = walk.russian_roulette_keep(thr * albedo, u_rr, 1.0)
+        thr, survived = walk.russian_roulette_keep(thr * a, u_rr, 1.0)
         active &= valid & survived & dr.all(dr.isfinite(wr))
-        return order + 1, wr, t, thr, result, active, rng.counter
+        return (order + 1, wr, t, thr, result, active, rng.counter) + piped
 
     state = (mi.UInt32(1), -mi.Vector3f(wi), mi.Float(0.0), mi.Spectrum(1.0), dr.zeros(mi.Spectrum),
              mi.Bool(start), mi.UInt32(0))
+    if traced:
+        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o), mi.Spectrum(albedo))
     state = dr.while_loop(state, lambda *s: s[5], body, label="msx_heitz_diffuse_eval")
     return state[4]
 
@@ -565,4 +578,7 @@ CONDUCTOR_WALKS = {"heitz": ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, b
 # The walks on the other microsurfaces (jit/bsdf.py collects them; their MIS densities are
 # ``mis.dielectric_pdf`` and ``mis.diffuse_pdf``).
 DIELECTRIC_WALKS = {"heitz": DielectricWalk(dielectric_eval, dielectric_sample, differentiable=True)}
+# Lambertian facets: ``diffuse_eval`` takes ``mf_sample`` and passes its checks, but a forward-mode render
+# differentiated in the albedo gives a NaN in one lane with drjit's thread count 1 (docs/gradients.md), so
+# it is not declared differentiable.
 DIFFUSE_WALKS = {"heitz": DiffuseWalk(diffuse_eval, diffuse_sample)}

@@ -806,10 +806,12 @@ class PieceChain:
         return dr.select(run, total, 0.0)
 
 
-def draw_depth(chain, c_min, key, counter, active):
+def draw_depth(chain, c_min, key, counter, active, traced=False):
     """τ of ``PieceChain.sample_depth``: the piece c ≥ c_min from π (one number), then τ = X_0 + … + X_c
     with fresh X_i ~ Exp(L_i) (one number each; L = ∞ adds no depth). Returns (τ, mass Σ_{c ≥ c_min} π(c),
-    counter)."""
+    counter, ratio). ``traced`` (docs/gradients.md): the draw is made with the chain's values detached and
+    ``ratio`` is the density of the drawn (c, X_0..X_c) under the attached values over the detached one,
+    (π(c)/π̄(c))·Π (L_i/L̄_i)·e^{−(L_i − L̄_i) X_i} — value 1, derivative the score (1 when not traced)."""
 
     def add_mass(c, carry):
         return (carry[0] + chain.pi_at(c, active & (chain.a > c)),) if c >= c_min else carry
@@ -819,19 +821,33 @@ def draw_depth(chain, c_min, key, counter, active):
     u_pick, _ = rng.next2()
 
     def pick(c, carry):
-        rest, tau, picking, counter = carry
+        rest, tau, picking, counter, ratio, pi_picked = carry
         on = picking & (chain.a > c)
         rng = Stream(key, counter)
         u, _ = rng.next2()
-        tau = dr.select(on, tau + optical_depth(u) / chain.rates[c], tau)
+        rate = chain.rates[c]
+        if traced:
+            drawn = dr.detach(rate)
+            x = optical_depth(u) / drawn
+            ok = on & dr.isfinite(drawn) & (drawn > 0.0)
+            ratio = dr.select(ok, ratio * (rate / drawn) * dr.exp(-(rate - drawn) * x), ratio)
+            tau = dr.select(on, tau + x, tau)
+        else:
+            tau = dr.select(on, tau + optical_depth(u) / rate, tau)
         if c >= c_min:
-            rest = dr.select(on, rest - chain.pi_at(c, on), rest)
+            pi_c = chain.pi_at(c, on)
+            pi_picked = dr.select(on, pi_c, pi_picked)
+            rest = dr.select(on, rest - dr.detach(pi_c), rest)
             picking &= ~(on & (rest < 0.0))
-        return rest, tau, picking, dr.select(on, rng.counter, counter)
+        return rest, tau, picking, dr.select(on, rng.counter, counter), ratio, pi_picked
 
-    carry = (u_pick * total, mi.Float(0.0), mi.Bool(active), mi.UInt32(rng.counter))
-    _, tau, _, counter = over_run(chain.n, chain.a, pick, carry, reverse=False)
-    return tau, total, counter
+    carry = (dr.detach(u_pick * total), mi.Float(0.0), mi.Bool(active), mi.UInt32(rng.counter), mi.Float(1.0),
+             mi.Float(0.0))
+    _, tau, _, counter, ratio, pi_picked = over_run(chain.n, chain.a, pick, carry, reverse=False)
+    if traced:
+        drawn = dr.detach(pi_picked)
+        ratio = dr.select(drawn > 0.0, ratio * pi_picked / dr.select(drawn > 0.0, drawn, 1.0), ratio)
+    return tau, total, counter, ratio
 
 
 def optical_depth(u):
@@ -839,18 +855,21 @@ def optical_depth(u):
     return -dr.log(1.0 - dr.clip(u, 0.0, ONE_MINUS))
 
 
-def transmit_exit(chain, lambda_t, key, counter, active):
+def transmit_exit(chain, lambda_t, key, counter, active, traced=False):
     """Unbiased estimate of E[(1 − e^{−τ})^{Λ'}] given the hits (Rust ``transmit_exit``): the top piece's
     mass exactly, π(0)·L_0·B(L_0, 1+Λ'), one depth drawn from the deeper pieces for the rest. Returns
-    (estimate in [0, 1], counter)."""
+    (estimate in [0, 1], counter). ``traced``: the deeper depth is drawn detached and weighed by its density
+    ratio (``draw_depth``), so the estimate's derivative is unbiased."""
     run = active & (lambda_t >= 0.0) & ~dr.isinf(lambda_t)
     p0 = chain.pi_at(0, run)
     l0 = chain.rates[0]
     e = p0 * l_beta(l0, lambda_t)
     deeper = run & (chain.a > 1)
-    tau, rest, counter = draw_depth(chain, 1, key, counter, deeper)
+    tau, rest, counter, ratio = draw_depth(chain, 1, key, counter, deeper, traced)
     above = -heitz.expm1(-tau)  # 1 − e^{−τ}
-    e = dr.select(deeper & (rest > 0.0), e + rest * dr.exp(lambda_t * dr.log(above)), e)
+    # Drawn from π restricted to c ≥ 1 (mass ``rest``): rest·g(τ); traced, r̄est·(π(c)/π̄(c))·…·g(τ).
+    weight = dr.detach(rest) * ratio if traced else rest
+    e = dr.select(deeper & (rest > 0.0), e + weight * dr.exp(lambda_t * dr.log(above)), e)
     e = dr.select(dr.isfinite(e), dr.clip(e, 0.0, 1.0), 0.0)
     return dr.select(run, e, 0.0), counter
 
@@ -859,14 +878,22 @@ def dielectric_valid(w, eta):
     return dr.all(dr.isfinite(w)) & (w[2] != 0.0) & dr.isfinite(eta) & (eta > 0.0)
 
 
-def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key):
+def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None):
     """One unbiased estimate of f(ω_i, ω_o)·|cos θ_o| of the rough dielectric with the heights of the
     first run integrated out (Rust ``dielectric::eval``), one channel. The first run (reflections in ω_i's
     medium) draws visible normals, reflects with probability F, carries the exact hit probabilities and
     estimates towards ω_o at every vertex with the phase function × the exact exit probability
     (``exit_given_hits`` on ω_i's side, ``transmit_exit`` across); at the first refraction the vertex
     depth is drawn from its exact law, flipped, and Heitz's walk (``heitz.dielectric_eval_from``) carries
-    the rest of the path. Radiance mode: × 1/η_r² when ω_o is across."""
+    the rest of the path. Radiance mode: × 1/η_r² when ω_o is across.
+
+    ``mf_sample`` (docs/gradients.md): the statistics with their derivatives detached (η too). The normals,
+    the reflect-or-refract choices and the depth at the refraction are then drawn from them; each new
+    direction carries the ratio of its phase function under the attached parameters to the detached one,
+    the depth its ``draw_depth`` ratio, the next event's sampled depth its own; the exit and hit
+    probabilities are attached, the roulette detached. The differentiated values travel in the loop's
+    state."""
+    traced = mf_sample is not None
     last = max_bounces
     slots = run_slots(last, DIELECTRIC_RUN_SLOTS)
     eta = mi.Float(eta)
@@ -882,15 +909,22 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key):
              & (last > 0))
     chain0 = PieceChain.new(l0, slots)
 
-    def body(j, w, thr, result, active, counter, refracted, h_dir, h_t, chain_state):
+    def body(j, w, thr, result, active, counter, refracted, h_dir, h_t, chain_state, *piped):
+        mfa, mfs, lo, ea, es = mf, mf, lambda_o, e, e
+        if traced:  # the differentiated values come through the state
+            au, av, lo, eta_a = piped
+            mfa = Microfacet(mf.dist, au, av)
+            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
+            ea = eta_seen(eta_a, outside)
+            es = dr.detach(ea)
         chain = PieceChain.from_state(chain_state)
         order = j + 1
         # Next-event estimation: phase function × exact exit probability.
-        phase = dr.select(same, heitz.dielectric_phase_reflect(mf, w, wo_l, e),
-                          heitz.dielectric_phase_transmit(mf, w, wo_l, e))
+        phase = dr.select(same, heitz.dielectric_phase_reflect(mfa, w, wo_l, ea),
+                          heitz.dielectric_phase_transmit(mfa, w, wo_l, ea))
         nee = active & (phase > 0.0)
-        exit_r = chain.exit_given_hits(lambda_o, nee & same)
-        exit_t, counter = transmit_exit(chain, lambda_o, key, counter, nee & ~same)
+        exit_r = chain.exit_given_hits(lo, nee & same)
+        exit_t, counter = transmit_exit(chain, lo, key, counter, nee & ~same, traced)
         result = dr.select(nee, result + thr * phase * dr.select(same, exit_r, exit_t), result)
         active &= order < last
         rng = Stream(key, counter)
@@ -901,37 +935,46 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key):
         active &= ~play | survived
         # Scatter: visible normal, reflect with probability F.
         u1, u2 = rng.next2()
-        m, cos_wm, valid = heitz.visible_normal(mf, w, u1, u2)
+        m, cos_wm, valid = heitz.visible_normal(mfs, w, u1, u2)
         active &= valid
-        f = heitz.fresnel_dielectric(cos_wm, e)
-        o, ok_t = heitz.refract_unit(w, m, cos_wm, e)
+        f = heitz.fresnel_dielectric(cos_wm, es)
+        o, ok_t = heitz.refract_unit(w, m, cos_wm, es)
         refr = active & (u_f >= f) & ok_t
-        tau, _, counter = draw_depth(chain, 0, key, rng.counter, refr)
+        tau, _, counter, depth_ratio = draw_depth(chain, 0, key, rng.counter, refr, traced)
+        d = dr.normalize(reflect(w, m))
+        if traced:  # the new direction's phase function (its density) over the detached one
+            pa = dr.select(refr, heitz.dielectric_phase_transmit(mfa, w, o, ea),
+                           heitz.dielectric_phase_reflect(mfa, w, d, ea))
+            ps = dr.select(refr, heitz.dielectric_phase_transmit(mfs, w, o, es),
+                           heitz.dielectric_phase_reflect(mfs, w, d, es))
+            step = dr.select(ps > 0.0, pa / dr.select(ps > 0.0, ps, 1.0), 1.0)
+            thr = dr.select(active, thr * step * dr.select(refr, depth_ratio, 1.0), thr)
         refracted = refracted | refr
         h_dir = dr.select(refr, -o, h_dir)
         h_t = dr.select(refr, heitz.flip_height(-tau), h_t)
         active &= ~refr
         # Reflect, and extend the run's exit table.
-        d = dr.normalize(reflect(w, m))
         active &= dr.all(dr.isfinite(d)) & (d[2] != 0.0)
         up = d[2] > 0.0
-        lam = mf.lambda_(d)
+        lam = mfa.lambda_(d)
         active &= ~(up & dr.isnan(lam))
         cont = chain.push_up(lam, active & up)
         thr = dr.select(active & up, thr * cont, thr)
         active &= ~up | (cont > 0.0)
-        l = mf.abs_lambda(d)
+        l = mfa.abs_lambda(d)
         pushed = chain.push_down(l, active & ~up & dr.isfinite(l))
         active &= up | pushed
-        return j + 1, -d, thr, result, active, counter, refracted, h_dir, h_t, chain.state()
+        return (j + 1, -d, thr, result, active, counter, refracted, h_dir, h_t, chain.state()) + piped
 
     state = (mi.UInt32(0), mi.Vector3f(w0), mi.Float(1.0), mi.Float(0.0), mi.Bool(start), mi.UInt32(0),
              mi.Bool(False), mi.Vector3f(0.0, 0.0, 1.0), mi.Float(0.0), chain0.state())
+    if traced:
+        state += (mi.Float(mf.alpha_u), mi.Float(mf.alpha_v), mi.Float(lambda_o), mi.Float(eta))
     j, _, thr, result, _, counter, refracted, h_dir, h_t, _ = dr.while_loop(
-        state, lambda *s: s[4], body, label="msx_invariance_dielectric_eval")
+        state, lambda *s: s[4], body, label="msx_invariance_dielectric_eval")[:10]
     # The rest of the refracted paths: Heitz's walk from the vertex after the refraction (order j + 1).
     rest = heitz.dielectric_eval_from(mf, eta, wo, h_dir, h_t, ~outside, j + 1, thr, refracted, last, key,
-                                      counter)
+                                      counter, mf_sample=mf_sample)
     v = (result + dr.select(refracted, rest, 0.0)) * radiance_scale(eta, radiance, outside, wo[2] > 0.0)
     return dr.select(dr.isfinite(v) & (v > 0.0), v, 0.0)
 
@@ -963,7 +1006,7 @@ def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
         f = heitz.fresnel_dielectric(cos_wm, e)
         o, ok_t = heitz.refract_unit(w, m, cos_wm, e)
         refr = active & (ua >= f) & ok_t
-        tau, _, counter = draw_depth(chain, 0, key, counter, refr)
+        tau, _, counter, _ = draw_depth(chain, 0, key, counter, refr)
         refracted = refracted | refr
         h_dir = dr.select(refr, -o, h_dir)
         h_t = dr.select(refr, heitz.flip_height(-tau), h_t)
@@ -1014,7 +1057,7 @@ CONDUCTOR_WALKS = {"invariance": ConductorWalk(eval, sample, mis.HEIGHT_CORRELAT
                                               eval_bdpt=eval_bdpt, differentiable=True)}
 # The walks on the other microsurfaces (MIS densities: ``mis.diffuse_pdf``, ``mis.dielectric_pdf``).
 DIFFUSE_WALKS = {"invariance": DiffuseWalk(diffuse_eval, diffuse_sample)}
-DIELECTRIC_WALKS = {"invariance": DielectricWalk(dielectric_eval, dielectric_sample)}
+DIELECTRIC_WALKS = {"invariance": DielectricWalk(dielectric_eval, dielectric_sample, differentiable=True)}
 
 # The Lambertian walk keeps its O(m²) table in ``dr.alloc_local``, which drjit 1.5's LLVM backend cannot
 # compile inside a symbolic call — and Mitsuba calls every BSDF through one (docs/engines.md): jit/bsdf.py

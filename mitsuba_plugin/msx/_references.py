@@ -24,7 +24,7 @@ def _route_digest(renderer) -> str:
     which do not change with the code."""
     package = Path(__file__).resolve().parent
     if renderer.variant.startswith("scalar"):
-        from . import _native_backend
+        from .plugin import native as _native_backend
 
         try:
             code = list(_native_backend._sources())

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .._params import models
+from ..plugin.parameters import models
 from . import uncertainty
 
 ORDERS = ("1", "2", "3", "4+")

@@ -108,7 +108,7 @@ def test_reference_render(cache, capsys, monkeypatch):
     """The reference of msx compare (a tiny one): cached, then truncated -> rendered again, with the line."""
     from msx import _references
     from msx._render import scenes_dir
-    from msx.compare import SWEEP_SCENES
+    from msx.evaluation.driver import SWEEP_SCENES
     from msx.evaluation import renders
 
     renderer = renders.Renderer("scalar_rgb", scenes_dir())

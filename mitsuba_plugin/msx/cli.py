@@ -229,7 +229,7 @@ def cmd_render(args):
 
 
 def cmd_compare(args):
-    from . import compare
+    from .evaluation import driver as compare
 
     compare.run(args)
 

@@ -42,6 +42,17 @@ def row_label(row) -> str:
     return model if est in ("pt", "-") else f"{model} {est}"
 
 
+def pct(x, se=None, digits=1):
+    """A percentage with its sign and, if given, its standard error ("+1.2 ± 0.3 %"); "—" if not finite. The
+    evaluation's report and the microgeometry's tables write them so."""
+    if x is None or not math.isfinite(x):
+        return "—"
+    out = f"{x:+.{digits}f}"
+    if se is not None and math.isfinite(se):
+        out += f" ± {se:.{digits}f}"
+    return out + " %"
+
+
 @dataclass
 class Settings:
     """What one run computes. `quick` is the CI / first-look size; the full run is the report's."""

@@ -57,6 +57,14 @@ def surface_lobes(BSDFFlags, kind):
     return BSDFFlags.GlossyReflection, BSDFFlags.FrontSide
 
 
+def one_line(cfg, variant, route):
+    """``to_string`` of the vectorized routes: the configuration on one line, with the variant and the route."""
+    return ("MsxPosfree[surface=\"%s\", distribution=\"%s\", model=\"%s\", estimator=\"%s\", "
+            "max_bounces=%s, seed=%d, variant=\"%s\" (%s)]"
+            % (cfg.surface, cfg.distribution, cfg.model, cfg.estimator, cfg.max_bounces or "default", cfg.seed,
+               variant, route))
+
+
 def make_base_class(mi, kind, nch):
     """The part of the ``msx_posfree`` class for one surface kind that both routes share.
 

@@ -36,7 +36,7 @@ import numpy as np
 
 from .._native import ffi, lib
 from .parameters import PLUGIN
-from .base import ERR_LEN, make_base_class, make_factory, native_channels
+from .base import ERR_LEN, make_base_class, make_factory, native_channels, one_line
 from .vectorized_config import vectorized_config
 
 # Live instances (for check_fallback).
@@ -398,11 +398,7 @@ def make_bsdf_class(mi, variant):
             # ------------------------------------------------------ parameters
 
             def to_string(self):
-                cfg = self._cfg
-                return ("MsxPosfree[surface=\"%s\", distribution=\"%s\", model=\"%s\", estimator=\"%s\", "
-                        "max_bounces=%s, seed=%d, variant=\"%s\" (batched LLVM)]"
-                        % (cfg.surface, cfg.distribution, cfg.model, cfg.estimator,
-                           cfg.max_bounces or "default", cfg.seed, variant))
+                return one_line(self._cfg, variant, "batched LLVM")
 
         MsxPosfree.__name__ = MsxPosfree.__qualname__ = "MsxPosfree"
         return MsxPosfree

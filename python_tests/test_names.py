@@ -6,8 +6,12 @@
   and the native plugin (scalar_rgb), and is refused on the others by the core with one line;
 - an unknown name gets one line that lists exactly the table's names — from `msx.plugin.parameters` and from the native
   plugin's own parser (which reads the table through the C ABI);
+- README.md's model table (written by hand) says what the table says: the models, their surfaces and
+  distributions;
 - the C ABI answers an unknown parameter, an index out of range and a null pointer without crashing.
 """
+
+from pathlib import Path
 
 import pytest
 
@@ -52,6 +56,45 @@ def test_abi_refuses_bad_requests():
     assert lib.msx_choice_count(lib.MSX_CHOICE_PARAMETERS) == 0
     assert lib.msx_choice_parameter(lib.MSX_CHOICE_PARAMETERS) == ffi.NULL
     assert lib.msx_choice(lib.MSX_CHOICE_MODEL, 0, ffi.NULL) == lib.MSX_ERR_NULL_POINTER
+
+
+def _readme_model_table():
+    """{model: {surface: cell}} of README.md's model table (header `| model | <surfaces…> | what it is |`)."""
+    lines = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8").splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("| model | "))
+    header = [c.strip() for c in lines[start].strip().strip("|").split("|")]
+    surfaces = header[1:-1]
+    assert surfaces == list(parameters.SURFACES), f"README.md's model table has the surface columns {surfaces}"
+    table = {}
+    for line in lines[start + 2:]:
+        if not line.startswith("|"):
+            break
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        table[cells[0].strip("`")] = dict(zip(surfaces, cells[1:1 + len(surfaces)]))
+    return table
+
+
+def _cell(choice, surface):
+    """What README.md's model table should say of a model on a surface, from the core's table."""
+    if surface not in choice.surfaces:
+        return ""
+    if set(choice.distributions) == set(parameters.DISTRIBUTIONS):
+        return "✓"
+    return " or ".join(d.upper() if d == "ggx" else d.capitalize() for d in choice.distributions) + " only"
+
+
+def test_readme_model_table_is_the_table():
+    """README.md's model table (written by hand) lists exactly the core's models, in its order, each on the
+    surfaces (and distributions) the core's table gives it: ✓, "GGX only", or empty."""
+    readme = _readme_model_table()
+    names = [c.name for c in parameters.TABLE["model"]]
+    missing = [n for n in names if n not in readme]
+    extra = [n for n in readme if n not in names]
+    assert not missing and not extra, f"README.md's model table: missing {missing}, not in the core's table {extra}"
+    assert list(readme) == names, f"README.md's model table lists {list(readme)}; the core's order is {names}"
+    wrong = [f"{c.name} on {s}: README says {readme[c.name][s]!r}, the core's table {_cell(c, s)!r}"
+             for c in parameters.TABLE["model"] for s in parameters.SURFACES if readme[c.name][s] != _cell(c, s)]
+    assert not wrong, "README.md's model table disagrees with the core's table: " + "; ".join(wrong)
 
 
 def _params_of(surface, model, distribution):

@@ -108,7 +108,7 @@ def test_reference_render(cache, capsys, monkeypatch):
     """The reference of msx compare (a tiny one): cached, then truncated -> rendered again, with the line."""
     from msx import _references
     from msx._render import scenes_dir
-    from msx.compare import SWEEP_SCENES
+    from msx.evaluation.driver import SWEEP_SCENES
     from msx.evaluation import renders
 
     renderer = renders.Renderer("scalar_rgb", scenes_dir())
@@ -132,7 +132,7 @@ def test_reference_render(cache, capsys, monkeypatch):
 
 def test_native_build(cache, capfd):
     """A truncated native plugin is found before it is loaded, reported and compiled again."""
-    from msx import _native_backend as nb
+    from msx.plugin import native as nb
 
     os.environ.pop("MSX_CACHE_DIR")
     built = nb.build()  # the build of the usual cache (compiled once per install)

@@ -311,9 +311,9 @@ def test_plain_render_matches_scalar():
     """A user's plain mi.render() (no wrapper) renders the right image: creating the instance switched drjit to
     evaluated mode, with one warning; the mean equals the scalar variant's within noise."""
     mi.set_variant("llvm_ad_rgb")
-    from msx import _plugin_llvm
+    from msx.plugin import vectorized
 
-    _plugin_llvm._switched = False  # as in a new process: the first switch warns
+    vectorized._switched = False  # as in a new process: the first switch warns
     msx._REGISTERED.pop("llvm_ad_rgb", None)
     with pytest.warns(RuntimeWarning, match="symbolic loops and calls are now off"):
         msx.register(backend="batched")

@@ -1,5 +1,5 @@
 """`msx simulate` (ray tracing on generated Beckmann surfaces) and the model
-comparison of msx/microgeometry.py: the CLI output contract, consistency of
+comparison of msx/microgeometry/: the CLI output contract, consistency of
 the written numbers, progress output, parameter errors, and a small run of
 the comparison. The physics is tested in tests/microgeometry.rs."""
 
@@ -108,7 +108,7 @@ def test_comparison_writes_tables_and_charts(tmp_path, monkeypatch):
     for name in ("errors.md", "errors.html", "summary.md"):
         assert (tmp_path / name).stat().st_size > 0
     assert "| conductor | heitz |" in r["markdown"]
-    if mg._plt() is not None:
+    if mg.report._plt() is not None:
         assert (tmp_path / "energy_conductor.png").exists()
         assert (tmp_path / "lobes_dielectric_a0.5-0.5_t0.5.png").exists()
     # Cached simulations are reused: a second run gives the same table.

@@ -15,7 +15,7 @@ import pytest
 
 from conftest import set_variant
 
-from msx._params import SURFACES, models
+from msx.plugin.parameters import SURFACES, models
 
 # Every model on every surface of the core's table of names (src/config.rs).
 SURFACE_MODELS = [(s, m) for s in SURFACES for m in models(s, distribution="ggx")]

@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from msx import _native_backend as nb
+from msx.plugin import native as nb
 
 REMEMBERED = "remembered from an earlier build"
 
@@ -39,7 +39,7 @@ def test_a_failed_build_is_remembered_until_its_folder_goes(failing_compiler, tm
     again = _build_error()
     assert "this compiler refuses" in again and REMEMBERED in again and failing_compiler() == 1
     # A worker process (same inputs) does not compile either.
-    code = ("from msx import _native_backend as nb\ntry:\n    nb.build()\nexcept nb.NativeUnavailable as e:\n"
+    code = ("from msx.plugin import native as nb\ntry:\n    nb.build()\nexcept nb.NativeUnavailable as e:\n"
             "    print(e)\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=os.environ)
     assert REMEMBERED in r.stdout and failing_compiler() == 1, r.stdout + r.stderr
@@ -61,7 +61,7 @@ def test_a_compiler_stopped_by_a_signal_is_not_remembered(tmp_path, monkeypatch)
 
 def test_without_fcntl_the_fallback_says_why(tmp_path):
     """fcntl does not exist on Windows: importing the back end must still work and build() say why."""
-    code = ("import sys\nsys.modules['fcntl'] = None\nfrom msx import _native_backend as nb\ntry:\n    nb.build()\n"
+    code = ("import sys\nsys.modules['fcntl'] = None\nfrom msx.plugin import native as nb\ntry:\n    nb.build()\n"
             "except nb.NativeUnavailable as e:\n    print('unavailable:', e)\n")
     env = dict(os.environ, MSX_CACHE_DIR=str(tmp_path / "cache"))
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)

@@ -130,7 +130,7 @@ def test_microgeometry_ranking_ties_and_ranks():
 def test_auto_is_correlated_only_where_its_rule_keeps_the_walk(tmp_path, alpha, same):
     """The report groups `auto` with `correlated` only where the two give identical values at the scene's
     material (core calls, no rendering): at α = 1 auto never drops the walk, at α = 0.01 it does."""
-    from msx import compare
+    from msx.evaluation import driver as compare
     from msx.evaluation.common import CONDUCTOR_ROWS
     from msx.evaluation.renders import SweepScene
 
@@ -200,7 +200,7 @@ def test_adaptive_sweep_measured_extrapolated_not_reachable(scene):
     same spps (the decision uses the images only)."""
     from types import SimpleNamespace
 
-    from msx import compare
+    from msx.evaluation import driver as compare
     from msx.evaluation import renders
     from msx.evaluation.common import TARGETS_RMS
 

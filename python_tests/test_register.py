@@ -111,7 +111,7 @@ SLIPS = [
 @pytest.mark.parametrize("what, line, mutant, words", SLIPS, ids=[s[0] for s in SLIPS])
 def test_the_self_check_catches_a_slip(tmp_path, what, line, mutant, words):
     """A plugin with one slip (compiled here, a few seconds each) is refused by the self-check, naming it."""
-    from msx import _native_backend as nb
+    from msx.plugin import native as nb
 
     src, hdr = nb._sources()
     text = src.read_text()
@@ -119,7 +119,7 @@ def test_the_self_check_catches_a_slip(tmp_path, what, line, mutant, words):
     bad = tmp_path / "msx_mitsuba.cpp"
     bad.write_text(text.replace(line + "\n", mutant + "\n"))
     code = ("import sys\nfrom pathlib import Path\nimport mitsuba as mi\nmi.set_variant('scalar_rgb')\n"
-            "from msx import _native_backend as nb\n"
+            "from msx.plugin import native as nb\n"
             f"nb._sources = lambda: (Path({str(bad)!r}), Path({str(hdr)!r}))\n"
             "try:\n    nb.make_factory(mi)\nexcept nb.NativeUnavailable as e:\n    print('refused:', e)\n"
             "else:\n    print('accepted')\n")

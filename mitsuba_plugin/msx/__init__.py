@@ -58,7 +58,7 @@ def register(backend=None):
     ``backend``, per variant kind (also ``MSX_BACKEND``; ``None``/``"auto"`` picks the fastest):
 
     - scalar variants: ``"native"`` (a C++ plugin calling the Rust core directly — no Python per call,
-      all render threads; compiled on first use and cached, see ``_native_backend.py``; the default where
+      all render threads; compiled on first use and cached, see ``plugin/native.py``; the default where
       it builds and passes its check, else Python, saying why once) or ``"python"`` (the Python class,
       one call per sample, one render thread);
     - vectorized variants (``llvm_*``, ``cuda_*``): ``"jit"`` (the default: the Dr.Jit engine, ``msx/jit/``,
@@ -101,7 +101,7 @@ def register(backend=None):
                            "'jit' (the default) or 'batched'")
     factory, chosen = None, "python"
     if scalar and backend in ("auto", "native"):
-        from ._native_backend import NativeUnavailable, make_factory
+        from .plugin.native import NativeUnavailable, make_factory
 
         try:
             factory, chosen = make_factory(mi), "native"
@@ -113,7 +113,7 @@ def register(backend=None):
                        "(one Python call per BSDF call, one render thread)")
     if factory is None:
         if not scalar and backend == "batched":
-            from ._plugin_llvm import _switch_to_evaluated_mode, make_bsdf_class
+            from .plugin.vectorized import _switch_to_evaluated_mode, make_bsdf_class
 
             # Native code cannot run in drjit's symbolic kernels: turn them off now (saying so once), so that
             # a plain mi.render() of a scene with msx_posfree gives the right image. (Mitsuba's scene loader
@@ -121,13 +121,13 @@ def register(backend=None):
             _switch_to_evaluated_mode()
             factory, chosen = make_bsdf_class(mi, variant), "batched"
         elif not scalar:
-            from ._params import channels_of
+            from .plugin.parameters import channels_of
             from .jit.bsdf import make_bsdf_factory
 
             channels_of(mi, variant)  # polarized variants: a clear error now, not at scene load
             factory, chosen = make_bsdf_factory(variant), "jit"
         else:
-            from ._plugin import make_bsdf_class
+            from .plugin.scalar import make_bsdf_class
 
             factory = make_bsdf_class(mi, variant)
     mi.register_bsdf("msx_posfree", lambda props: _create(factory, props))
@@ -171,13 +171,13 @@ def evaluated_mode():
     turning off dr.JitFlag.SymbolicLoops and SymbolicCalls, which that route needs
     (``with msx.evaluated_mode(): mi.render(scene)``; ``.enable()`` keeps it on). The Dr.Jit engine, the
     default, needs no such mode."""
-    from ._plugin_llvm import evaluated_mode as _f
+    from .plugin.vectorized import evaluated_mode as _f
 
     return _f()
 
 
 def check_fallback(error=False):
     """LLVM variants: warn (or raise) if a symbolic render reached msx_posfree's zero fallback."""
-    from ._plugin_llvm import check_fallback as _f
+    from .plugin.vectorized import check_fallback as _f
 
     return _f(error)

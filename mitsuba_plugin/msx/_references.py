@@ -24,11 +24,11 @@ def _route_digest(renderer) -> str:
     which do not change with the code."""
     package = Path(__file__).resolve().parent
     if renderer.variant.startswith("scalar"):
-        from . import _native_backend
+        from .plugin import native
 
         try:
-            code = list(_native_backend._sources())
-        except _native_backend.NativeUnavailable:  # not installed: the Python back end renders
+            code = list(native._sources())
+        except native.NativeUnavailable:  # not installed: the Python back end renders
             code = []
     else:
         code = sorted((package / "jit").glob("*.py"))

@@ -1,5 +1,5 @@
 """Command line: ``msx render SCENE.xml``, ``msx compare``, ``msx simulate``
-(ray tracing on generated microgeometry, msx/microgeometry.py), ``msx assets`` and ``msx cache [--clear]``.
+(ray tracing on generated microgeometry, msx/microgeometry/), ``msx assets`` and ``msx cache [--clear]``.
 
 Errors end the run with one line on stderr naming the problem (exit code 1;
 ``--verbose`` adds the traceback). Ctrl-C (SIGINT), SIGTERM and a closed terminal (SIGHUP) stop every
@@ -229,7 +229,7 @@ def cmd_render(args):
 
 
 def cmd_compare(args):
-    from . import compare
+    from .evaluation import driver as compare
 
     compare.run(args)
 
@@ -319,7 +319,7 @@ def build_parser():
     k.add_argument("--clear", action="store_true", help="delete the cache (everything in it is recomputed on use)")
     k.set_defaults(func=cmd_cache)
 
-    from .microgeometry import add_simulate_parser
+    from .microgeometry.cli import add_simulate_parser
 
     add_simulate_parser(sub, parents=[common])
     return p

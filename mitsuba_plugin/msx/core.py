@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._native import ffi, lib
-from ._params import DISTRIBUTIONS, ESTIMATORS, MIS_DENSITIES, MODELS, SURFACES
+from .plugin.parameters import DISTRIBUTIONS, ESTIMATORS, MIS_DENSITIES, MODELS, SURFACES
 
 _ERR_LEN = 512
 

@@ -1,5 +1,6 @@
 """The evaluation behind ``msx compare``: speed against accuracy.
 
+- ``driver``: ``msx compare`` itself — the stages, in order, each writing into the report folder.
 - ``renders``: the comparison scenes, their converged Smith reference (cached),
   spp sweeps over every model × estimator, error against time, bias² and
   variance, object masks, side-by-side images and difference images.

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._params import models
+from ..plugin.parameters import models
 
 # A model row of the evaluation: (model, estimator); model "builtin" is Mitsuba's own BSDF.
 Row = tuple
@@ -40,6 +40,17 @@ def row_label(row) -> str:
     if model == "builtin":
         return "built-in"
     return model if est in ("pt", "-") else f"{model} {est}"
+
+
+def pct(x, se=None, digits=1):
+    """A percentage with its sign and, if given, its standard error ("+1.2 ± 0.3 %"); "—" if not finite. The
+    evaluation's report and the microgeometry's tables write them so."""
+    if x is None or not math.isfinite(x):
+        return "—"
+    out = f"{x:+.{digits}f}"
+    if se is not None and math.isfinite(se):
+        out += f" ± {se:.{digits}f}"
+    return out + " %"
 
 
 @dataclass
@@ -98,7 +109,7 @@ def default_variant() -> tuple[str, str]:
     """The fastest route here and why: llvm_ad_rgb with the Dr.Jit engine where Mitsuba's LLVM variant works
     (what the engine does not run falls back to scalar_rgb, row by row), else scalar_rgb with the native back
     end (every render thread), else scalar_rgb with the Python back end (one thread)."""
-    from .._native_backend import NativeUnavailable, build
+    from ..plugin.native import NativeUnavailable, build
     from .._variants import llvm_problem
 
     llvm_why = llvm_problem()

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from msx._params import models
+from msx.plugin.parameters import models
 from msx.core import CoreBsdf
 
 from .atlas import ETA, Proposal
@@ -21,7 +21,7 @@ MODELS = {s: models(s) for s in ("conductor", "dielectric")}
 
 def copper_rgb(mi):
     """Mitsuba's copper (η, k) in its RGB variants' values (from a built-in roughconductor)."""
-    from msx._params import conductor_ior
+    from msx.plugin.parameters import conductor_ior
 
     eta, k = conductor_ior(mi, "Cu")
     si = mi.SurfaceInteraction3f()

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from msx._params import models
+from msx.plugin.parameters import models
 from msx.core import CoreBsdf
 
 from .atlas import ETA, Proposal

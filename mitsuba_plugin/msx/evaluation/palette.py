@@ -29,7 +29,7 @@ def generated(name: str) -> str:
 def color(label: str) -> str:
     """The colour of a row label ('correlated bdpt' → correlated's) or a model name; a model of the core's
     table missing from MODEL_COLORS gets a generated colour (``generated``), any other label grey."""
-    from .._params import MODELS
+    from ..plugin.parameters import MODELS
 
     if label.startswith("Smith"):  # the Smith model's entry (heitz = invariance): heitz's colour
         return MODEL_COLORS["heitz"]

@@ -12,6 +12,7 @@ from pathlib import Path
 from . import uncertainty
 from .atlas import FAIL
 from .common import TARGETS_RMS, row_label
+from .common import pct as _pct
 from .two_references import SMITH
 
 CSS = """
@@ -51,15 +52,6 @@ def _sec(t):
 
 def _e(x, digits=2):
     return "—" if x is None or not math.isfinite(x) else f"{x:.{digits}e}"
-
-
-def _pct(x, se=None, digits=1):
-    if x is None or not math.isfinite(x):
-        return "—"
-    out = f"{x:+.{digits}f}"
-    if se is not None and math.isfinite(se):
-        out += f" ± {se:.{digits}f}"
-    return out + " %"
 
 
 def _bias(t):

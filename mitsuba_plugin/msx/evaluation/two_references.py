@@ -1,5 +1,5 @@
 """One story across the two references: each model against the converged Smith reference (the sweep scenes)
-and against rays traced on explicit microgeometry (microgeometry.py), with the orderings side by side and
+and against rays traced on explicit microgeometry (msx/microgeometry/), with the orderings side by side and
 the Smith model's own error against the traced surfaces, per scattering order.
 
 Pure Python on the numbers of the run (no rendering)."""
@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .._params import models
+from ..plugin.parameters import models
 from . import uncertainty
 
 ORDERS = ("1", "2", "3", "4+")

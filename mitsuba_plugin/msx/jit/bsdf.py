@@ -15,9 +15,9 @@ import math
 import drjit as dr
 import mitsuba as mi
 
-from .._params import MODEL_INFO, PLUGIN, MsxParameterError
-from .._plugin_base import make_base_class, make_factory, native_channels
-from .._vectorized_config import vectorized_config
+from ..plugin.parameters import MODEL_INFO, PLUGIN, MsxParameterError
+from ..plugin.base import make_base_class, make_factory, native_channels
+from ..plugin.vectorized_config import vectorized_config
 from . import analytic, auto, gradients, heitz, invariance, mis, posfree, posfree_dielectric
 from .microfacet import ConductorFresnel, Microfacet
 from .rng import hash_words

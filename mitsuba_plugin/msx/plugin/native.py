@@ -1,4 +1,5 @@
-"""The native back end of ``msx_posfree`` for Mitsuba's scalar variants.
+"""Scalar variants, native route (the default; ``msx.register(backend="native")``): the native back end of
+``msx_posfree``.
 
 A C++ BSDF (``native/msx_mitsuba.cpp``) calls the Rust core once per BSDF
 call, without Python and without the GIL, so Mitsuba's render threads run in
@@ -56,7 +57,7 @@ class NativeUnavailable(RuntimeError):
 
 def _sources():
     """(C++ source, msx.h): shipped in the package, or the repository's when running from a checkout."""
-    here = Path(__file__).resolve().parent
+    here = Path(__file__).resolve().parent.parent  # the msx package (this module is msx/plugin/native.py)
     for src, hdr in ((here / "native" / "msx_mitsuba.cpp", here / "native" / "msx.h"),
                      (here.parent.parent / "native" / "msx_mitsuba.cpp", here.parent.parent / "include" / "msx.h")):
         if src.exists() and hdr.exists():
@@ -96,7 +97,7 @@ def _toolchain():
     for d in inc:
         if not d.is_dir():
             raise NativeUnavailable(f"missing headers folder {d}")
-    from . import _native
+    from .. import _native
 
     ext = Path(_native.__file__).resolve()
     versions = (mitsuba.__version__, drjit.__version__, getattr(nanobind, "__version__", "?"))
@@ -105,7 +106,7 @@ def _toolchain():
 
 def build(verbose=False) -> Path:
     """The compiled plugin (built now unless cached). Raises NativeUnavailable."""
-    from . import _cache
+    from .. import _cache
 
     arch = _platform_flags()
     src, hdr = _sources()
@@ -204,8 +205,8 @@ def self_check(mi):
     Raises NativeUnavailable naming the first difference."""
     import drjit as dr
 
-    from ._params import Config
-    from ._plugin import make_bsdf_class
+    from .parameters import Config
+    from .scalar import make_bsdf_class
 
     python_class = make_bsdf_class(mi, mi.variant())
 
@@ -295,7 +296,7 @@ def _native_props(cfg) -> dict:
 
 def make_factory(mi):
     """The ``msx_posfree`` factory of the native back end for the current (scalar) variant."""
-    from ._params import Config
+    from .parameters import Config
 
     load()
     try:

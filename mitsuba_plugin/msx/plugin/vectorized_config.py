@@ -1,14 +1,14 @@
-"""The parameters of ``msx_posfree`` in the vectorized variants (``llvm_*``, ``cuda_*``): ``_params.Config``
+"""Vectorized variants, both routes: the parameters of ``msx_posfree`` in ``llvm_*`` and ``cuda_*``: ``parameters.Config``
 reads constant textures as Python floats (as in scalar variants); these wrappers let it do so on Dr.Jit
 arrays of width 1, then hand back the textures themselves. Shared by the Dr.Jit engine (``jit/bsdf.py``)
-and the batched route (``_plugin_llvm.py``)."""
+and the batched route (``vectorized.py``)."""
 
-from ._params import Config
-from ._plugin_base import SPECTRAL_TEXTURES
+from .parameters import Config
+from .base import SPECTRAL_TEXTURES
 
 
 class ScalarTex:
-    """Wraps a texture so that _params' scalar checks (``float(tex.eval_1(si))``)
+    """Wraps a texture so that parameters.Config's scalar checks (``float(tex.eval_1(si))``)
     work with LLVM arrays; unwrapped again right after parsing."""
 
     def __init__(self, tex):
@@ -22,7 +22,7 @@ class ScalarTex:
 
 
 class _Props:
-    """mi.Properties seen by _params.Config (textures wrapped by _ScalarTex)."""
+    """mi.Properties seen by parameters.Config (textures wrapped by _ScalarTex)."""
 
     def __init__(self, props):
         self._p = props
@@ -45,7 +45,7 @@ def _scalar(v):
 
 
 class _Mi:
-    """The mitsuba module seen by _params.Config: ``traverse(obj)[key]`` gives
+    """The mitsuba module seen by parameters.Config: ``traverse(obj)[key]`` gives
     Python floats for width-1 arrays (as in scalar variants)."""
 
     def __init__(self, mi):

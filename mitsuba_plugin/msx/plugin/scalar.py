@@ -1,4 +1,6 @@
-"""The ``msx_posfree`` BSDF class for Mitsuba's scalar variants.
+"""Scalar variants, Python route (``msx.register(backend="python")``, and the fallback when the native
+plugin is unavailable): the ``msx_posfree`` BSDF class as a Python ``mi.BSDF``, one Python call per BSDF
+call, one render thread. The default route of the scalar variants is the native plugin (``native.py``).
 
 Every BSDF call crosses into the Rust core exactly once through the cffi
 API-mode extension ``msx._native`` (small C helpers there take the
@@ -6,12 +8,12 @@ directions as plain floats and return the ABI's result structs by value).
 Per-hit material values are packed into an ``MsxMaterial``; when no texture
 varies (over the surface, or with wavelength in spectral variants) that
 struct is computed once and reused. Parameters, flags, ``traverse`` and the
-factory are shared with the LLVM route (``_plugin_base.py``).
+factory are shared with the batched route (``base.py``).
 """
 
-from ._native import ffi, lib
-from ._params import PLUGIN
-from ._plugin_base import ALL_COMPONENTS, make_base_class, make_factory, native_channels, surface_lobes
+from .._native import ffi, lib
+from .parameters import PLUGIN
+from .base import ALL_COMPONENTS, make_base_class, make_factory, native_channels, surface_lobes
 
 
 def _channels(mi, variant):

@@ -1,11 +1,13 @@
-"""The ``msx_posfree`` BSDF class for Mitsuba's LLVM variants (``llvm_ad_rgb``,
-``llvm_ad_spectral``, ``llvm_ad_mono``).
+"""Vectorized variants, batched route (``msx.register(backend="batched")``): the ``msx_posfree`` BSDF class
+for Mitsuba's LLVM variants (``llvm_ad_rgb``, ``llvm_ad_spectral``, ``llvm_ad_mono``). The default route
+of the vectorized variants is the Dr.Jit engine (``msx/jit/``); this one serves the models the engine does
+not run.
 
 Each BSDF method invocation makes exactly one batched C call
 (``msx_eval_batch`` / ``msx_pdf_batch`` / ``msx_eval_pdf_batch`` /
 ``msx_sample_batch``, see ``include/msx.h``) over all the lanes it receives.
 Parameters, flags, ``traverse`` and the factory are shared with the scalar
-route (``_plugin_base.py``).
+route (``base.py``).
 
 Native code cannot run inside drjit's symbolic (traced) kernels, so
 
@@ -32,10 +34,10 @@ import weakref
 
 import numpy as np
 
-from ._native import ffi, lib
-from ._params import PLUGIN
-from ._plugin_base import ERR_LEN, make_base_class, make_factory, native_channels
-from ._vectorized_config import vectorized_config
+from .._native import ffi, lib
+from .parameters import PLUGIN
+from .base import ERR_LEN, make_base_class, make_factory, native_channels, one_line
+from .vectorized_config import vectorized_config
 
 # Live instances (for check_fallback).
 _INSTANCES = weakref.WeakSet()
@@ -203,7 +205,7 @@ def make_bsdf_class(mi, variant):
                 self._refresh()
 
             def _config(self, props):
-                # _params.Config reads constant textures as Python floats: parse through the wrappers.
+                # parameters.Config reads constant textures as Python floats: parse through the wrappers.
                 return vectorized_config(mi, props)
 
             # ------------------------------------------------- symbolic fallback
@@ -396,11 +398,7 @@ def make_bsdf_class(mi, variant):
             # ------------------------------------------------------ parameters
 
             def to_string(self):
-                cfg = self._cfg
-                return ("MsxPosfree[surface=\"%s\", distribution=\"%s\", model=\"%s\", estimator=\"%s\", "
-                        "max_bounces=%s, seed=%d, variant=\"%s\" (batched LLVM)]"
-                        % (cfg.surface, cfg.distribution, cfg.model, cfg.estimator,
-                           cfg.max_bounces or "default", cfg.seed, variant))
+                return one_line(self._cfg, variant, "batched LLVM")
 
         MsxPosfree.__name__ = MsxPosfree.__qualname__ = "MsxPosfree"
         return MsxPosfree

@@ -1,8 +1,8 @@
-"""What the two Python routes of ``msx_posfree`` share.
+"""The Python routes (scalar Python class, batched vectorized class, Dr.Jit engine): what they share.
 
-The scalar variants call the core once per BSDF call (``_plugin.py``); the
-LLVM variants make one batched call per method over a wavefront
-(``_plugin_llvm.py``). Everything that does not depend on how a call reaches
+The scalar variants call the core once per BSDF call (``scalar.py``); the
+batched route of the vectorized variants makes one batched call per method over a wavefront
+(``vectorized.py``); the Dr.Jit engine (``jit/bsdf.py``) builds on the same base class. Everything that does not depend on how a call reaches
 the core lives here: the channel count, the native handle, the instance's
 textures, the surface's lobes, flags and components, ``traverse``,
 ``parameters_changed`` and the factory that picks the class of the
@@ -11,8 +11,8 @@ configured surface.
 
 import drjit as dr
 
-from ._native import ffi, lib
-from ._params import PLUGIN, Config, MsxParameterError, channels_of
+from .._native import ffi, lib
+from .parameters import PLUGIN, Config, MsxParameterError, channels_of
 
 ERR_LEN = 512
 
@@ -55,6 +55,14 @@ def surface_lobes(BSDFFlags, kind):
     if kind == "diffuse":
         return BSDFFlags.DiffuseReflection, BSDFFlags.FrontSide
     return BSDFFlags.GlossyReflection, BSDFFlags.FrontSide
+
+
+def one_line(cfg, variant, route):
+    """``to_string`` of the vectorized routes: the configuration on one line, with the variant and the route."""
+    return ("MsxPosfree[surface=\"%s\", distribution=\"%s\", model=\"%s\", estimator=\"%s\", "
+            "max_bounces=%s, seed=%d, variant=\"%s\" (%s)]"
+            % (cfg.surface, cfg.distribution, cfg.model, cfg.estimator, cfg.max_bounces or "default", cfg.seed,
+               variant, route))
 
 
 def make_base_class(mi, kind, nch):
@@ -110,7 +118,7 @@ def make_base_class(mi, kind, nch):
             self._h = new_handle(cfg, nch)
 
         def _config(self, props):
-            """The parsed and validated parameters (``_params.py``)."""
+            """The parsed and validated parameters (``parameters.py``)."""
             return Config(mi, props)
 
         _lobes = staticmethod(lobes)

@@ -1,4 +1,5 @@
-"""``msx compare``: the evaluation — speed against accuracy.
+"""``msx compare``: the evaluation's driver — speed against accuracy (the stages; the parts are this package's
+other modules).
 
 Renders the paper scenes with every model × estimator and Mitsuba's built-ins,
 measures error against time against a converged Smith reference, maps where
@@ -19,16 +20,16 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _cache, _references
-from ._render import RenderError, output_folder, scenes_dir
-from .evaluation import atlas as atlas_mod
-from .evaluation import charts, common
-from .evaluation import energy as energy_mod
-from .evaluation import lobes as lobes_mod
-from .evaluation import renders, two_references
-from .evaluation import uncertainty
-from ._params import models
-from .evaluation.common import CONDUCTOR_ROWS, DIELECTRIC_ROWS, UNBIASED, row_label
+from .. import _cache, _references
+from .._render import RenderError, output_folder, scenes_dir
+from . import atlas as atlas_mod
+from . import charts, common
+from . import energy as energy_mod
+from . import lobes as lobes_mod
+from . import renders, two_references
+from . import uncertainty
+from ..plugin.parameters import models
+from .common import CONDUCTOR_ROWS, DIELECTRIC_ROWS, UNBIASED, row_label
 
 SWEEP_SCENES = [
     renders.SweepScene("fig09_copper_sphere", "Wang 2022 Fig. 9: copper sphere, GGX α = 1, directional light (direct only)",
@@ -135,7 +136,7 @@ def run(args):
     if not st.quick:
         # Every model against ray-traced explicit microgeometry (docs/microgeometry.md); simulations cached.
         prog.stage("microgeometry")
-        from . import microgeometry
+        from .. import microgeometry
 
         micro = microgeometry.compare(out / "microgeometry", link_prefix="microgeometry/")
 
@@ -145,7 +146,7 @@ def run(args):
                                               "mean_error_se_pct", "variance", "unbiased", "route"])
     # Per row and target: the time to it and whether it is measured, extrapolated (×factor) or not reachable.
     _write_csv(out / "times.csv", times_rows, TIMES_COLUMNS)
-    from .evaluation import report
+    from . import report
 
     checks = _physics_checks(scene_reports)
     micro_summary = None
@@ -326,7 +327,7 @@ def _same_model_here(scene, sdir, a, b, n=4000):
     keeps the whole `correlated` walk wherever multiple scattering is not negligible."""
     import xml.etree.ElementTree as ET
 
-    from .core import CoreBsdf
+    from ..core import CoreBsdf
 
     root = ET.parse(Path(sdir) / f"{scene.name}.xml").getroot()
     d = {e.get("name"): e.get("value") for e in root.iter("default")}

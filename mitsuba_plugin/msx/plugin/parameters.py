@@ -1,12 +1,16 @@
-"""Parsing and validation of ``msx_posfree`` scene parameters (README.md's parameter table).
+"""Every route: parsing and validation of ``msx_posfree`` scene parameters (README.md's parameter table),
+and the core's table of names (models, estimators, distributions, surfaces, MIS densities; src/config.rs,
+read through ``msx_choice*``).
 
-Everything here runs once per BSDF instance at scene load; errors name the
+Every back end parses a scene's parameters here — the scalar Python class (``scalar.py``), the native C++
+plugin (``native.py``), the batched route (``vectorized.py``) and the Dr.Jit engine (``jit/bsdf.py``) — so the
+messages are the same everywhere. Everything here runs once per BSDF instance at scene load; errors name the
 parameter and the allowed values.
 """
 
 import math
 
-from ._native import lib
+from .._native import lib
 
 PLUGIN = "msx_posfree"
 
@@ -42,7 +46,7 @@ class Choice:
 
 def _read_table():
     """{parameter name: [Choice, ...]} in the core's order (the order of the docs)."""
-    from ._native import ffi
+    from .._native import ffi
 
     def rows(parameter):
         out = []

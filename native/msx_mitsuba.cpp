@@ -3,7 +3,7 @@
 // GIL, so Mitsuba's render threads run in parallel.
 //
 // This plugin is an internal back end: msx.register() (mitsuba_plugin/msx/
-// _native_backend.py) registers "msx_posfree" as a Python factory that parses
+// msx/plugin/native.py) registers "msx_posfree" as a Python factory that parses
 // and validates the scene parameters exactly like the Python back end, then
 // instantiates this class ("msx_posfree_native") with the parsed values:
 //   strings  surface, distribution, model, estimator, seed (decimal u64),
@@ -15,7 +15,7 @@
 //            (conductor, dielectric), eta and k (conductor),
 //            specular_transmittance (dielectric), reflectance (diffuse)
 // It is compiled against the installed Mitsuba's own headers on first use
-// (see _native_backend.py), because the struct layouts must match the wheel.
+// (see msx/plugin/native.py), because the struct layouts must match the wheel.
 
 #include <mitsuba/core/plugin.h>
 #include <mitsuba/core/properties.h>
@@ -49,7 +49,7 @@ uint32_t parse(uint32_t parameter, const std::string &value) {
             return c.code;
         allowed += (allowed.empty() ? "" : ", ") + std::string(c.name);
     }
-    // The Python front end validates the values first; the same one line as its (_params.py, _choice).
+    // The Python front end validates the values first; the same one line as its (msx/plugin/parameters.py, _choice).
     const char *name = msx_choice_parameter(parameter);
     throw std::runtime_error("msx_posfree: unknown value '" + value + "' for parameter '" +
                              (name ? name : "?") + "'; allowed values: " + allowed);

@@ -14,7 +14,7 @@ found by name (docs/engines.md):
 | ``mis.py`` | ``src/models/mis.rs`` | the walks' MIS densities |
 | ``single.py`` | ``src/models/single/`` | Walter 2007 as Mitsuba computes it |
 | ``posfree.py`` | ``src/models/posfree/`` | Wang 2022 position-free PT |
-| ``bsdf.py`` | ``src/bsdf.rs`` + ``_plugin_base.py`` | the ``msx_posfree`` class of the vectorized variants |
+| ``bsdf.py`` | ``src/bsdf.rs`` + ``plugin/base.py`` | the ``msx_posfree`` class of the vectorized variants |
 
 Everything here is traced: a function runs once per kernel, on arrays of lanes; branches are masks
 (``dr.select``) and walks are ``dr.while_loop``. Nothing reads a value back from the device.

@@ -3,7 +3,7 @@
 Twin of ``src/bsdf.rs``: it maps the configuration to one model implementation at construction, checks
 each call's inputs (a usable material), applies Mitsuba's ``specular_reflectance`` afterwards, and derives
 each lane's random stream from the lane's inputs and ``seed``. Parameters, flags, ``traverse`` and the
-surface factory are those of the other routes (``_plugin_base.py``); the parameters are validated by the
+surface factory are those of the other routes (``plugin/base.py``); the parameters are validated by the
 same code and the core, so a bad parameter gives the same one-line message as in ``scalar_rgb``.
 
 The methods are traced: Mitsuba calls them once per kernel with symbolic arrays, and the models' walks
@@ -16,7 +16,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..plugin.parameters import MODEL_INFO, PLUGIN, MsxParameterError
-from ..plugin.base import make_base_class, make_factory, native_channels
+from ..plugin.base import make_base_class, make_factory, native_channels, one_line
 from ..plugin.vectorized_config import vectorized_config
 from . import analytic, auto, gradients, heitz, invariance, mis, posfree, posfree_dielectric
 from .microfacet import ConductorFresnel, Microfacet
@@ -31,7 +31,7 @@ DIFFUSE_WALKS = {**posfree.DIFFUSE_WALKS, **heitz.DIFFUSE_WALKS, **invariance.DI
 
 
 def _check_names(surface, models):
-    """The engine's names are the core's (its table of names, src/config.rs via ``_params.MODEL_INFO``): a
+    """The engine's names are the core's (its table of names, src/config.rs via ``plugin.parameters.MODEL_INFO``): a
     model the engine runs on a surface is one the core implements there."""
     for name in models:
         info = MODEL_INFO.get(name)
@@ -586,11 +586,7 @@ def make_bsdf_factory(variant):
                 return bs, dr.select(ok, weight, 0.0)
 
             def to_string(self):
-                cfg = self._cfg
-                return ("MsxPosfree[surface=\"%s\", distribution=\"%s\", model=\"%s\", estimator=\"%s\", "
-                        "max_bounces=%s, seed=%d, variant=\"%s\" (Dr.Jit engine)]"
-                        % (cfg.surface, cfg.distribution, cfg.model, cfg.estimator,
-                           cfg.max_bounces or "default", cfg.seed, variant))
+                return one_line(self._cfg, variant, "Dr.Jit engine")
 
         MsxPosfree.__name__ = MsxPosfree.__qualname__ = "MsxPosfree"
         return MsxPosfree

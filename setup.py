@@ -20,71 +20,11 @@ ROOT = os.path.dirname(os.path.abspath(__file__))
 HEADER = os.path.join(ROOT, "include", "msx.h")
 NATIVE = "msx._native"
 
-# Small C helpers compiled into the extension: they take and return plain
-# scalars/structs so that each Python-side call crosses cffi exactly once
-# with cheap argument conversion (floats instead of struct construction).
-C_HELPERS = r"""
-/* Per-instance state: the BSDF handle and the cached material (used when no
-   texture varies). */
-typedef struct MsxpyInst {
-    const MsxBsdf *bsdf;
-    MsxMaterial mat;
-} MsxpyInst;
-
-/* Flat result structs: one cdata attribute access per value. */
-typedef struct MsxpyEvalPdf { float v0, v1, v2, v3, pdf; } MsxpyEvalPdf;
-typedef struct MsxpySample { float x, y, z, pdf, w0, w1, w2, w3; uint32_t valid; } MsxpySample;
-
-static MsxpyEvalPdf msxpy_pack_eval_pdf(MsxEvalPdf r) {
-    MsxpyEvalPdf o = { r.value.v[0], r.value.v[1], r.value.v[2], r.value.v[3], r.pdf };
-    return o;
-}
-static MsxpyEvalPdf msxpy_pack_eval(MsxSpectrum r) {
-    MsxpyEvalPdf o = { r.v[0], r.v[1], r.v[2], r.v[3], 0.0f };
-    return o;
-}
-static MsxpySample msxpy_pack_sample(MsxSample r) {
-    MsxpySample o = { r.wo.x, r.wo.y, r.wo.z, r.pdf,
-                      r.weight.v[0], r.weight.v[1], r.weight.v[2], r.weight.v[3], r.valid };
-    return o;
-}
-
-/* `m` is the material evaluated at the hit, or NULL for the cached one. The
-   key of an evaluation comes from where it happens (hit position p and uv,
-   see msx_call_key), so estimates never depend on the order of the calls. */
-static MsxpyEvalPdf msxpy_eval_pdf(MsxpyInst *s, const MsxMaterial *m, float wix, float wiy, float wiz,
-        float wox, float woy, float woz, float px, float py, float pz, float u, float v) {
-    MsxVec3 wi = { wix, wiy, wiz }, wo = { wox, woy, woz };
-    return msxpy_pack_eval_pdf(msx_eval_pdf(s->bsdf, m ? m : &s->mat, wi, wo, msx_call_key(px, py, pz, u, v)));
-}
-static MsxpyEvalPdf msxpy_eval(MsxpyInst *s, const MsxMaterial *m, float wix, float wiy, float wiz,
-        float wox, float woy, float woz, float px, float py, float pz, float u, float v) {
-    MsxVec3 wi = { wix, wiy, wiz }, wo = { wox, woy, woz };
-    return msxpy_pack_eval(msx_eval(s->bsdf, m ? m : &s->mat, wi, wo, msx_call_key(px, py, pz, u, v)));
-}
-static float msxpy_pdf(MsxpyInst *s, const MsxMaterial *m, float wix, float wiy, float wiz,
-        float wox, float woy, float woz) {
-    MsxVec3 wi = { wix, wiy, wiz }, wo = { wox, woy, woz };
-    return msx_pdf(s->bsdf, m ? m : &s->mat, wi, wo);
-}
-static MsxpySample msxpy_sample(MsxpyInst *s, const MsxMaterial *m, float wix, float wiy, float wiz,
-        float s1, float u, float v) {
-    MsxVec3 wi = { wix, wiy, wiz };
-    return msxpy_pack_sample(msx_sample(s->bsdf, m ? m : &s->mat, wi, s1, u, v));
-}
-"""
-
-C_HELPERS_CDEF = """
-typedef struct MsxpyInst { const MsxBsdf *bsdf; MsxMaterial mat; } MsxpyInst;
-typedef struct MsxpyEvalPdf { float v0, v1, v2, v3, pdf; } MsxpyEvalPdf;
-typedef struct MsxpySample { float x, y, z, pdf, w0, w1, w2, w3; uint32_t valid; } MsxpySample;
-MsxpyEvalPdf msxpy_eval_pdf(MsxpyInst *, const MsxMaterial *, float, float, float, float, float, float,
-                            float, float, float, float, float);
-MsxpyEvalPdf msxpy_eval(MsxpyInst *, const MsxMaterial *, float, float, float, float, float, float,
-                        float, float, float, float, float);
-float msxpy_pdf(MsxpyInst *, const MsxMaterial *, float, float, float, float, float, float);
-MsxpySample msxpy_sample(MsxpyInst *, const MsxMaterial *, float, float, float, float, float, float);
-"""
+# The scalar route's C helpers (csrc/): compiled into the extension; their cffi
+# declarations are derived from the header, like the core's.
+CSRC = os.path.join(ROOT, "csrc")
+HELPERS_HEADER = os.path.join(CSRC, "msxpy_helpers.h")
+HELPERS_SOURCE = os.path.join(CSRC, "msxpy_helpers.c")
 
 _INT_DEFINE = re.compile(r"^#define\s+(MSX_\w+)\s+(-?(?:0x[0-9a-fA-F]+|\d+))[uUlL]*\s*$")
 _FLOAT_DEFINE = re.compile(r"^#define\s+(MSX_\w+)\s+([-+0-9.eE]+)[fF]?\s*$")
@@ -121,13 +61,17 @@ def cdef_from_header(text):
 
 
 def make_ffi():
+    """The cffi declarations: the core's header, then the helpers' (which use the core's types)."""
     import cffi
 
-    with open(HEADER, encoding="utf-8") as f:
-        header = f.read()
     ffi = cffi.FFI()
-    ffi.cdef(cdef_from_header(header) + C_HELPERS_CDEF)
+    ffi.cdef("".join(cdef_from_header(read(path)) for path in (HEADER, HELPERS_HEADER)))
     return ffi
+
+
+def read(path):
+    with open(path, encoding="utf-8") as f:
+        return f.read()
 
 
 def find_cargo():
@@ -188,15 +132,15 @@ class BuildRustThenCffi(build_ext):
         src_dir = os.path.join(self.build_temp, "msx_cffi")
         os.makedirs(src_dir, exist_ok=True)
         c_file = os.path.join(src_dir, "_native.c")
-        ffi.set_source(NATIVE, '#include "msx.h"\n' + C_HELPERS)
+        ffi.set_source(NATIVE, '#include "msx.h"\n#include "msxpy_helpers.h"\n')
         ffi.emit_c_code(c_file)
         for ext in self.extensions:
             if ext.name == NATIVE:
-                ext.sources = [c_file]
-                ext.include_dirs = [os.path.join(ROOT, "include")]
+                ext.sources = [c_file, os.path.relpath(HELPERS_SOURCE)]
+                ext.include_dirs = [os.path.join(ROOT, "include"), CSRC]
                 ext.extra_objects = [lib]
                 ext.libraries = ["pthread", "dl", "m"]
-                ext.depends = [lib, HEADER]
+                ext.depends = [lib, HEADER, HELPERS_HEADER]
         super().run()
 
 
@@ -222,8 +166,7 @@ class BuildPyWithData(build_py):
 def long_description():
     path = os.path.join(ROOT, "README.md")
     if os.path.exists(path):
-        with open(path, encoding="utf-8") as f:
-            return f.read()
+        return read(path)
     return "Multiple-scattering microfacet BSDFs for Mitsuba 3."
 
 

@@ -18,7 +18,13 @@ Each variant runs ``--calls`` calls per repeat; the variants are interleaved ove
 the per-call medians (and the ratios against ``api`` in the same repeat) are printed. It needs the crate's
 cdylib: ``cargo build --release --lib`` (target/release/libmsx.so) or ``--cdylib PATH``.
 
+``--render RES``: also renders the Fig. 9 scene (``model=correlated``) in ``scalar_rgb`` with the Python back
+end on one thread at RES×RES and ``--spp``, counts the crossings a render makes (eval and eval_pdf, which
+take the key, and pdf and sample, which do not) and prints what ABI mode would add to it, estimated as
+crossings × the measured per-call differences (abi - api for the first, abi_core_only - api for the others).
+
     python3 benches/cffi_mode_bench.py [--calls 200000] [--repeats 9] [--cdylib target/release/libmsx.so]
+                                       [--render 32 --spp 4]
 """
 
 import argparse
@@ -86,6 +92,8 @@ def main():
     ap.add_argument("--calls", type=int, default=200000)
     ap.add_argument("--repeats", type=int, default=9)
     ap.add_argument("--cdylib", default=os.path.join(ROOT, "target", "release", "libmsx.so"))
+    ap.add_argument("--render", type=int, default=0, metavar="RES")
+    ap.add_argument("--spp", type=int, default=4)
     a = ap.parse_args()
     if not os.path.exists(a.cdylib):
         sys.exit(f"no cdylib at {a.cdylib}: run `cargo build --release --lib` or pass --cdylib")
@@ -165,6 +173,52 @@ def main():
         ratios = [t / b for t, b in zip(ts, times["api"])]
         print(f"  {k:14s} {statistics.median(ts) * 1e6:7.3f} us  [{min(ts) * 1e6:.3f}, {max(ts) * 1e6:.3f}]  "
               f"x{statistics.median(ratios):.2f}")
+    if a.render:
+        keyed = statistics.median([x - y for x, y in zip(times["abi"], times["api"])])
+        unkeyed = statistics.median([x - y for x, y in zip(times["abi_core_only"], times["api"])])
+        render_estimate(mi, a.render, a.spp, a.repeats, keyed, unkeyed)
+
+
+def render_estimate(mi, res, spp, repeats, keyed, unkeyed):
+    """The Fig. 9 render on the scalar route, its crossings counted, and what ABI mode would add to it."""
+    import collections
+
+    import drjit as dr
+
+    from msx._render import scenes_dir
+
+    dr.set_thread_count(1)
+    scene = mi.load_file(str(scenes_dir() / "fig09_copper_sphere.xml"), bsdf="msx_posfree", model="correlated",
+                         width=str(res), height=str(res))
+    mi.render(scene, spp=1)  # warm-up
+    ts = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        mi.render(scene, spp=spp)
+        ts.append(time.perf_counter() - t0)
+    t = statistics.median(ts)
+    [cls] = {type(s.bsdf()) for s in scene.shapes() if type(s.bsdf()).__module__.startswith("msx")}
+    counts = collections.Counter()
+    originals = {m: cls.__dict__[m] for m in ("eval", "pdf", "eval_pdf", "sample") if m in cls.__dict__}
+
+    def counted(name, f):
+        def g(self, *args, **kwargs):
+            counts[name] += 1
+            return f(self, *args, **kwargs)
+        return g
+
+    for name, f in originals.items():
+        setattr(cls, name, counted(name, f))
+    try:
+        mi.render(scene, spp=spp)  # counted, not timed
+    finally:
+        for name, f in originals.items():
+            setattr(cls, name, f)
+    n_keyed, n_unkeyed = counts["eval"] + counts["eval_pdf"], counts["pdf"] + counts["sample"]
+    extra = n_keyed * keyed + n_unkeyed * unkeyed
+    print(f"render {res}x{res}, {spp} spp, scalar_rgb, Python back end, 1 thread: {t:.3f} s (median of {repeats}); "
+          f"crossings {dict(counts)}, {t / max(1, n_keyed + n_unkeyed) * 1e6:.2f} us of render per crossing; "
+          f"ABI mode would add ~{extra:.3f} s (+{100 * extra / t:.0f} %)")
 
 
 if __name__ == "__main__":

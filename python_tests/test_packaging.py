@@ -7,6 +7,7 @@ import os
 import re
 import subprocess
 import sys
+import sysconfig
 import time
 from pathlib import Path
 
@@ -82,3 +83,39 @@ def test_c_helpers_header_source_and_extension_agree():
         fields = [n.strip().lstrip("*") for decl in body.split(";") if decl.strip()
                   for n in re.sub(r"^\s*(const\s+)?\w+\s*\**", "", decl).split(",")]
         assert [f for f, _ in ffi.typeof(struct).fields] == fields, struct
+
+
+def test_sdist_carries_the_sources_and_its_wheel_the_scenes(tmp_path):
+    """`python -m build --sdist`, then a wheel built from that sdist (as pip builds it on a user's machine):
+    the sdist holds what the build reads (the crate, the headers, the C helpers, the native plugin's source,
+    the scenes); the wheel holds the package, one extension file (abi3), the scenes and the native plugin's
+    sources (docs/building.md). The cargo build reuses the repository's target folder for the dependencies."""
+    import tarfile
+    import zipfile
+
+    r = subprocess.run([sys.executable, "-m", "build", "--sdist", "-o", str(tmp_path), str(ROOT)], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, (r.stdout + r.stderr)[-2000:]
+    [sdist] = tmp_path.glob("msx-*.tar.gz")
+    with tarfile.open(sdist) as t:
+        names = {n.split("/", 1)[1] for n in t.getnames() if "/" in n}
+    for need in ("setup.py", "pyproject.toml", "Cargo.toml", "Cargo.lock", "src/lib.rs", "include/msx.h",
+                 "csrc/msxpy_helpers.h", "csrc/msxpy_helpers.c", "native/msx_mitsuba.cpp",
+                 "scenes/fig09_copper_sphere.xml", "mitsuba_plugin/msx/__init__.py"):
+        assert need in names, f"{need} is not in the sdist"
+    env = dict(os.environ, CARGO_TARGET_DIR=str(ROOT / "build" / "cargo"))
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--disable-pip-version-check",
+                        "--progress-bar", "off", "-w", str(tmp_path / "wheel"), str(sdist)],
+                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=1200)
+    assert r.returncode == 0, (r.stdout + r.stderr)[-2000:]
+    [wheel] = (tmp_path / "wheel").glob("msx-*.whl")
+    with zipfile.ZipFile(wheel) as z:
+        names = set(z.namelist())
+    natives = [n for n in names if n.startswith("msx/_native.")]
+    assert len(natives) == 1, natives
+    if not (hasattr(sys, "gettotalrefcount") or sysconfig.get_config_var("Py_GIL_DISABLED")):  # setup.py's rule
+        assert natives == ["msx/_native.abi3.so"] and "-cp39-abi3-" in wheel.name, (natives, wheel.name)
+    for need in ("msx/__init__.py", "msx/jit/__init__.py", "msx/scenes/fig09_copper_sphere.xml",
+                 "msx/native/msx_mitsuba.cpp", "msx/native/msx.h"):
+        assert need in names, f"{need} is not in the wheel"
+    assert not any(n.startswith(("csrc/", "src/", "msx/scenes/assets/")) for n in names)

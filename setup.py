@@ -2,9 +2,14 @@
 into a cffi API-mode extension, ``msx._native``.
 
 The cffi declarations are generated from ``include/msx.h`` (the cbindgen
-header), so the Python side always matches the C ABI that was compiled.
+header) and ``csrc/msxpy_helpers.h`` (the scalar route's C helpers, compiled
+into the extension from ``csrc/msxpy_helpers.c``), so the Python side always
+matches the C that was compiled. Why setuptools with this script and not
+maturin or setuptools-rust, and how a release builds its wheels:
+docs/building.md.
 """
 
+import glob
 import os
 import re
 import shutil
@@ -20,71 +25,11 @@ ROOT = os.path.dirname(os.path.abspath(__file__))
 HEADER = os.path.join(ROOT, "include", "msx.h")
 NATIVE = "msx._native"
 
-# Small C helpers compiled into the extension: they take and return plain
-# scalars/structs so that each Python-side call crosses cffi exactly once
-# with cheap argument conversion (floats instead of struct construction).
-C_HELPERS = r"""
-/* Per-instance state: the BSDF handle and the cached material (used when no
-   texture varies). */
-typedef struct MsxpyInst {
-    const MsxBsdf *bsdf;
-    MsxMaterial mat;
-} MsxpyInst;
-
-/* Flat result structs: one cdata attribute access per value. */
-typedef struct MsxpyEvalPdf { float v0, v1, v2, v3, pdf; } MsxpyEvalPdf;
-typedef struct MsxpySample { float x, y, z, pdf, w0, w1, w2, w3; uint32_t valid; } MsxpySample;
-
-static MsxpyEvalPdf msxpy_pack_eval_pdf(MsxEvalPdf r) {
-    MsxpyEvalPdf o = { r.value.v[0], r.value.v[1], r.value.v[2], r.value.v[3], r.pdf };
-    return o;
-}
-static MsxpyEvalPdf msxpy_pack_eval(MsxSpectrum r) {
-    MsxpyEvalPdf o = { r.v[0], r.v[1], r.v[2], r.v[3], 0.0f };
-    return o;
-}
-static MsxpySample msxpy_pack_sample(MsxSample r) {
-    MsxpySample o = { r.wo.x, r.wo.y, r.wo.z, r.pdf,
-                      r.weight.v[0], r.weight.v[1], r.weight.v[2], r.weight.v[3], r.valid };
-    return o;
-}
-
-/* `m` is the material evaluated at the hit, or NULL for the cached one. The
-   key of an evaluation comes from where it happens (hit position p and uv,
-   see msx_call_key), so estimates never depend on the order of the calls. */
-static MsxpyEvalPdf msxpy_eval_pdf(MsxpyInst *s, const MsxMaterial *m, float wix, float wiy, float wiz,
-        float wox, float woy, float woz, float px, float py, float pz, float u, float v) {
-    MsxVec3 wi = { wix, wiy, wiz }, wo = { wox, woy, woz };
-    return msxpy_pack_eval_pdf(msx_eval_pdf(s->bsdf, m ? m : &s->mat, wi, wo, msx_call_key(px, py, pz, u, v)));
-}
-static MsxpyEvalPdf msxpy_eval(MsxpyInst *s, const MsxMaterial *m, float wix, float wiy, float wiz,
-        float wox, float woy, float woz, float px, float py, float pz, float u, float v) {
-    MsxVec3 wi = { wix, wiy, wiz }, wo = { wox, woy, woz };
-    return msxpy_pack_eval(msx_eval(s->bsdf, m ? m : &s->mat, wi, wo, msx_call_key(px, py, pz, u, v)));
-}
-static float msxpy_pdf(MsxpyInst *s, const MsxMaterial *m, float wix, float wiy, float wiz,
-        float wox, float woy, float woz) {
-    MsxVec3 wi = { wix, wiy, wiz }, wo = { wox, woy, woz };
-    return msx_pdf(s->bsdf, m ? m : &s->mat, wi, wo);
-}
-static MsxpySample msxpy_sample(MsxpyInst *s, const MsxMaterial *m, float wix, float wiy, float wiz,
-        float s1, float u, float v) {
-    MsxVec3 wi = { wix, wiy, wiz };
-    return msxpy_pack_sample(msx_sample(s->bsdf, m ? m : &s->mat, wi, s1, u, v));
-}
-"""
-
-C_HELPERS_CDEF = """
-typedef struct MsxpyInst { const MsxBsdf *bsdf; MsxMaterial mat; } MsxpyInst;
-typedef struct MsxpyEvalPdf { float v0, v1, v2, v3, pdf; } MsxpyEvalPdf;
-typedef struct MsxpySample { float x, y, z, pdf, w0, w1, w2, w3; uint32_t valid; } MsxpySample;
-MsxpyEvalPdf msxpy_eval_pdf(MsxpyInst *, const MsxMaterial *, float, float, float, float, float, float,
-                            float, float, float, float, float);
-MsxpyEvalPdf msxpy_eval(MsxpyInst *, const MsxMaterial *, float, float, float, float, float, float,
-                        float, float, float, float, float);
-float msxpy_pdf(MsxpyInst *, const MsxMaterial *, float, float, float, float, float, float);
-MsxpySample msxpy_sample(MsxpyInst *, const MsxMaterial *, float, float, float, float, float, float);
-"""
+# The scalar route's C helpers (csrc/): compiled into the extension; their cffi
+# declarations are derived from the header, like the core's.
+CSRC = os.path.join(ROOT, "csrc")
+HELPERS_HEADER = os.path.join(CSRC, "msxpy_helpers.h")
+HELPERS_SOURCE = os.path.join(CSRC, "msxpy_helpers.c")
 
 _INT_DEFINE = re.compile(r"^#define\s+(MSX_\w+)\s+(-?(?:0x[0-9a-fA-F]+|\d+))[uUlL]*\s*$")
 _FLOAT_DEFINE = re.compile(r"^#define\s+(MSX_\w+)\s+([-+0-9.eE]+)[fF]?\s*$")
@@ -121,13 +66,17 @@ def cdef_from_header(text):
 
 
 def make_ffi():
+    """The cffi declarations: the core's header, then the helpers' (which use the core's types)."""
     import cffi
 
-    with open(HEADER, encoding="utf-8") as f:
-        header = f.read()
     ffi = cffi.FFI()
-    ffi.cdef(cdef_from_header(header) + C_HELPERS_CDEF)
+    ffi.cdef("".join(cdef_from_header(read(path)) for path in (HEADER, HELPERS_HEADER)))
     return ffi
+
+
+def read(path):
+    with open(path, encoding="utf-8") as f:
+        return f.read()
 
 
 def find_cargo():
@@ -188,16 +137,27 @@ class BuildRustThenCffi(build_ext):
         src_dir = os.path.join(self.build_temp, "msx_cffi")
         os.makedirs(src_dir, exist_ok=True)
         c_file = os.path.join(src_dir, "_native.c")
-        ffi.set_source(NATIVE, '#include "msx.h"\n' + C_HELPERS)
+        ffi.set_source(NATIVE, '#include "msx.h"\n#include "msxpy_helpers.h"\n')
         ffi.emit_c_code(c_file)
         for ext in self.extensions:
             if ext.name == NATIVE:
-                ext.sources = [c_file]
-                ext.include_dirs = [os.path.join(ROOT, "include")]
+                ext.sources = [c_file, os.path.relpath(HELPERS_SOURCE)]
+                ext.include_dirs = [os.path.join(ROOT, "include"), CSRC]
                 ext.extra_objects = [lib]
                 ext.libraries = ["pthread", "dl", "m"]
-                ext.depends = [lib, HEADER]
+                ext.depends = [lib, HEADER, HELPERS_HEADER]
         super().run()
+        self.remove_stale_builds()
+
+    def remove_stale_builds(self):
+        """Removes the extension built under another file name by an earlier build in the same folder (e.g.
+        ``_native.cpython-311-x86_64-linux-gnu.so`` beside ``_native.abi3.so``): it would be shipped with the
+        new one, and Python, which tries the version-specific suffix first, would import the stale one."""
+        current = self.get_ext_fullpath(NATIVE)
+        for path in glob.glob(os.path.join(os.path.dirname(current), "_native.*")):
+            if path.endswith((".so", ".pyd", ".dylib")) and os.path.basename(path) != os.path.basename(current):
+                self.announce("removing the stale build %s" % path, level=2)
+                os.remove(path)
 
 
 class BuildPyWithData(build_py):
@@ -222,15 +182,20 @@ class BuildPyWithData(build_py):
 def long_description():
     path = os.path.join(ROOT, "README.md")
     if os.path.exists(path):
-        with open(path, encoding="utf-8") as f:
-            return f.read()
+        return read(path)
     return "Multiple-scattering microfacet BSDFs for Mitsuba 3."
 
+
+# cffi's generated C defines Py_LIMITED_API (CPython's stable ABI) unless the interpreter is a debug or
+# free-threaded build: there the extension is tagged abi3, so one wheel serves every CPython from the
+# oldest that requires-python allows (docs/building.md).
+LIMITED_API = not (hasattr(sys, "gettotalrefcount") or sysconfig.get_config_var("Py_GIL_DISABLED"))
 
 setup(
     long_description=long_description(),
     long_description_content_type="text/markdown",
     # Sources are filled in by BuildRustThenCffi (generated by cffi).
-    ext_modules=[Extension(NATIVE, sources=[])],
+    ext_modules=[Extension(NATIVE, sources=[], py_limited_api=LIMITED_API)],
+    options={"bdist_wheel": {"py_limited_api": "cp39"}} if LIMITED_API else {},
     cmdclass={"build_ext": BuildRustThenCffi, "build_py": BuildPyWithData},
 )

@@ -6,7 +6,7 @@ extension ``msx._native`` with the C helpers of csrc/) against cffi ABI mode (wh
 One ``eval_pdf`` of the Fig. 9 conductor (GGX α = 1, ``correlated``), written as each route's Python code
 would call it per BSDF call, results read back as floats:
 
-- api: ``lib.msxpy_eval_pdf(inst, NULL, 13 floats)`` -> ``r.v0, r.v1, r.v2, r.pdf`` (msx/_plugin.py today);
+- api: ``lib.msxpy_eval_pdf(inst, NULL, 13 floats)`` -> ``r.v0, r.v1, r.v2, r.pdf`` (msx/plugin/scalar.py today);
 - abi: ``key = lib.msx_call_key(p, uv)`` then ``lib.msx_eval_pdf(bsdf, mat, (wi), (wo), key)`` with the two
   MsxVec3 passed by value from tuples -> ``r.value.v[0..2], r.pdf``;
 - abi_core_only: the same ABI call with the key computed once outside the loop (a lower bound for ABI mode

@@ -1,4 +1,4 @@
-/* C helpers of the scalar route (the Python back end for Mitsuba's scalar variants, msx/_plugin.py).
+/* C helpers of the scalar route (the Python back end for Mitsuba's scalar variants, msx/plugin/scalar.py).
  *
  * Compiled into the cffi API-mode extension msx._native together with the Rust core (see setup.py and
  * docs/building.md). They take and return plain floats and flat structs, so that each Python-side BSDF call

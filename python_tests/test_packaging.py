@@ -115,7 +115,8 @@ def test_sdist_carries_the_sources_and_its_wheel_the_scenes(tmp_path):
     assert len(natives) == 1, natives
     if not (hasattr(sys, "gettotalrefcount") or sysconfig.get_config_var("Py_GIL_DISABLED")):  # setup.py's rule
         assert natives == ["msx/_native.abi3.so"] and "-cp39-abi3-" in wheel.name, (natives, wheel.name)
-    for need in ("msx/__init__.py", "msx/jit/__init__.py", "msx/scenes/fig09_copper_sphere.xml",
+    for need in ("msx/__init__.py", "msx/jit/__init__.py", "msx/plugin/__init__.py", "msx/microgeometry/__init__.py",
+                 "msx/scenes/fig09_copper_sphere.xml",
                  "msx/native/msx_mitsuba.cpp", "msx/native/msx.h"):
         assert need in names, f"{need} is not in the wheel"
     assert not any(n.startswith(("csrc/", "src/", "msx/scenes/assets/")) for n in names)

@@ -50,12 +50,9 @@ fn bdpt_equals_pt_per_order() {
                     for orders in [(1, 1), (2, 2), (3, 3), (1, MAX_BOUNCES)] {
                         let o = opts(seg, orders);
                         seed += 2;
-                        let (pt, _) = run(n, |r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r), seed);
-                        let (bd, _) = run(n, |r| posfree_bdpt::eval_bdpt(&mf, &fr, wi, wo, &o, r), seed + 1);
-                        for c in 0..3 {
-                            let label = format!("{} {} α={alpha} {pname} orders {}..={} ch{c}", seg_name(seg), dist_name(dist), orders.0, orders.1);
-                            ck.close(&label, bd[c].est(), pt[c].est(), 0.0, 1e-12);
-                        }
+                        let label = format!("{} {} α={alpha} {pname} orders {}..={}", seg_name(seg), dist_name(dist), orders.0, orders.1);
+                        let pt = |r: &mut Sampler| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r);
+                        check_bdpt_equals_pt(&mut ck, &label, &[0, 1, 2], n, seed, pt, |r| posfree_bdpt::eval_bdpt(&mf, &fr, wi, wo, &o, r));
                     }
                 }
             }
@@ -79,12 +76,9 @@ fn bdpt_tail_and_cap_agree() {
             for orders in [(1, MAX_BOUNCES), (3, 6)] {
                 let o = opts(seg, orders);
                 seed += 2;
-                let (pt, _) = run(n, |r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r), seed);
-                let (bd, _) = run(n, |r| posfree_bdpt::eval_bdpt_with(&mf, &fr, wi, wo, &o, kb, r), seed + 1);
-                for c in 0..3 {
-                    let label = format!("{} ggx α=1 {pname} K_b={kb} orders {}..={} ch{c}", seg_name(seg), orders.0, orders.1);
-                    ck.close(&label, bd[c].est(), pt[c].est(), 0.0, 1e-12);
-                }
+                let label = format!("{} ggx α=1 {pname} K_b={kb} orders {}..={}", seg_name(seg), orders.0, orders.1);
+                let pt = |r: &mut Sampler| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r);
+                check_bdpt_equals_pt(&mut ck, &label, &[0, 1, 2], n, seed, pt, |r| posfree_bdpt::eval_bdpt_with(&mf, &fr, wi, wo, &o, kb, r));
             }
         }
     }

@@ -44,12 +44,9 @@ fn bdpt_equals_pt_per_order() {
                     for orders in [(1, 1), (2, 2), (3, 3), (1, MAX_BOUNCES)] {
                         let o = opts(seg, orders);
                         seed += 2;
-                        let (pt, _) = run(n, |r| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r), seed);
-                        let (b, _) = run(n, |r| bd::eval_bdpt(&mf, albedo(), wi, wo, &o, r), seed + 1);
-                        for c in [0usize, 2] {
-                            let label = format!("{} {:?} α={alpha} {pname} orders {}..={} ch{c}", seg_name(seg), dist, orders.0, orders.1);
-                            ck.close(&label, b[c].est(), pt[c].est(), 0.0, 1e-12);
-                        }
+                        let label = format!("{} {:?} α={alpha} {pname} orders {}..={}", seg_name(seg), dist, orders.0, orders.1);
+                        let pt = |r: &mut Sampler| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r);
+                        check_bdpt_equals_pt(&mut ck, &label, &[0, 2], n, seed, pt, |r| bd::eval_bdpt(&mf, albedo(), wi, wo, &o, r));
                     }
                 }
             }
@@ -70,10 +67,9 @@ fn bdpt_tail_and_kb_agree() {
             for orders in [(1, MAX_BOUNCES), (3, 6)] {
                 let o = opts(seg, orders);
                 seed += 2;
-                let (pt, _) = run(n, |r| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r), seed);
-                let (b, _) = run(n, |r| bd::eval_bdpt_with(&mf, albedo(), wi, wo, &o, kb, r), seed + 1);
                 let label = format!("{} ggx α=1 {pname} K_b={kb} orders {}..={}", seg_name(seg), orders.0, orders.1);
-                ck.close(&label, b[0].est(), pt[0].est(), 0.0, 1e-12);
+                let pt = |r: &mut Sampler| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r);
+                check_bdpt_equals_pt(&mut ck, &label, &[0], n, seed, pt, |r| bd::eval_bdpt_with(&mf, albedo(), wi, wo, &o, kb, r));
             }
         }
     }
@@ -131,20 +127,8 @@ fn bdpt_vs_pt_variance_and_time() {
                     let _ = run(2000, |r| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r), seed + 77);
                     let (pt, t_pt) = run(n, |r| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r), seed);
                     let (b, t_bd) = run(n, |r| bd::eval_bdpt(&mf, albedo(), wi, wo, &o, r), seed + 1);
-                    let (vp, vb) = (pt[0].var(), b[0].var());
-                    println!(
-                        "{:<4} {:<9} {:>4} {:<13} {:>11.3e} {:>11.3e} {:>7.0} {:>7.0} {:>6.2} {:>6.2}",
-                        seg_name(seg),
-                        format!("{dist:?}"),
-                        alpha,
-                        pname,
-                        vp,
-                        vb,
-                        t_pt,
-                        t_bd,
-                        vp / vb,
-                        (vp * t_pt) / (vb * t_bd)
-                    );
+                    let costs = cost_columns((pt[0].var(), b[0].var()), (t_pt, t_bd));
+                    println!("{:<4} {:<9} {:>4} {:<13} {costs}", seg_name(seg), format!("{dist:?}"), alpha, pname);
                 }
             }
         }

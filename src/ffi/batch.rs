@@ -2,9 +2,9 @@
 //! threads, each lane as the single call would compute it.
 
 use super::handles::{msx_call_key, MsxBsdf};
-use super::output::{caught_panic, out_f32, out_sample, out_spectrum};
+use super::output::{out_f32, out_sample, out_spectrum};
 use super::params::*;
-use super::{write_error, MSX_ERR_INVALID_PARAMETER, MSX_ERR_NULL_POINTER, MSX_ERR_PANIC, MSX_OK};
+use super::{report_panic, write_error, MSX_ERR_INVALID_PARAMETER, MSX_ERR_NULL_POINTER, MSX_OK};
 use crate::bsdf::{Bsdf, Material};
 use crate::spectrum::Spectrum;
 use glam::DVec3;
@@ -319,11 +319,7 @@ fn run_batch(bsdf: *const MsxBsdf, input: *const MsxBatchIn, output: *const MsxB
         }
         MSX_OK
     }));
-    result.unwrap_or_else(|_| {
-        caught_panic();
-        write_error(err, err_len, "internal error (panic) in a batched call");
-        MSX_ERR_PANIC
-    })
+    result.unwrap_or_else(|_| report_panic(err, err_len, "a batched call"))
 }
 
 /// Batched `msx_eval`: writes `value` (per channel) for n lanes.

@@ -4,7 +4,7 @@ use crate::common::{dir, Checker, Stat};
 use glam::DVec3;
 use msx::models::posfree::Segments;
 use msx::rng::Sampler;
-use msx::{Distribution, Spectrum};
+use msx::{Distribution, Microfacet, Spectrum};
 use std::f64::consts::PI;
 use std::time::Instant;
 
@@ -20,6 +20,21 @@ pub fn dist_name(d: Distribution) -> &'static str {
         Distribution::Ggx => "ggx",
         Distribution::Beckmann => "beckmann",
     }
+}
+
+/// The surfaces of the conductor and diffuse BDPT checks, in their order:
+/// (segment model, distribution, α, the microsurface) for both segment models
+/// × GGX, Beckmann × α ∈ {0.5, 1}.
+pub fn bdpt_surfaces() -> Vec<(Segments, Distribution, f64, Microfacet)> {
+    let mut v = Vec::new();
+    for seg in [Segments::Uncorrelated, Segments::Correlated] {
+        for dist in [Distribution::Ggx, Distribution::Beckmann] {
+            for alpha in [0.5, 1.0] {
+                v.push((seg, dist, alpha, Microfacet::new(dist, alpha, alpha)));
+            }
+        }
+    }
+    v
 }
 
 /// (name, ω_i, ω_o) on the upper side: mirror configuration, off-specular, grazing.

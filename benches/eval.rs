@@ -11,18 +11,15 @@
 #[path = "common.rs"]
 mod common;
 
-use common::estimate_ns;
+use common::{copper, estimate_ns, Rng};
 use criterion::{black_box, BenchmarkId, Criterion, Throughput};
 use glam::DVec3;
 use msx::ffi::*;
-use msx::{Bsdf, Config, Distribution, Material, Model, Spectrum};
+use msx::{Bsdf, Config, Distribution, Material, Model};
 use std::time::{Duration, SystemTime};
 
 const N: usize = 1024;
 const SEED: u64 = 0x00be_7c4a_11ce;
-
-const CU_ETA: [f64; 3] = [0.200438, 0.924033, 1.10221];
-const CU_K: [f64; 3] = [3.91295, 2.45285, 2.14219];
 
 const MODELS: [(&str, Model, u32); 3] = [
     ("single", Model::Single, MSX_MODEL_SINGLE),
@@ -33,26 +30,6 @@ const MODELS: [(&str, Model, u32); 3] = [
 /// (name, distribution, α) of the surfaces measured.
 const SURFACES: [(&str, Distribution, f64); 3] =
     [("ggx-a0.5", Distribution::Ggx, 0.5), ("beckmann-a0.5", Distribution::Beckmann, 0.5), ("ggx-a1.0", Distribution::Ggx, 1.0)];
-
-/// SplitMix64, so that the set of directions is fixed across runs.
-struct Rng(u64);
-
-impl Rng {
-    fn f(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    /// Uniform on the upper hemisphere (cos θ uniform in (0, 1]).
-    fn hemisphere(&mut self) -> DVec3 {
-        let z = 1.0 - self.f();
-        let r = (1.0 - z * z).max(0.0).sqrt();
-        let phi = std::f64::consts::TAU * self.f();
-        DVec3::new(r * phi.cos(), r * phi.sin(), z)
-    }
-}
 
 struct Set {
     wi: Vec<DVec3>,
@@ -69,10 +46,7 @@ fn fixed_set() -> Set {
 }
 
 fn materials(alpha: f64) -> [(&'static str, Material); 2] {
-    let mut cu = Material::mirror(alpha);
-    cu.eta = Spectrum([CU_ETA[0], CU_ETA[1], CU_ETA[2], 0.0]);
-    cu.k = Spectrum([CU_K[0], CU_K[1], CU_K[2], 1.0]);
-    [("none", Material::mirror(alpha)), ("Cu", cu)]
+    [("none", Material::mirror(alpha)), ("Cu", copper(alpha))]
 }
 
 fn bsdf(distribution: Distribution, model: Model) -> Bsdf {

@@ -23,7 +23,7 @@
 #[path = "common.rs"]
 mod common;
 
-use common::estimate_ns;
+use common::{copper, estimate_ns, Rng};
 use criterion::{black_box, BenchmarkId, Criterion, Throughput};
 use glam::DVec3;
 use msx::bsdf::{bdpt_models, models_for};
@@ -38,8 +38,6 @@ const SEED: u64 = 0x5e_ed0f_0de1_5a11;
 const N_VAR: usize = 100_000;
 const CHUNK: usize = 1_000;
 
-const CU_ETA: [f64; 3] = [0.200438, 0.924033, 1.10221];
-const CU_K: [f64; 3] = [3.91295, 2.45285, 2.14219];
 const DIELECTRIC_IOR: f64 = 1.5;
 const DIFFUSE_ALBEDO: f64 = 0.8;
 
@@ -92,10 +90,7 @@ fn variants(surface: Surface) -> Vec<Variant> {
 fn material(surface: Surface, alpha: f64) -> Material {
     let mut m = Material::mirror(alpha);
     match surface {
-        Surface::Conductor => {
-            m.eta = Spectrum([CU_ETA[0], CU_ETA[1], CU_ETA[2], 0.0]);
-            m.k = Spectrum([CU_K[0], CU_K[1], CU_K[2], 1.0]);
-        }
+        Surface::Conductor => m = copper(alpha),
         Surface::Dielectric => m.ior = DIELECTRIC_IOR,
         Surface::Diffuse => m.reflectance = Spectrum::splat(DIFFUSE_ALBEDO),
     }
@@ -107,27 +102,6 @@ fn group_name(op: &str, surface: Surface, alpha: f64) -> String {
 }
 
 // ----------------------------------------------------------- fixed direction set
-
-/// SplitMix64: the set of directions is identical in every run.
-struct Rng(u64);
-
-impl Rng {
-    fn f(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    /// Uniform in cos θ on the upper hemisphere.
-    fn hemisphere(&mut self) -> DVec3 {
-        let z = 1.0 - self.f();
-        let r = (1.0 - z * z).max(0.0).sqrt();
-        let phi = std::f64::consts::TAU * self.f();
-        DVec3::new(r * phi.cos(), r * phi.sin(), z)
-    }
-}
 
 struct Set {
     wi: Vec<DVec3>,

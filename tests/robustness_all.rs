@@ -14,31 +14,19 @@ use msx::ffi::*;
 use msx::rng::Sampler;
 use std::ptr;
 
+/// The models run with the PT estimator on conductors and dielectrics alike.
+const CONDUCTOR_AND_DIELECTRIC_PT: [u32; 7] =
+    [MSX_MODEL_SINGLE, MSX_MODEL_UNCORRELATED, MSX_MODEL_CORRELATED, MSX_MODEL_HEITZ, MSX_MODEL_INVARIANCE, MSX_MODEL_COMPENSATED, MSX_MODEL_AUTO];
+
 fn combos() -> Vec<(u32, u32, u32, u32)> {
     let mut v = Vec::new();
     for dist in [MSX_DISTRIBUTION_BECKMANN, MSX_DISTRIBUTION_GGX] {
-        for model in [
-            MSX_MODEL_SINGLE,
-            MSX_MODEL_UNCORRELATED,
-            MSX_MODEL_CORRELATED,
-            MSX_MODEL_HEITZ,
-            MSX_MODEL_INVARIANCE,
-            MSX_MODEL_COMPENSATED,
-            MSX_MODEL_AUTO,
-        ] {
+        for model in CONDUCTOR_AND_DIELECTRIC_PT {
             v.push((MSX_SURFACE_CONDUCTOR, dist, model, MSX_ESTIMATOR_PT));
         }
         v.push((MSX_SURFACE_CONDUCTOR, dist, MSX_MODEL_UNCORRELATED, MSX_ESTIMATOR_BDPT));
         v.push((MSX_SURFACE_CONDUCTOR, dist, MSX_MODEL_CORRELATED, MSX_ESTIMATOR_BDPT));
-        for model in [
-            MSX_MODEL_SINGLE,
-            MSX_MODEL_UNCORRELATED,
-            MSX_MODEL_CORRELATED,
-            MSX_MODEL_HEITZ,
-            MSX_MODEL_INVARIANCE,
-            MSX_MODEL_COMPENSATED,
-            MSX_MODEL_AUTO,
-        ] {
+        for model in CONDUCTOR_AND_DIELECTRIC_PT {
             v.push((MSX_SURFACE_DIELECTRIC, dist, model, MSX_ESTIMATOR_PT));
         }
         v.push((MSX_SURFACE_CONDUCTOR, dist, MSX_MODEL_AUTO, MSX_ESTIMATOR_BDPT));

@@ -2,9 +2,9 @@
 //! threads, each lane as the single call would compute it.
 
 use super::handles::{msx_call_key, MsxBsdf};
-use super::output::{caught_panic, out_f32, out_sample, out_spectrum};
+use super::output::{out_f32, out_sample, out_spectrum};
 use super::params::*;
-use super::{write_error, MSX_ERR_INVALID_PARAMETER, MSX_ERR_NULL_POINTER, MSX_ERR_PANIC, MSX_OK};
+use super::{report_panic, write_error, MSX_ERR_INVALID_PARAMETER, MSX_ERR_NULL_POINTER, MSX_OK};
 use crate::bsdf::{Bsdf, Material};
 use crate::spectrum::Spectrum;
 use glam::DVec3;
@@ -162,6 +162,10 @@ struct Inputs {
 fn inputs(b: &MsxBatchIn) -> Result<Inputs, String> {
     let n = b.n;
     let r = |a: &MsxF32Array, d: f32, name| reader(a, n, d, name);
+    // The four channels of a per-channel input, one name for all of them.
+    let r4 = |a: &[MsxF32Array; 4], d: f32, name: &'static str| -> Result<[Reader; 4], String> {
+        Ok([r(&a[0], d, name)?, r(&a[1], d, name)?, r(&a[2], d, name)?, r(&a[3], d, name)?])
+    };
     let alpha_u = r(&b.alpha_u, 0.1, "alpha_u")?;
     let alpha_v = if b.alpha_v.ptr.is_null() || b.alpha_v.len == 0 { r(&b.alpha_u, 0.1, "alpha_u")? } else { r(&b.alpha_v, 0.1, "alpha_v")? };
     let given = |a: &MsxF32Array| !a.ptr.is_null() && a.len > 0;
@@ -178,27 +182,12 @@ fn inputs(b: &MsxBatchIn) -> Result<Inputs, String> {
         s2: [r(&b.sample2[0], 0.5, "sample2.x")?, r(&b.sample2[1], 0.5, "sample2.y")?],
         alpha_u,
         alpha_v,
-        eta: [r(&b.eta[0], 0.0, "eta")?, r(&b.eta[1], 0.0, "eta")?, r(&b.eta[2], 0.0, "eta")?, r(&b.eta[3], 0.0, "eta")?],
-        k: [r(&b.k[0], 1.0, "k")?, r(&b.k[1], 1.0, "k")?, r(&b.k[2], 1.0, "k")?, r(&b.k[3], 1.0, "k")?],
-        spec: [
-            r(&b.specular_reflectance[0], 1.0, "specular_reflectance")?,
-            r(&b.specular_reflectance[1], 1.0, "specular_reflectance")?,
-            r(&b.specular_reflectance[2], 1.0, "specular_reflectance")?,
-            r(&b.specular_reflectance[3], 1.0, "specular_reflectance")?,
-        ],
+        eta: r4(&b.eta, 0.0, "eta")?,
+        k: r4(&b.k, 1.0, "k")?,
+        spec: r4(&b.specular_reflectance, 1.0, "specular_reflectance")?,
         ior: r(&b.ior, MSX_DEFAULT_IOR as f32, "ior")?,
-        spec_t: [
-            r(&b.specular_transmittance[0], 1.0, "specular_transmittance")?,
-            r(&b.specular_transmittance[1], 1.0, "specular_transmittance")?,
-            r(&b.specular_transmittance[2], 1.0, "specular_transmittance")?,
-            r(&b.specular_transmittance[3], 1.0, "specular_transmittance")?,
-        ],
-        refl: [
-            r(&b.reflectance[0], 0.5, "reflectance")?,
-            r(&b.reflectance[1], 0.5, "reflectance")?,
-            r(&b.reflectance[2], 0.5, "reflectance")?,
-            r(&b.reflectance[3], 0.5, "reflectance")?,
-        ],
+        spec_t: r4(&b.specular_transmittance, 1.0, "specular_transmittance")?,
+        refl: r4(&b.reflectance, 0.5, "reflectance")?,
         radiance: b.mode != MSX_MODE_IMPORTANCE,
     })
 }
@@ -217,6 +206,11 @@ impl Inputs {
             reflectance: ch(&self.refl),
             radiance: self.radiance,
         }
+    }
+
+    /// `sample1` and `sample2` of lane i.
+    fn sample_numbers(&self, i: usize) -> (f64, (f64, f64)) {
+        (self.s1.get(i) as f64, (self.s2[0].get(i) as f64, self.s2[1].get(i) as f64))
     }
 
     fn dir(r: &[Reader; 3], i: usize) -> DVec3 {
@@ -258,11 +252,13 @@ fn run_lane(b: &Bsdf, inp: &Inputs, out: OutPtrs, key: u64, op: Op, i: usize) {
             (out_spectrum(v, channels), out_f32(p), [0.0; 3])
         }
         Op::Sample => {
-            let s = out_sample(b.sample(&mat, wi, inp.s1.get(i) as f64, (inp.s2[0].get(i) as f64, inp.s2[1].get(i) as f64)), channels);
+            let (s1, s2) = inp.sample_numbers(i);
+            let s = out_sample(b.sample(&mat, wi, s1, s2), channels);
             (s.weight, s.pdf, [s.wo.x, s.wo.y, s.wo.z])
         }
         Op::SampleOrders(orders) => {
-            let r = b.sample_with_order(&mat, wi, inp.s1.get(i) as f64, (inp.s2[0].get(i) as f64, inp.s2[1].get(i) as f64));
+            let (s1, s2) = inp.sample_numbers(i);
+            let r = b.sample_with_order(&mat, wi, s1, s2);
             let order = r.as_ref().map_or(0, |&(_, k)| k);
             let s = out_sample(r.map(|(s, _)| s), channels);
             // SAFETY: msx_sample_orders_batch checked `orders` non-null; the
@@ -323,11 +319,7 @@ fn run_batch(bsdf: *const MsxBsdf, input: *const MsxBatchIn, output: *const MsxB
         }
         MSX_OK
     }));
-    result.unwrap_or_else(|_| {
-        caught_panic();
-        write_error(err, err_len, "internal error (panic) in a batched call");
-        MSX_ERR_PANIC
-    })
+    result.unwrap_or_else(|_| report_panic(err, err_len, "a batched call"))
 }
 
 /// Batched `msx_eval`: writes `value` (per channel) for n lanes.

@@ -2,7 +2,7 @@
 
 use super::output::{caught_panic, out_f32, out_sample, out_spectrum};
 use super::params::{config_from, material, vec3, MsxEvalPdf, MsxMaterial, MsxParams, MsxSample, MsxSpectrum, MsxVec3};
-use super::{write_error, MSX_ERR_INVALID_PARAMETER, MSX_ERR_NULL_POINTER, MSX_ERR_PANIC, MSX_OK};
+use super::{report_panic, write_error, MSX_ERR_INVALID_PARAMETER, MSX_ERR_NULL_POINTER, MSX_OK};
 use crate::bsdf::{Bsdf, Material};
 use std::os::raw::c_char;
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -44,11 +44,7 @@ pub extern "C" fn msx_bsdf_new(params: *const MsxParams, out: *mut *mut MsxBsdf,
             }
         }
     }));
-    result.unwrap_or_else(|_| {
-        caught_panic();
-        write_error(err, err_len, "internal error (panic) in msx_bsdf_new");
-        MSX_ERR_PANIC
-    })
+    result.unwrap_or_else(|_| report_panic(err, err_len, "msx_bsdf_new"))
 }
 
 /// Frees a BSDF created by `msx_bsdf_new` (null is ignored).

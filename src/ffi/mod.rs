@@ -56,6 +56,15 @@ pub const MSX_ERR_INVALID_PARAMETER: i32 = 1;
 pub const MSX_ERR_NULL_POINTER: i32 = 2;
 pub const MSX_ERR_PANIC: i32 = 3;
 
+/// What an entry point returns when its body panicked: the panic is counted
+/// (`msx_diagnostics`) and reported in `err` as "internal error (panic) in
+/// `what`".
+fn report_panic(err: *mut c_char, err_len: usize, what: &str) -> i32 {
+    output::caught_panic();
+    write_error(err, err_len, &format!("internal error (panic) in {what}"));
+    MSX_ERR_PANIC
+}
+
 fn write_error(buf: *mut c_char, len: usize, msg: &str) {
     if buf.is_null() || len == 0 {
         return;

@@ -1,10 +1,12 @@
 //! The codes and structs a C caller configures a BSDF and describes a hit
 //! with, and their conversion to the core's `Config` and `Material`.
 
+use super::write_error;
 use crate::bsdf::Material;
 use crate::config::{Choice, Config, Distribution, Estimator, MisDensity, Model, Surface, DEFAULT_MAX_BOUNCES, DEFAULT_MIS_DENSITY, MODELS};
 use crate::spectrum::{Spectrum, MAX_CHANNELS};
 use glam::DVec3;
+use std::os::raw::c_char;
 
 pub const MSX_SURFACE_CONDUCTOR: u32 = 0;
 pub const MSX_SURFACE_DIELECTRIC: u32 = 1;
@@ -167,6 +169,18 @@ pub(super) fn distribution_from(code: u32) -> Option<Distribution> {
 /// value of the table (src/config.rs).
 pub(super) fn choice<T: Choice>(code: u32) -> Result<T, (&'static str, String)> {
     T::from_code(code).ok_or_else(|| (T::PARAMETER, format!("unknown value {code}; allowed: {}", T::allowed())))
+}
+
+/// The choice of an entry point's argument `code`; None, with the message in
+/// `err`, for an unknown code.
+pub(super) fn choice_arg<T: Choice>(code: u32, err: *mut c_char, err_len: usize) -> Option<T> {
+    match choice::<T>(code) {
+        Ok(v) => Some(v),
+        Err((parameter, message)) => {
+            write_error(err, err_len, &format!("invalid parameter '{parameter}': {message}"));
+            None
+        }
+    }
 }
 
 pub(super) fn config_from(p: &MsxParams) -> Result<Config, (&'static str, String)> {

@@ -2,9 +2,8 @@
 //! computes nothing it can take from the core: it reads the tables once and
 //! uploads them as textures, interpolating them as `tables::Grid::at` does.
 
-use super::output::caught_panic;
 use super::params::*;
-use super::{write_error, MSX_ERR_INVALID_PARAMETER, MSX_ERR_NULL_POINTER, MSX_ERR_PANIC, MSX_OK};
+use super::{report_panic, write_error, MSX_ERR_INVALID_PARAMETER, MSX_ERR_NULL_POINTER, MSX_OK};
 use std::os::raw::c_char;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 
@@ -84,13 +83,7 @@ pub extern "C" fn msx_table(
             write_error(err, err_len, "null pointer passed to msx_table");
             return MSX_ERR_NULL_POINTER;
         }
-        let dist = match choice::<crate::config::Distribution>(distribution) {
-            Ok(v) => v,
-            Err((parameter, message)) => {
-                write_error(err, err_len, &format!("invalid parameter '{parameter}': {message}"));
-                return MSX_ERR_INVALID_PARAMETER;
-            }
-        };
+        let Some(dist) = choice_arg::<crate::config::Distribution>(distribution, err, err_len) else { return MSX_ERR_INVALID_PARAMETER };
         let albedo = || crate::tables::albedo::AlbedoTable::get(dist);
         let dielectric = || crate::models::analytic::dielectric_albedo::DielectricAlbedoTable::get(dist).grids();
         let (axes, values): (&[crate::tables::Axis], &[f64]) = match kind {
@@ -117,11 +110,7 @@ pub extern "C" fn msx_table(
         }
         MSX_OK
     }));
-    result.unwrap_or_else(|_| {
-        caught_panic();
-        write_error(err, err_len, "internal error (panic) in msx_table");
-        MSX_ERR_PANIC
-    })
+    result.unwrap_or_else(|_| report_panic(err, err_len, "msx_table"))
 }
 
 /// The rule of `model="auto"` (src/models/auto/) for a surface (MSX_SURFACE_*),
@@ -149,20 +138,8 @@ pub extern "C" fn msx_auto_rule(
             write_error(err, err_len, "null pointer passed to msx_auto_rule");
             return MSX_ERR_NULL_POINTER;
         }
-        let surface = match choice::<crate::config::Surface>(surface) {
-            Ok(v) => v,
-            Err((parameter, message)) => {
-                write_error(err, err_len, &format!("invalid parameter '{parameter}': {message}"));
-                return MSX_ERR_INVALID_PARAMETER;
-            }
-        };
-        let dist = match choice::<crate::config::Distribution>(distribution) {
-            Ok(v) => v,
-            Err((parameter, message)) => {
-                write_error(err, err_len, &format!("invalid parameter '{parameter}': {message}"));
-                return MSX_ERR_INVALID_PARAMETER;
-            }
-        };
+        let Some(surface) = choice_arg::<crate::config::Surface>(surface, err, err_len) else { return MSX_ERR_INVALID_PARAMETER };
+        let Some(dist) = choice_arg::<crate::config::Distribution>(distribution, err, err_len) else { return MSX_ERR_INVALID_PARAMETER };
         let tolerance = if tolerance == 0.0 { MSX_DEFAULT_AUTO_TOLERANCE } else { tolerance };
         if !(tolerance > 0.0 && tolerance < 1.0 && eta.is_finite()) {
             write_error(err, err_len, "invalid parameter 'auto_tolerance' or 'eta' passed to msx_auto_rule");
@@ -179,9 +156,5 @@ pub extern "C" fn msx_auto_rule(
         }
         MSX_OK
     }));
-    result.unwrap_or_else(|_| {
-        caught_panic();
-        write_error(err, err_len, "internal error (panic) in msx_auto_rule");
-        MSX_ERR_PANIC
-    })
+    result.unwrap_or_else(|_| report_panic(err, err_len, "msx_auto_rule"))
 }

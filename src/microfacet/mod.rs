@@ -200,6 +200,19 @@ impl Microfacet {
         }
         Some(m / len)
     }
+
+    /// The mirror reflection of ω about a visible normal drawn from (u1, u2):
+    /// (m, ω·m, the reflected direction); `None` when ω sees no facet or
+    /// ω·m ≤ 0.
+    #[inline]
+    pub fn reflect_visible(&self, w: DVec3, u1: f64, u2: f64) -> Option<(DVec3, f64, DVec3)> {
+        let m = self.sample_visible(w, u1, u2)?;
+        let cos_wm = w.dot(m);
+        if cos_wm <= 0.0 {
+            return None;
+        }
+        Some((m, cos_wm, reflect(w, m)))
+    }
 }
 
 /// Mirror reflection of ω about m (both pointing away from the surface).

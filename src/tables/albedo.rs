@@ -90,12 +90,8 @@ impl AlbedoTable {
     }
 
     pub fn get(dist: Distribution) -> &'static AlbedoTable {
-        static GGX: OnceLock<AlbedoTable> = OnceLock::new();
-        static BECKMANN: OnceLock<AlbedoTable> = OnceLock::new();
-        match dist {
-            Distribution::Ggx => GGX.get_or_init(|| AlbedoTable::compute(Distribution::Ggx)),
-            Distribution::Beckmann => BECKMANN.get_or_init(|| AlbedoTable::compute(Distribution::Beckmann)),
-        }
+        static TABLES: [OnceLock<AlbedoTable>; 2] = [const { OnceLock::new() }; 2];
+        tables::per_distribution(&TABLES, dist, AlbedoTable::compute)
     }
 
     /// E(μ, α) of `single` (F = 1).

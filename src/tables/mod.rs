@@ -16,6 +16,9 @@
 
 pub mod albedo;
 
+use crate::config::Distribution;
+use std::sync::OnceLock;
+
 /// The coordinate in which an axis places its nodes uniformly.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Warp {
@@ -175,6 +178,16 @@ pub fn build<T: Copy + Default + Send>(rows: usize, row_len: usize, fill: impl F
         }
     });
     values
+}
+
+/// The table of distribution `dist`, computed by `compute` on first use and
+/// kept in `cache` (GGX, Beckmann) for the process.
+pub fn per_distribution<T: Sync + Send>(cache: &'static [OnceLock<T>; 2], dist: Distribution, compute: fn(Distribution) -> T) -> &'static T {
+    let slot = match dist {
+        Distribution::Ggx => &cache[0],
+        Distribution::Beckmann => &cache[1],
+    };
+    slot.get_or_init(|| compute(dist))
 }
 
 #[cfg(test)]

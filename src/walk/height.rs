@@ -306,6 +306,25 @@ impl State {
     pub fn after_refraction(outside: bool, o: DVec3, t: f64, throughput: Spectrum, next_order: u32) -> Self {
         State { outside: !outside, dir: -o, t: flip_height(t), throughput, next_order }
     }
+
+    /// The scattering of `eval_from` and `sample_from` at the vertex the ray
+    /// has just reached, on the visible normal m of −dir with the numbers
+    /// (ua, ub) of [`scatter`]: the new direction and throughput, the other
+    /// side and the flipped height after a refraction, then Russian roulette.
+    /// False when the walk ends there.
+    fn scatter(&mut self, mat: &Microsurface, m: DVec3, ua: f64, ub: f64, rng: &mut Sampler) -> bool {
+        let Some(s) = scatter(mat, -self.dir, m, self.outside, ua, ub) else { return false };
+        if !s.dir.is_finite() {
+            return false;
+        }
+        self.throughput *= s.weight;
+        self.dir = s.dir;
+        if s.crossed {
+            self.outside = !self.outside;
+            self.t = flip_height(self.t);
+        }
+        russian_roulette(&mut self.throughput, rng)
+    }
 }
 
 /// Checks shared by `eval` and `sample`: finite directions, the upper
@@ -347,24 +366,24 @@ pub fn eval_from(mf: &Microfacet, surf: &Microsurface, wo: DVec3, state: State, 
     let mat = *surf;
     let Some(last) = opts.last_order().filter(|&last| state.next_order <= last) else { return Spectrum::ZERO };
     let wo_outside = wo.z > 0.0;
-    let State { mut outside, dir: mut wr, mut t, mut throughput, next_order } = state;
+    let mut ray = state;
     let mut sum = Spectrum::ZERO;
 
-    for order in next_order..=last {
+    for order in ray.next_order..=last {
         // Next intersection. Leaving contributes nothing to eval, so the hit is
         // forced and weighted by its probability (expected value of Heitz's
         // exit test). This keeps the NEE bounded: a near-vertical upward ray
         // hits with probability ∝ Λ while its phase function (∝ 1/A(ω_i) =
         // 1/Λ) is huge — with a binary exit test the estimator's variance
         // diverges logarithmically (observed in the dielectric furnace).
-        let (tn, p_hit) = sample_height_hit(mf, wr, t, rng.next());
+        let (tn, p_hit) = sample_height_hit(mf, ray.dir, ray.t, rng.next());
         if !(p_hit > 0.0) {
             break;
         }
-        t = tn;
-        throughput *= p_hit;
-        let wi_l = -wr;
-        let wo_l = local(wo, outside);
+        ray.t = tn;
+        ray.throughput *= p_hit;
+        let wi_l = -ray.dir;
+        let wo_l = local(wo, ray.outside);
         // A normal visible from wi_l: the diffuse NEE and the continuation
         // share it (both unbiased; linearity of expectation).
         let need_m = order < last || (order >= opts.orders.0 && matches!(mat, Microsurface::Diffuse { .. }));
@@ -379,28 +398,28 @@ pub fn eval_from(mf: &Microfacet, surf: &Microsurface, wo: DVec3, state: State, 
         if order >= opts.orders.0 {
             let contrib = match mat {
                 Microsurface::Conductor(fr) => match conductor_phase(mf, wi_l, wo_l) {
-                    Some((p, c)) => fr.eval(c) * (p * masking_at(mf, wo_l, t)),
+                    Some((p, c)) => fr.eval(c) * (p * masking_at(mf, wo_l, ray.t)),
                     None => Spectrum::ZERO,
                 },
                 Microsurface::Diffuse { albedo } => match m {
-                    Some(m) => albedo * (m.dot(wo_l).max(0.0) / PI * masking_at(mf, wo_l, t)),
+                    Some(m) => albedo * (m.dot(wo_l).max(0.0) / PI * masking_at(mf, wo_l, ray.t)),
                     None => Spectrum::ZERO,
                 },
                 Microsurface::Dielectric { eta, .. } => {
-                    let e = eta_seen(eta, outside);
-                    if wo_outside == outside {
-                        Spectrum::splat(dielectric_phase(mf, wi_l, wo_l, e, true) * masking_at(mf, wo_l, t))
+                    let e = eta_seen(eta, ray.outside);
+                    if wo_outside == ray.outside {
+                        Spectrum::splat(dielectric_phase(mf, wi_l, wo_l, e, true) * masking_at(mf, wo_l, ray.t))
                     } else {
                         let p = dielectric_phase(mf, wi_l, wo_l, e, false);
                         if p > 0.0 {
-                            Spectrum::splat(p * masking_at(mf, -wo_l, flip_height(t)))
+                            Spectrum::splat(p * masking_at(mf, -wo_l, flip_height(ray.t)))
                         } else {
                             Spectrum::ZERO
                         }
                     }
                 }
             };
-            sum += throughput * contrib;
+            sum += ray.throughput * contrib;
         }
         if order == last {
             break;
@@ -409,17 +428,7 @@ pub fn eval_from(mf: &Microfacet, surf: &Microsurface, wo: DVec3, state: State, 
         // Continue the walk.
         let Some(m) = m else { break };
         let (ua, ub) = rng.next2();
-        let Some(s) = scatter(&mat, wi_l, m, outside, ua, ub) else { break };
-        if !s.dir.is_finite() {
-            break;
-        }
-        throughput *= s.weight;
-        wr = s.dir;
-        if s.crossed {
-            outside = !outside;
-            t = flip_height(t);
-        }
-        if !russian_roulette(&mut throughput, rng) {
+        if !ray.scatter(&mat, m, ua, ub, rng) {
             break;
         }
     }
@@ -480,33 +489,33 @@ pub fn sample_from(
     let mat = *surf;
     let last = opts.last_order()?;
     let is_dielectric = matches!(mat, Microsurface::Dielectric { .. });
-    let State { mut outside, dir: mut wr, mut t, mut throughput, next_order } = state;
-    let mut order = next_order.max(1) - 1; // vertices so far
+    let mut ray = state;
+    let mut order = ray.next_order.max(1) - 1; // vertices so far
 
     loop {
         let u_height = match first {
             Some(f) if order == 0 && !is_dielectric => f.0,
             _ => rng.next(),
         };
-        match sample_height(mf, wr, t, u_height) {
-            Some(tn) => t = tn,
+        match sample_height(mf, ray.dir, ray.t, u_height) {
+            Some(tn) => ray.t = tn,
             None => {
-                // The ray leaves the microsurface along wr.
+                // The ray leaves the microsurface along ray.dir.
                 if order == 0 || order < opts.orders.0 {
                     return None;
                 }
-                let wo = local(wr, outside);
-                if !wo.is_finite() || wo.z == 0.0 || !throughput.is_finite() {
+                let wo = local(ray.dir, ray.outside);
+                if !wo.is_finite() || wo.z == 0.0 || !ray.throughput.is_finite() {
                     return None;
                 }
-                return Some((wo, throughput, order));
+                return Some((wo, ray.throughput, order));
             }
         }
         order += 1;
         if order > last {
             return None;
         }
-        let wi_l = -wr;
+        let wi_l = -ray.dir;
         let (u1, u2, ua, ub) = match first {
             Some(f) if order == 1 => {
                 let (a, b) = if is_dielectric { (f.0, 0.0) } else { rng.next2() };
@@ -519,17 +528,7 @@ pub fn sample_from(
             }
         };
         let m = visible_normal(mf, wi_l, u1, u2)?;
-        let s = scatter(&mat, wi_l, m, outside, ua, ub)?;
-        if !s.dir.is_finite() {
-            return None;
-        }
-        throughput *= s.weight;
-        wr = s.dir;
-        if s.crossed {
-            outside = !outside;
-            t = flip_height(t);
-        }
-        if !russian_roulette(&mut throughput, rng) {
+        if !ray.scatter(&mat, m, ua, ub, rng) {
             return None;
         }
     }

@@ -9,7 +9,7 @@
 pub mod bdpt;
 pub mod height;
 
-use crate::microfacet::{reflect, ConductorFresnel, Microfacet};
+use crate::microfacet::{ConductorFresnel, Microfacet};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
@@ -129,12 +129,7 @@ pub fn sample_conductor<E: ConductorExit>(
     let mut weight = Spectrum::ONE;
     for j in 0..max_vertices {
         let (u_exit, u1, u2) = vertex_numbers(j, first, rng);
-        let m = mf.sample_visible(w, u1, u2)?;
-        let cos_wm = w.dot(m);
-        if cos_wm <= 0.0 {
-            return None;
-        }
-        let d_next = reflect(w, m);
+        let (_, cos_wm, d_next) = mf.reflect_visible(w, u1, u2)?;
         weight *= fresnel.eval(cos_wm);
         if d_next.z > 0.0 {
             let cont = exit.up(mf.lambda(d_next))?;

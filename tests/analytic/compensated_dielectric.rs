@@ -136,6 +136,39 @@ const ETAS: [f64; 3] = [1.1, 1.5, 2.4];
 const ALPHAS: [f64; 3] = [0.1, 0.5, 1.0];
 const THETAS: [f64; 3] = [0.0, 1.0, 1.45];
 
+/// One configuration of the albedo checks, with its proposal and label.
+struct Case {
+    dist: Distribution,
+    eta: f64,
+    inside: bool,
+    alpha: f64,
+    mf: Microfacet,
+    wi: DVec3,
+    prop: Proposal,
+    label: String,
+}
+
+/// Every configuration of the albedo checks: DISTS × ETAS × (outside, inside)
+/// × ALPHAS × THETAS, in that order.
+fn cases() -> Vec<Case> {
+    let mut v = Vec::new();
+    for dist in DISTS {
+        for &eta in &ETAS {
+            for inside in [false, true] {
+                for &alpha in &ALPHAS {
+                    for &theta in &THETAS {
+                        let mf = Microfacet::new(dist, alpha, alpha);
+                        let wi = incident(theta, inside);
+                        let label = format!("{dist:?} η={eta} {} α={alpha} θ={theta}", if inside { "inside" } else { "outside" });
+                        v.push(Case { dist, eta, inside, alpha, mf, wi, prop: Proposal { mf, eta, wi }, label });
+                    }
+                }
+            }
+        }
+    }
+    v
+}
+
 #[test]
 fn table_cost() {
     for dist in DISTS {
@@ -161,28 +194,13 @@ fn table_cost() {
 #[test]
 fn table_matches_monte_carlo() {
     let mut ck = Checker::new("table vs Monte Carlo albedo of single_dielectric");
-    let mut seed = 1000;
-    for dist in DISTS {
-        let table = DielectricAlbedoTable::get(dist);
-        for &eta in &ETAS {
-            for inside in [false, true] {
-                for &alpha in &ALPHAS {
-                    for &theta in &THETAS {
-                        let mf = Microfacet::new(dist, alpha, alpha);
-                        let wi = incident(theta, inside);
-                        let prop = Proposal { mf, eta, wi };
-                        seed += 1;
-                        let est = albedo(|wo| single_dielectric::eval(&mf, eta, wi, wo, false).0, &prop, 100_000, seed);
-                        let eta_r = if inside { 1.0 / eta } else { eta };
-                        let tab = table.e(alpha, wi.z.abs(), eta_r);
-                        let direct = table::single_albedo(dist, alpha, wi.z.abs(), eta_r, 64);
-                        let label = format!("{dist:?} η={eta} {} α={alpha} θ={theta}", if inside { "inside" } else { "outside" });
-                        println!("  {label}: table {tab:.5}, direct quadrature {direct:.5} (interp. err {:+.2e})", tab - direct);
-                        ck.close(&format!("{label}: E table"), (tab, 0.0), est[2], ALLOW_REL, 0.0);
-                    }
-                }
-            }
-        }
+    for (seed, Case { dist, eta, inside, alpha, mf, wi, prop, label }) in (1001..).zip(cases()) {
+        let est = albedo(|wo| single_dielectric::eval(&mf, eta, wi, wo, false).0, &prop, 100_000, seed);
+        let eta_r = if inside { 1.0 / eta } else { eta };
+        let tab = DielectricAlbedoTable::get(dist).e(alpha, wi.z.abs(), eta_r);
+        let direct = table::single_albedo(dist, alpha, wi.z.abs(), eta_r, 64);
+        println!("  {label}: table {tab:.5}, direct quadrature {direct:.5} (interp. err {:+.2e})", tab - direct);
+        ck.close(&format!("{label}: E table"), (tab, 0.0), est[2], ALLOW_REL, 0.0);
     }
     ck.finish();
 }
@@ -191,25 +209,11 @@ fn table_matches_monte_carlo() {
 #[test]
 fn furnace_outside_and_inside() {
     let mut ck = Checker::new("compensated dielectric furnace E_r + E_t = 1");
-    let mut seed = 5000;
-    for dist in DISTS {
-        for &eta in &ETAS {
-            for inside in [false, true] {
-                for &alpha in &ALPHAS {
-                    for &theta in &THETAS {
-                        let mf = Microfacet::new(dist, alpha, alpha);
-                        let wi = incident(theta, inside);
-                        let prop = Proposal { mf, eta, wi };
-                        seed += 1;
-                        let [r, t, s] = albedo(|wo| cd::eval(&mf, eta, wi, wo, false), &prop, 100_000, seed);
-                        let [_, _, s1] = albedo(|wo| single_dielectric::eval(&mf, eta, wi, wo, false).0, &prop, 100_000, seed);
-                        let label = format!("{dist:?} η={eta} {} α={alpha} θ={theta}", if inside { "inside" } else { "outside" });
-                        println!("  {label}: E_r = {:.5} ± {:.1e}, E_t = {:.5} ± {:.1e} (single: E = {:.5})", r.0, r.1, t.0, t.1, s1.0);
-                        ck.close(&format!("{label}: E_r + E_t"), s, (1.0, 0.0), ALLOW_REL, 0.0);
-                    }
-                }
-            }
-        }
+    for (seed, Case { eta, mf, wi, prop, label, .. }) in (5001..).zip(cases()) {
+        let [r, t, s] = albedo(|wo| cd::eval(&mf, eta, wi, wo, false), &prop, 100_000, seed);
+        let [_, _, s1] = albedo(|wo| single_dielectric::eval(&mf, eta, wi, wo, false).0, &prop, 100_000, seed);
+        println!("  {label}: E_r = {:.5} ± {:.1e}, E_t = {:.5} ± {:.1e} (single: E = {:.5})", r.0, r.1, t.0, t.1, s1.0);
+        ck.close(&format!("{label}: E_r + E_t"), s, (1.0, 0.0), ALLOW_REL, 0.0);
     }
     ck.finish();
 }

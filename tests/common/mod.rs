@@ -395,6 +395,21 @@ pub fn reflect(w: DVec3, m: DVec3) -> DVec3 {
     2.0 * w.dot(m) * m - w
 }
 
+/// Density of ω_o = reflect(ω_i, ±m) when the normal m has density `normal_pdf`:
+/// (q_m(h) + q_m(−h))/(4|ω_i·h|) at the half vector h; 0 where h is undefined.
+fn reflected_pdf(wi: DVec3, wo: DVec3, normal_pdf: impl Fn(DVec3) -> f64) -> f64 {
+    let h = wi + wo;
+    let len = h.length();
+    if len > 1e-12 {
+        let h = h / len;
+        let c = wi.dot(h).abs();
+        if c > 0.0 {
+            return (normal_pdf(h) + normal_pdf(-h)) / (4.0 * c);
+        }
+    }
+    0.0
+}
+
 /// Proposal for outgoing directions on the whole sphere: reflection of ω_i about
 /// a normal from [`NormalProposal`] (density q_m(±h)/(4|ω_i·h|)) mixed with the
 /// uniform sphere.
@@ -421,17 +436,7 @@ impl SphereOutProposal {
     }
 
     pub fn pdf(&self, wo: DVec3) -> f64 {
-        let mut p = self.uniform * UNIFORM_SPHERE_PDF;
-        let h = self.wi + wo;
-        let len = h.length();
-        if len > 1e-12 {
-            let h = h / len;
-            let c = self.wi.dot(h).abs();
-            if c > 0.0 {
-                p += (1.0 - self.uniform) * (self.normals.pdf(h) + self.normals.pdf(-h)) / (4.0 * c);
-            }
-        }
-        p
+        self.uniform * UNIFORM_SPHERE_PDF + (1.0 - self.uniform) * reflected_pdf(self.wi, wo, |m| self.normals.pdf(m))
     }
 }
 
@@ -467,17 +472,7 @@ impl HemisphereOutProposal {
         if wo.z <= 0.0 {
             return 0.0;
         }
-        let mut p = self.k * wo.z / PI;
-        let h = self.wi + wo;
-        let len = h.length();
-        if len > 1e-12 {
-            let h = h / len;
-            let c = self.wi.dot(h).abs();
-            if c > 0.0 {
-                p += (1.0 - self.k) * (ggx_slope_normal_pdf(self.ax, self.ay, h) + ggx_slope_normal_pdf(self.ax, self.ay, -h)) / (4.0 * c);
-            }
-        }
-        p
+        self.k * wo.z / PI + (1.0 - self.k) * reflected_pdf(self.wi, wo, |m| ggx_slope_normal_pdf(self.ax, self.ay, m))
     }
 }
 

@@ -42,22 +42,14 @@ fn bdpt_equals_pt_per_order() {
     let n = 40_000;
     let fr = copper();
     let mut seed = 100u64;
-    for seg in [Segments::Uncorrelated, Segments::Correlated] {
-        for dist in [Distribution::Ggx, Distribution::Beckmann] {
-            for alpha in [0.5, 1.0] {
-                let mf = Microfacet::new(dist, alpha, alpha);
-                for (pname, wi, wo) in pairs() {
-                    for orders in [(1, 1), (2, 2), (3, 3), (1, MAX_BOUNCES)] {
-                        let o = opts(seg, orders);
-                        seed += 2;
-                        let (pt, _) = run(n, |r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r), seed);
-                        let (bd, _) = run(n, |r| posfree_bdpt::eval_bdpt(&mf, &fr, wi, wo, &o, r), seed + 1);
-                        for c in 0..3 {
-                            let label = format!("{} {} α={alpha} {pname} orders {}..={} ch{c}", seg_name(seg), dist_name(dist), orders.0, orders.1);
-                            ck.close(&label, bd[c].est(), pt[c].est(), 0.0, 1e-12);
-                        }
-                    }
-                }
+    for (seg, dist, alpha, mf) in bdpt_surfaces() {
+        for (pname, wi, wo) in pairs() {
+            for orders in [(1, 1), (2, 2), (3, 3), (1, MAX_BOUNCES)] {
+                let o = opts(seg, orders);
+                seed += 2;
+                let label = format!("{} {} α={alpha} {pname} orders {}..={}", seg_name(seg), dist_name(dist), orders.0, orders.1);
+                let pt = |r: &mut Sampler| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r);
+                check_bdpt_equals_pt(&mut ck, &label, &[0, 1, 2], n, seed, pt, |r| posfree_bdpt::eval_bdpt(&mf, &fr, wi, wo, &o, r));
             }
         }
     }
@@ -79,12 +71,9 @@ fn bdpt_tail_and_cap_agree() {
             for orders in [(1, MAX_BOUNCES), (3, 6)] {
                 let o = opts(seg, orders);
                 seed += 2;
-                let (pt, _) = run(n, |r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r), seed);
-                let (bd, _) = run(n, |r| posfree_bdpt::eval_bdpt_with(&mf, &fr, wi, wo, &o, kb, r), seed + 1);
-                for c in 0..3 {
-                    let label = format!("{} ggx α=1 {pname} K_b={kb} orders {}..={} ch{c}", seg_name(seg), orders.0, orders.1);
-                    ck.close(&label, bd[c].est(), pt[c].est(), 0.0, 1e-12);
-                }
+                let label = format!("{} ggx α=1 {pname} K_b={kb} orders {}..={}", seg_name(seg), orders.0, orders.1);
+                let pt = |r: &mut Sampler| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r);
+                check_bdpt_equals_pt(&mut ck, &label, &[0, 1, 2], n, seed, pt, |r| posfree_bdpt::eval_bdpt_with(&mf, &fr, wi, wo, &o, kb, r));
             }
         }
     }
@@ -97,35 +86,30 @@ fn bdpt_furnace() {
     let n = 100_000;
     let fr = mirror();
     let mut seed = 5000u64;
-    for seg in [Segments::Uncorrelated, Segments::Correlated] {
-        for dist in [Distribution::Ggx, Distribution::Beckmann] {
-            for alpha in [0.5, 1.0] {
-                let mf = Microfacet::new(dist, alpha, alpha);
-                for theta in [0.3, 1.2] {
-                    let wi = dir(theta, 0.3);
-                    let prop = VndfOutProposal::new(mf, wi, alpha.clamp(0.3, 0.8));
-                    let o = opts(seg, (1, MAX_BOUNCES));
-                    seed += 1;
-                    let mut rng = Sampler::new(seed);
-                    let mut st = Stat::default();
-                    for _ in 0..n {
-                        let wo = prop.sample(&mut rng);
-                        let v = if wo.z > 0.0 {
-                            let p = prop.pdf(wo);
-                            if p > 0.0 {
-                                posfree_bdpt::eval_bdpt(&mf, &fr, wi, wo, &o, &mut rng).0[0] / p
-                            } else {
-                                0.0
-                            }
-                        } else {
-                            0.0
-                        };
-                        st.push(v);
+    for (seg, dist, alpha, mf) in bdpt_surfaces() {
+        for theta in [0.3, 1.2] {
+            let wi = dir(theta, 0.3);
+            let prop = VndfOutProposal::new(mf, wi, alpha.clamp(0.3, 0.8));
+            let o = opts(seg, (1, MAX_BOUNCES));
+            seed += 1;
+            let mut rng = Sampler::new(seed);
+            let mut st = Stat::default();
+            for _ in 0..n {
+                let wo = prop.sample(&mut rng);
+                let v = if wo.z > 0.0 {
+                    let p = prop.pdf(wo);
+                    if p > 0.0 {
+                        posfree_bdpt::eval_bdpt(&mf, &fr, wi, wo, &o, &mut rng).0[0] / p
+                    } else {
+                        0.0
                     }
-                    let label = format!("{} {} α={alpha} θ_i={theta}", seg_name(seg), dist_name(dist));
-                    ck.close(&label, st.est(), exact(1.0), 0.003, 0.0);
-                }
+                } else {
+                    0.0
+                };
+                st.push(v);
             }
+            let label = format!("{} {} α={alpha} θ_i={theta}", seg_name(seg), dist_name(dist));
+            ck.close(&label, st.est(), exact(1.0), 0.003, 0.0);
         }
     }
     ck.finish();
@@ -147,47 +131,42 @@ fn bdpt_vs_pt_variance_and_time() {
     let mut seed = 7000u64;
     let mut wins_off = 0;
     let mut total_off = 0;
-    for seg in [Segments::Uncorrelated, Segments::Correlated] {
-        for dist in [Distribution::Ggx, Distribution::Beckmann] {
-            for alpha in [0.5, 1.0] {
-                let mf = Microfacet::new(dist, alpha, alpha);
-                for (pname, wi, wo) in pairs() {
-                    let o = opts(seg, (1, MAX_BOUNCES));
-                    seed += 2;
-                    // Warm-up so that the timing excludes first-touch effects.
-                    let _ = run(2000, |r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r), seed + 77);
-                    let (pt, t_pt) = run(n, |r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r), seed);
-                    let (bd, t_bd) = run(n, |r| posfree_bdpt::eval_bdpt(&mf, &fr, wi, wo, &o, r), seed + 1);
-                    let (bd6, t_bd6) = run(n / 3, |r| posfree_bdpt::eval_bdpt_with(&mf, &fr, wi, wo, &o, 6, r), seed + 5001);
-                    let (vp, vb, vb6) = (pt[0].var(), bd[0].var(), bd6[0].var());
-                    let ratio = vp / vb;
-                    let eff = (vp * t_pt) / (vb * t_bd);
-                    let (ratio6, eff6) = (vp / vb6, (vp * t_pt) / (vb6 * t_bd6));
-                    if pname == "off-specular" {
-                        total_off += 1;
-                        if vb < vp {
-                            wins_off += 1;
-                        }
-                    }
-                    println!(
-                        "{:<4} {:<9} {:>4} {:<13} {:>11.3e} {:>11.3e} {:>11.3e} {:>7.0} {:>7.0} {:>7.0} {:>6.2} {:>6.2} {:>6.2} {:>6.2}",
-                        seg_name(seg),
-                        dist_name(dist),
-                        alpha,
-                        pname,
-                        vp,
-                        vb,
-                        vb6,
-                        t_pt,
-                        t_bd,
-                        t_bd6,
-                        ratio,
-                        eff,
-                        ratio6,
-                        eff6
-                    );
+    for (seg, dist, alpha, mf) in bdpt_surfaces() {
+        for (pname, wi, wo) in pairs() {
+            let o = opts(seg, (1, MAX_BOUNCES));
+            seed += 2;
+            // Warm-up so that the timing excludes first-touch effects.
+            let _ = run(2000, |r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r), seed + 77);
+            let (pt, t_pt) = run(n, |r| posfree::conductor::eval_pt(&mf, &fr, wi, wo, &o, r), seed);
+            let (bd, t_bd) = run(n, |r| posfree_bdpt::eval_bdpt(&mf, &fr, wi, wo, &o, r), seed + 1);
+            let (bd6, t_bd6) = run(n / 3, |r| posfree_bdpt::eval_bdpt_with(&mf, &fr, wi, wo, &o, 6, r), seed + 5001);
+            let (vp, vb, vb6) = (pt[0].var(), bd[0].var(), bd6[0].var());
+            let ratio = vp / vb;
+            let eff = (vp * t_pt) / (vb * t_bd);
+            let (ratio6, eff6) = (vp / vb6, (vp * t_pt) / (vb6 * t_bd6));
+            if pname == "off-specular" {
+                total_off += 1;
+                if vb < vp {
+                    wins_off += 1;
                 }
             }
+            println!(
+                "{:<4} {:<9} {:>4} {:<13} {:>11.3e} {:>11.3e} {:>11.3e} {:>7.0} {:>7.0} {:>7.0} {:>6.2} {:>6.2} {:>6.2} {:>6.2}",
+                seg_name(seg),
+                dist_name(dist),
+                alpha,
+                pname,
+                vp,
+                vb,
+                vb6,
+                t_pt,
+                t_bd,
+                t_bd6,
+                ratio,
+                eff,
+                ratio6,
+                eff6
+            );
         }
     }
     println!("off-specular: bdpt has lower variance per call in {wins_off}/{total_off} configurations (var× = var pt / var bdpt; eff× = (var·time) pt / bdpt; timings are noisy while other tests run)");

@@ -20,7 +20,6 @@ use msx::walk::bdpt::DEFAULT_BDPT_ORDERS;
 use msx::walk::WalkOptions;
 use msx::{Distribution, Microfacet};
 use std::f64::consts::PI;
-use std::time::Instant;
 
 const MAX_BOUNCES: u32 = 64;
 const ETA: f64 = 1.5;
@@ -45,16 +44,6 @@ fn pairs() -> [(&'static str, DVec3, DVec3); 6] {
     ]
 }
 
-fn run(n: usize, mut f: impl FnMut(&mut Sampler) -> f64, seed: u64) -> (Stat, f64) {
-    let mut rng = Sampler::new(seed);
-    let mut st = Stat::default();
-    let t0 = Instant::now();
-    for _ in 0..n {
-        st.push(f(&mut rng));
-    }
-    (st, t0.elapsed().as_nanos() as f64 / n as f64)
-}
-
 #[test]
 fn bdpt_equals_pt_per_order() {
     let mut ck = Checker::new("dielectric bdpt = pt per order (η = 1.5, GGX)");
@@ -71,8 +60,8 @@ fn bdpt_equals_pt_per_order() {
                         }
                         let o = opts(seg, orders);
                         seed += 2;
-                        let (pt, _) = run(n, |r| pfd::eval_pt(&mf, ETA, radiance, wi, wo, &o, r), seed);
-                        let (b, _) = run(n, |r| bd::eval_bdpt(&mf, ETA, radiance, wi, wo, &o, r), seed + 1);
+                        let (pt, _) = run_scalar(n, |r| pfd::eval_pt(&mf, ETA, radiance, wi, wo, &o, r), seed);
+                        let (b, _) = run_scalar(n, |r| bd::eval_bdpt(&mf, ETA, radiance, wi, wo, &o, r), seed + 1);
                         let label = format!(
                             "{} ggx α={alpha} {pname} orders {}..={}{}",
                             seg_name(seg),
@@ -102,8 +91,8 @@ fn bdpt_tail_and_kb_agree() {
                 for orders in [(1, MAX_BOUNCES), (3, 6)] {
                     let o = opts(seg, orders);
                     seed += 2;
-                    let (pt, _) = run(n, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r), seed);
-                    let (b, _) = run(n, |r| bd::eval_bdpt_with(&mf, ETA, false, wi, wo, &o, kb, r), seed + 1);
+                    let (pt, _) = run_scalar(n, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r), seed);
+                    let (b, _) = run_scalar(n, |r| bd::eval_bdpt_with(&mf, ETA, false, wi, wo, &o, kb, r), seed + 1);
                     let label = format!("{} ggx α=1 {pname} K_b={kb} orders {}..={}", seg_name(seg), orders.0, orders.1);
                     ck.close(&label, b.est(), pt.est(), 0.0, 1e-12);
                 }
@@ -213,22 +202,10 @@ fn bdpt_vs_pt_variance_and_time() {
             for (pname, wi, wo) in [pairs()[0], pairs()[1], pairs()[3]] {
                 let o = opts(seg, (1, MAX_BOUNCES));
                 seed += 2;
-                let _ = run(2000, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r), seed + 77);
-                let (pt, t_pt) = run(n, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r), seed);
-                let (b, t_bd) = run(n, |r| bd::eval_bdpt(&mf, ETA, false, wi, wo, &o, r), seed + 1);
-                let (vp, vb) = (pt.var(), b.var());
-                println!(
-                    "{:<4} {:>4} {:<12} {:>11.3e} {:>11.3e} {:>7.0} {:>7.0} {:>6.2} {:>6.2}",
-                    seg_name(seg),
-                    alpha,
-                    pname,
-                    vp,
-                    vb,
-                    t_pt,
-                    t_bd,
-                    vp / vb,
-                    (vp * t_pt) / (vb * t_bd)
-                );
+                let _ = run_scalar(2000, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r), seed + 77);
+                let (pt, t_pt) = run_scalar(n, |r| pfd::eval_pt(&mf, ETA, false, wi, wo, &o, r), seed);
+                let (b, t_bd) = run_scalar(n, |r| bd::eval_bdpt(&mf, ETA, false, wi, wo, &o, r), seed + 1);
+                println!("{:<4} {:>4} {:<12} {}", seg_name(seg), alpha, pname, cost_columns((pt.var(), b.var()), (t_pt, t_bd)));
             }
         }
     }

@@ -36,22 +36,14 @@ fn bdpt_equals_pt_per_order() {
     let mut ck = Checker::new("diffuse bdpt = pt per order (albedo 0.9/0.5/0.2)");
     let n = 40_000;
     let mut seed = 100u64;
-    for seg in [Segments::Uncorrelated, Segments::Correlated] {
-        for dist in [Distribution::Ggx, Distribution::Beckmann] {
-            for alpha in [0.5, 1.0] {
-                let mf = Microfacet::new(dist, alpha, alpha);
-                for (pname, wi, wo) in pairs() {
-                    for orders in [(1, 1), (2, 2), (3, 3), (1, MAX_BOUNCES)] {
-                        let o = opts(seg, orders);
-                        seed += 2;
-                        let (pt, _) = run(n, |r| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r), seed);
-                        let (b, _) = run(n, |r| bd::eval_bdpt(&mf, albedo(), wi, wo, &o, r), seed + 1);
-                        for c in [0usize, 2] {
-                            let label = format!("{} {:?} α={alpha} {pname} orders {}..={} ch{c}", seg_name(seg), dist, orders.0, orders.1);
-                            ck.close(&label, b[c].est(), pt[c].est(), 0.0, 1e-12);
-                        }
-                    }
-                }
+    for (seg, dist, alpha, mf) in bdpt_surfaces() {
+        for (pname, wi, wo) in pairs() {
+            for orders in [(1, 1), (2, 2), (3, 3), (1, MAX_BOUNCES)] {
+                let o = opts(seg, orders);
+                seed += 2;
+                let label = format!("{} {:?} α={alpha} {pname} orders {}..={}", seg_name(seg), dist, orders.0, orders.1);
+                let pt = |r: &mut Sampler| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r);
+                check_bdpt_equals_pt(&mut ck, &label, &[0, 2], n, seed, pt, |r| bd::eval_bdpt(&mf, albedo(), wi, wo, &o, r));
             }
         }
     }
@@ -70,10 +62,9 @@ fn bdpt_tail_and_kb_agree() {
             for orders in [(1, MAX_BOUNCES), (3, 6)] {
                 let o = opts(seg, orders);
                 seed += 2;
-                let (pt, _) = run(n, |r| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r), seed);
-                let (b, _) = run(n, |r| bd::eval_bdpt_with(&mf, albedo(), wi, wo, &o, kb, r), seed + 1);
                 let label = format!("{} ggx α=1 {pname} K_b={kb} orders {}..={}", seg_name(seg), orders.0, orders.1);
-                ck.close(&label, b[0].est(), pt[0].est(), 0.0, 1e-12);
+                let pt = |r: &mut Sampler| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r);
+                check_bdpt_equals_pt(&mut ck, &label, &[0], n, seed, pt, |r| bd::eval_bdpt_with(&mf, albedo(), wi, wo, &o, kb, r));
             }
         }
     }
@@ -85,27 +76,22 @@ fn bdpt_furnace() {
     let mut ck = Checker::new("diffuse bdpt white furnace (albedo 1): ∫ eval dω_o = 1");
     let n = 100_000;
     let mut seed = 5000u64;
-    for seg in [Segments::Uncorrelated, Segments::Correlated] {
-        for dist in [Distribution::Ggx, Distribution::Beckmann] {
-            for alpha in [0.5, 1.0] {
-                let mf = Microfacet::new(dist, alpha, alpha);
-                for theta in [0.3, 1.2] {
-                    let wi = dir(theta, 0.3);
-                    let o = opts(seg, (1, MAX_BOUNCES));
-                    seed += 1;
-                    let mut rng = Sampler::new(seed);
-                    let mut st = Stat::default();
-                    for _ in 0..n {
-                        let (u1, u2) = rng.next2();
-                        let wo = cosine_hemisphere(u1, u2);
-                        let p = wo.z / PI;
-                        let v = if p > 0.0 { bd::eval_bdpt(&mf, Spectrum::ONE, wi, wo, &o, &mut rng).0[0] / p } else { 0.0 };
-                        st.push(v);
-                    }
-                    let label = format!("{} {:?} α={alpha} θ_i={theta}", seg_name(seg), dist);
-                    ck.close(&label, st.est(), exact(1.0), 0.003, 0.0);
-                }
+    for (seg, dist, alpha, mf) in bdpt_surfaces() {
+        for theta in [0.3, 1.2] {
+            let wi = dir(theta, 0.3);
+            let o = opts(seg, (1, MAX_BOUNCES));
+            seed += 1;
+            let mut rng = Sampler::new(seed);
+            let mut st = Stat::default();
+            for _ in 0..n {
+                let (u1, u2) = rng.next2();
+                let wo = cosine_hemisphere(u1, u2);
+                let p = wo.z / PI;
+                let v = if p > 0.0 { bd::eval_bdpt(&mf, Spectrum::ONE, wi, wo, &o, &mut rng).0[0] / p } else { 0.0 };
+                st.push(v);
             }
+            let label = format!("{} {:?} α={alpha} θ_i={theta}", seg_name(seg), dist);
+            ck.close(&label, st.est(), exact(1.0), 0.003, 0.0);
         }
     }
     ck.finish();
@@ -121,32 +107,15 @@ fn bdpt_vs_pt_variance_and_time() {
     );
     let n = 40_000;
     let mut seed = 7000u64;
-    for seg in [Segments::Uncorrelated, Segments::Correlated] {
-        for dist in [Distribution::Ggx, Distribution::Beckmann] {
-            for alpha in [0.5, 1.0] {
-                let mf = Microfacet::new(dist, alpha, alpha);
-                for (pname, wi, wo) in pairs() {
-                    let o = opts(seg, (1, MAX_BOUNCES));
-                    seed += 2;
-                    let _ = run(2000, |r| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r), seed + 77);
-                    let (pt, t_pt) = run(n, |r| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r), seed);
-                    let (b, t_bd) = run(n, |r| bd::eval_bdpt(&mf, albedo(), wi, wo, &o, r), seed + 1);
-                    let (vp, vb) = (pt[0].var(), b[0].var());
-                    println!(
-                        "{:<4} {:<9} {:>4} {:<13} {:>11.3e} {:>11.3e} {:>7.0} {:>7.0} {:>6.2} {:>6.2}",
-                        seg_name(seg),
-                        format!("{dist:?}"),
-                        alpha,
-                        pname,
-                        vp,
-                        vb,
-                        t_pt,
-                        t_bd,
-                        vp / vb,
-                        (vp * t_pt) / (vb * t_bd)
-                    );
-                }
-            }
+    for (seg, dist, alpha, mf) in bdpt_surfaces() {
+        for (pname, wi, wo) in pairs() {
+            let o = opts(seg, (1, MAX_BOUNCES));
+            seed += 2;
+            let _ = run(2000, |r| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r), seed + 77);
+            let (pt, t_pt) = run(n, |r| pfd::eval_pt(&mf, albedo(), wi, wo, &o, r), seed);
+            let (b, t_bd) = run(n, |r| bd::eval_bdpt(&mf, albedo(), wi, wo, &o, r), seed + 1);
+            let costs = cost_columns((pt[0].var(), b[0].var()), (t_pt, t_bd));
+            println!("{:<4} {:<9} {:>4} {:<13} {costs}", seg_name(seg), format!("{dist:?}"), alpha, pname);
         }
     }
 }

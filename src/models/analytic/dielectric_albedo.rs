@@ -130,12 +130,8 @@ impl DielectricAlbedoTable {
     }
 
     pub fn get(dist: Distribution) -> &'static DielectricAlbedoTable {
-        static GGX: OnceLock<DielectricAlbedoTable> = OnceLock::new();
-        static BECKMANN: OnceLock<DielectricAlbedoTable> = OnceLock::new();
-        match dist {
-            Distribution::Ggx => GGX.get_or_init(|| Self::compute(Distribution::Ggx)),
-            Distribution::Beckmann => BECKMANN.get_or_init(|| Self::compute(Distribution::Beckmann)),
-        }
+        static TABLES: [OnceLock<DielectricAlbedoTable>; 2] = [const { OnceLock::new() }; 2];
+        tables::per_distribution(&TABLES, dist, Self::compute)
     }
 
     /// The grids (entering, leaving) over (α, n, μ), for the C ABI's `msx_table`.

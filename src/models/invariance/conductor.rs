@@ -25,7 +25,7 @@
 use super::recursion::MonotoneExit;
 use crate::microfacet::ConductorFresnel;
 use crate::microfacet::{reflect, Microfacet};
-use crate::models::posfree::conductor::{self as posfree_conductor, CamVertex, ConductorSegments, LightVertex as WalkLight};
+use crate::models::posfree::conductor::{self as posfree_conductor, CamVertex, ConductorSegments, LightVertex as WalkLight, Outgoing};
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
 use crate::walk::WalkOptions;
@@ -168,12 +168,7 @@ impl Walk<'_> {
                 break;
             }
             let (u1, u2) = rng.next2();
-            let Some(m) = mf.sample_visible(w, u1, u2) else { break };
-            let cos_wm = w.dot(m);
-            if cos_wm <= 0.0 {
-                break;
-            }
-            let d_next = reflect(w, m);
+            let Some((m, cos_wm, d_next)) = mf.reflect_visible(w, u1, u2) else { break };
             // Along the upward run z only grows (module docs: d'.z > d.z for every
             // front-facing facet, and exactly so in floating point:
             // d'.z = d.z + 2(w·m)m.z with w·m, m.z > 0). Once an upward d.z ≥ ω_o.z
@@ -383,20 +378,10 @@ impl ConductorSegments for WholePath {
         Some(exit_table(dirs)?.exit_probability(lambda_o))
     }
 
-    fn pt_tail(
-        &self,
-        mf: &Microfacet,
-        fresnel: &ConductorFresnel,
-        wo: DVec3,
-        lambda_o: f64,
-        cam: &[CamVertex],
-        kb: u32,
-        orders: (u32, u32),
-        rng: &mut Sampler,
-    ) -> Spectrum {
+    fn pt_tail(&self, to: Outgoing, cam: &[CamVertex], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
         let Some(dp) = exit_table(cam.iter().map(|c| (c.l, c.d))) else { return Spectrum::ZERO };
         let cv = &cam[kb as usize];
-        let walk = Walk::unidirectional(mf, fresnel, wo, lambda_o);
+        let walk = Walk::unidirectional(to.mf, to.fresnel, to.wo, to.lambda_o);
         let state = WalkState { w: -cv.d, pdf_scale: 0.25 / cv.area_back, pdf_walk: 0.0, throughput: cv.thr * dp.hit_probability(), dp };
         walk.from(state, kb, orders, rng)
     }

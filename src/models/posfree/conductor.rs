@@ -6,7 +6,7 @@
 
 use super::{roulette_importance, Options, Segments};
 use crate::microfacet::ConductorFresnel;
-use crate::microfacet::{reflect, Microfacet};
+use crate::microfacet::Microfacet;
 use crate::rng::Sampler;
 use crate::spectrum::Spectrum;
 use crate::walk::WalkOptions;
@@ -110,12 +110,7 @@ pub(crate) fn pt_walk(
         }
         // Sample the next direction from the visible normals of w.
         let (u1, u2) = rng.next2();
-        let Some(m) = mf.sample_visible(w, u1, u2) else { break };
-        let cos_wm = w.dot(m);
-        if cos_wm <= 0.0 {
-            break;
-        }
-        let d_next = reflect(w, m);
+        let Some((_, cos_wm, d_next)) = mf.reflect_visible(w, u1, u2) else { break };
         throughput *= fresnel.eval(cos_wm);
         if d_next.z > 0.0 {
             let lambda = mf.lambda(d_next);
@@ -252,18 +247,17 @@ pub(crate) trait ConductorSegments {
         Some(1.0)
     }
     /// The model's PT estimate of the orders above K_b from the end of `cam`.
-    #[allow(clippy::too_many_arguments)]
-    fn pt_tail(
-        &self,
-        mf: &Microfacet,
-        fresnel: &ConductorFresnel,
-        wo: DVec3,
-        lambda_o: f64,
-        cam: &[CamVertex],
-        kb: u32,
-        orders: (u32, u32),
-        rng: &mut Sampler,
-    ) -> Spectrum;
+    fn pt_tail(&self, to: Outgoing, cam: &[CamVertex], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum;
+}
+
+/// What a PT tail reads besides the camera subpath: the microsurface, its
+/// Fresnel term, ω_o and Λ(ω_o).
+#[derive(Clone, Copy)]
+pub(crate) struct Outgoing<'a> {
+    pub mf: &'a Microfacet,
+    pub fresnel: &'a ConductorFresnel,
+    pub wo: DVec3,
+    pub lambda_o: f64,
 }
 
 impl ConductorSegments for Segments {
@@ -277,20 +271,10 @@ impl ConductorSegments for Segments {
         Segments::last(*self, l, lambda_o)
     }
 
-    fn pt_tail(
-        &self,
-        mf: &Microfacet,
-        fresnel: &ConductorFresnel,
-        wo: DVec3,
-        lambda_o: f64,
-        cam: &[CamVertex],
-        kb: u32,
-        orders: (u32, u32),
-        rng: &mut Sampler,
-    ) -> Spectrum {
+    fn pt_tail(&self, to: Outgoing, cam: &[CamVertex], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
         let cv = &cam[kb as usize];
         let state = PtState { w: -cv.d, l: cv.l, throughput: cv.thr };
-        pt_walk(mf, fresnel, wo, lambda_o, *self, state, kb, orders, kb + RR_START, rng)
+        pt_walk(to.mf, to.fresnel, to.wo, to.lambda_o, *self, state, kb, orders, kb + RR_START, rng)
     }
 }
 
@@ -336,12 +320,7 @@ impl<S: ConductorSegments> bdpt::BdptSurface for Bidirectional<'_, S> {
     fn camera_step(&self, v: &mut CamVertex, s: usize, rng: &mut Sampler) -> Option<bdpt::Step<CamVertex>> {
         let w = -v.d;
         let (u1, u2) = rng.next2();
-        let m = self.mf.sample_visible(w, u1, u2)?;
-        let cos_wm = w.dot(m);
-        if cos_wm <= 0.0 {
-            return None;
-        }
-        let d_next = reflect(w, m);
+        let (m, cos_wm, d_next) = self.mf.reflect_visible(w, u1, u2)?;
         let (l_next, area_next, area_back_next) = smith(self.mf, d_next);
         let dm = self.mf.d(m);
         let pf = dm / (4.0 * v.area_back);
@@ -363,12 +342,8 @@ impl<S: ConductorSegments> bdpt::BdptSurface for Bidirectional<'_, S> {
 
     fn light_step(&self, v: &LightVertex, t: usize, rng: &mut Sampler) -> Option<bdpt::Step<LightVertex>> {
         let (u1, u2) = rng.next2();
-        let m = self.mf.sample_visible(v.e, u1, u2)?;
-        let cos_em = v.e.dot(m);
-        if cos_em <= 0.0 {
-            return None;
-        }
-        let e_next = -reflect(v.e, m); // d_j, arriving at vertex j = k−1−t
+        let (m, cos_em, reflected) = self.mf.reflect_visible(v.e, u1, u2)?;
+        let e_next = -reflected; // d_j, arriving at vertex j = k−1−t
         let (l_next, area_next, area_back_next) = smith(self.mf, e_next);
         let cos_next = e_next.z.abs();
         if !(l_next > 0.0) || !l_next.is_finite() || !(cos_next > 0.0) {
@@ -423,7 +398,8 @@ impl<S: ConductorSegments> bdpt::BdptSurface for Bidirectional<'_, S> {
     }
 
     fn pt_tail(&self, cam: &[CamVertex], kb: u32, orders: (u32, u32), rng: &mut Sampler) -> Spectrum {
-        self.seg.pt_tail(self.mf, self.fresnel, self.wo, self.lambda_o, cam, kb, orders, rng)
+        let to = Outgoing { mf: self.mf, fresnel: self.fresnel, wo: self.wo, lambda_o: self.lambda_o };
+        self.seg.pt_tail(to, cam, kb, orders, rng)
     }
 }
 

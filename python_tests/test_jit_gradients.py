@@ -12,10 +12,10 @@
 - The walks ``uncorrelated``, ``correlated``, ``heitz`` and ``invariance``: their derivative per call, through a symbolic
   call as in a render, forward and reverse, against central differences of the mean estimate (a z-test),
   and rendered as above (including BSDF-sampled paths: the walk samples its proposal while differentiated).
-- A walk not declared differentiable (``heitz`` on Lambertian facets) and the glass walks' IOR refuse to be
-  differentiated (one line naming the differentiable models) instead of returning a gradient that is wrong:
-  plain AD through a walk gave the opposite sign of the finite difference, and the glass walks' score in η
-  misses a moving edge (docs/gradients.md).
+- A walk not declared differentiable and the glass walks' IOR refuse to be differentiated (one line naming
+  the differentiable models) instead of returning a gradient that is wrong: plain AD through a walk gave the
+  opposite sign of the finite difference, and the glass walks' score in η misses a moving edge
+  (docs/gradients.md).
 """
 
 import math
@@ -45,7 +45,7 @@ EPS32 = 2.0 ** -24
 # far below 1e-3 of the derivative for smooth f; allowed 1e-3 (a factor 2 or a sign is 1 or 2).
 TRUNCATION = 1e-3
 SEEDS = 12  # render checks: paired per-seed differences
-RENDER_CHECKS = 2 * 2 * 12  # forward and reverse × two losses × the rendered cases below
+RENDER_CHECKS = 2 * 2 * 13  # forward and reverse × two losses × the rendered cases below
 Z_MAX = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / RENDER_CHECKS)) / 2.0)
 
 
@@ -245,6 +245,9 @@ RENDERED = [
     ("diffuse reflectance", {"type": "msx_posfree", "surface": "diffuse", "model": "uncorrelated", "alpha": 0.6,
                                    "reflectance": {"type": "rgb", "value": [0.9, 0.6, 0.2]}},
      "ball.bsdf.reflectance.value"),
+    ("diffuse heitz reflectance", {"type": "msx_posfree", "surface": "diffuse", "model": "heitz", "alpha": 0.6,
+                                   "reflectance": {"type": "rgb", "value": [0.9, 0.6, 0.2]}},
+     "ball.bsdf.reflectance.value"),
     ("correlated bdpt", {"type": "msx_posfree", "material": "Cu", "model": "correlated", "estimator": "bdpt",
                          "alpha": 0.5}, "ball.bsdf.alpha.value"),
 ]
@@ -386,11 +389,18 @@ def refusal(sc, p):
     return "\n".join(chain)
 
 
-def test_a_walk_without_gradients_refuses_in_one_line():
-    """A walk the engine does not declare differentiable (``heitz`` on Lambertian facets: docs/gradients.md)
-    refuses in one line at the first differentiated render instead of returning drjit's AD of the walk as
-    written, which is biased; without gradients the same scene renders."""
+def test_a_walk_without_gradients_refuses_in_one_line(monkeypatch):
+    """Every walk the engine renders differentiates today; one without its gradient (a new walk whose
+    ``differentiable`` is False — here ``heitz`` on Lambertian facets, made so for the test) refuses in one
+    line at the first differentiated render instead of returning drjit's AD of the walk as written, which is
+    biased; without gradients the same scene renders."""
+    from msx.jit import bsdf as engine
+    from msx.jit import heitz
+
     model, surface, key = "heitz", "diffuse", "reflectance.value"
+    monkeypatch.setattr(heitz.DIFFUSE_WALKS[model], "differentiable", False)
+    monkeypatch.setitem(engine.DIFFERENTIABLE_MODELS, surface,
+                        tuple(m for m in engine.DIFFERENTIABLE_MODELS[surface] if m != model))
     sc = scene({"type": "msx_posfree", "surface": surface, "model": model, "alpha": 0.5})
     p = mi.traverse(sc)
     key = "ball.bsdf." + key
@@ -404,6 +414,33 @@ def test_a_walk_without_gradients_refuses_in_one_line():
     p.update()
     img = mi.render(sc, spp=4, seed=0)
     assert np.all(np.isfinite(np.array(img)))
+
+
+def test_subnormal_values_give_no_nan_gradient():
+    """A walk's estimate can be subnormal, and prb divides by the sample's weight × pdf: where subnormals are
+    not flushed (drjit's thread count 1 runs kernels on the calling thread) 1/x overflowed and the albedo
+    gradient of ``heitz`` on Lambertian facets had a NaN pixel in every render of this scene (32 spp, seeds
+    0–2) before the engine returned such values as 0 (jit/bsdf.py ``flush_subnormal``)."""
+    bsdf = {"type": "msx_posfree", "surface": "diffuse", "model": "heitz", "alpha": 0.6,
+            "reflectance": {"type": "rgb", "value": [0.9, 0.6, 0.2]}}
+    sc = scene(bsdf)
+    p = mi.traverse(sc)
+    key = "ball.bsdf.reflectance.value"
+    threads = dr.thread_count()
+    dr.set_thread_count(1)
+    try:
+        for seed in range(3):
+            dr.enable_grad(p[key])
+            p.update()
+            img = mi.render(sc, params=p, spp=32, seed=seed)
+            dr.set_grad(p[key], 1.0)
+            dr.forward_to(img)
+            g = np.array(dr.grad(img))
+            assert np.all(np.isfinite(g)), f"seed {seed}: {np.count_nonzero(~np.isfinite(g))} non-finite entries"
+    finally:
+        dr.set_thread_count(threads)
+        dr.disable_grad(p[key])
+        p.update()
 
 
 @pytest.mark.parametrize("model", ["correlated", "heitz", "invariance", "auto"])
@@ -433,7 +470,7 @@ WALK_LANES = 1 << 20
 
 
 WALKS = [("correlated", "conductor"), ("uncorrelated", "conductor"), ("heitz", "conductor"),
-         ("invariance", "conductor"), ("correlated", "diffuse"), ("uncorrelated", "diffuse"),
+         ("invariance", "conductor"), ("correlated", "diffuse"), ("uncorrelated", "diffuse"), ("heitz", "diffuse"),
          ("correlated", "dielectric"), ("uncorrelated", "dielectric"), ("heitz", "dielectric"), ("auto", "conductor"),
          ("auto", "dielectric"), ("invariance", "dielectric"), ("invariance below reflected", "dielectric"),
          ("correlated bdpt", "conductor"), ("invariance bdpt", "conductor")]
@@ -512,7 +549,8 @@ def test_walks_differentiate_without_bias(model, surface):
 # ------------------------------------------------------------------ sampling while differentiated
 
 TRACED_SAMPLING = [("correlated", "conductor"), ("correlated bdpt", "conductor"), ("correlated", "diffuse"),
-                   ("correlated", "dielectric"), ("heitz", "dielectric"), ("invariance", "dielectric")]
+                   ("heitz", "diffuse"), ("correlated", "dielectric"), ("heitz", "dielectric"),
+                   ("invariance", "dielectric")]
 Z_SAMPLING = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / len(TRACED_SAMPLING))) / 2.0)
 
 

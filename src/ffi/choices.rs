@@ -2,7 +2,7 @@
 //! (surface, distribution, model, estimator, mis_density) with its name, its code and, for
 //! a model, what it supports. The rows are those of `src/config.rs` (`SURFACES`,
 //! `DISTRIBUTIONS`, `MODELS`, `ESTIMATORS`); the Python package
-//! (`mitsuba_plugin/msx/_params.py`) and the native plugin
+//! (`mitsuba_plugin/msx/plugin/parameters.py`) and the native plugin
 //! (`native/msx_mitsuba.cpp`) build their choice lists from these functions.
 
 use super::output::caught_panic;

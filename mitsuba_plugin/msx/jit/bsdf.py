@@ -167,6 +167,18 @@ def eta_gradient_problem(cfg):
             "'eta' — or keep 'eta' out of the gradient (dr.disable_grad)" % (PLUGIN, cfg.model, closed))
 
 
+# The smallest normal float32. A walk's estimate can be subnormal (a product of many small factors: 415 of
+# 3·10⁶ samples of ``heitz`` on Lambertian facets), and prb divides by the sample's weight × pdf: where the
+# CPU does not flush subnormals (drjit's thread count 1 runs kernels on the calling thread), 1/x overflows to
+# ∞ and the gradient gets ∞ · 0 = NaN. Values below it carry no visible energy and are returned as 0.
+FLT_MIN = 1.1754944e-38
+
+
+def flush_subnormal(value):
+    """``value`` with its subnormal channels set to 0 (FLT_MIN above)."""
+    return dr.select(dr.abs(value) >= FLT_MIN, value, 0.0)
+
+
 def walk_name_of(model):
     """The walk ``model`` runs (``walk_name``)."""
     info = MODEL_INFO.get(model)
@@ -541,7 +553,7 @@ def make_bsdf_factory(variant):
                 mask &= call.usable & dr.all(dr.isfinite(si.wi)) & dr.all(dr.isfinite(wo))
                 value, pdf = self._model.eval_pdf(call, si.wi, wo, self._eval_key(si, wo), want_value, want_pdf)
                 if want_value:
-                    value = dr.select(mask & dr.all(dr.isfinite(value)), value, 0.0)
+                    value = dr.select(mask & dr.all(dr.isfinite(value)), flush_subnormal(value), 0.0)
                 if want_pdf:
                     pdf = dr.select(mask & dr.isfinite(pdf), pdf, 0.0)
                 return value, pdf
@@ -569,6 +581,7 @@ def make_bsdf_factory(variant):
                     wo, pdf, weight, valid = self._model.sample(call, wi, sample1, sample2[0], sample2[1], key)
                 ok = active & call.usable & valid & dr.all(dr.isfinite(wi)) & dr.isfinite(pdf) & (pdf > 0.0)
                 ok &= dr.all(dr.isfinite(weight))
+                weight = dr.select(dr.abs(weight * pdf) >= FLT_MIN, weight, 0.0)  # as eval's flush_subnormal
                 bs = dr.zeros(mi.BSDFSample3f)
                 transmit = wo[2] * wi[2] < 0.0
                 if dielectric:

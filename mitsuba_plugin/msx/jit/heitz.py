@@ -578,7 +578,4 @@ CONDUCTOR_WALKS = {"heitz": ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, b
 # The walks on the other microsurfaces (jit/bsdf.py collects them; their MIS densities are
 # ``mis.dielectric_pdf`` and ``mis.diffuse_pdf``).
 DIELECTRIC_WALKS = {"heitz": DielectricWalk(dielectric_eval, dielectric_sample, differentiable=True)}
-# Lambertian facets: ``diffuse_eval`` takes ``mf_sample`` and passes its checks, but a forward-mode render
-# differentiated in the albedo gives a NaN in one lane with drjit's thread count 1 (docs/gradients.md), so
-# it is not declared differentiable.
-DIFFUSE_WALKS = {"heitz": DiffuseWalk(diffuse_eval, diffuse_sample)}
+DIFFUSE_WALKS = {"heitz": DiffuseWalk(diffuse_eval, diffuse_sample, differentiable=True)}

@@ -168,9 +168,9 @@ def eta_gradient_problem(cfg):
 
 
 # The smallest normal float32. A walk's estimate can be subnormal (a product of many small factors: 415 of
-# 3·10⁶ samples of ``heitz`` on Lambertian facets), and prb divides by the sample's weight × pdf: where the
-# CPU does not flush subnormals (drjit's thread count 1 runs kernels on the calling thread), 1/x overflows to
-# ∞ and the gradient gets ∞ · 0 = NaN. Values below it carry no visible energy and are returned as 0.
+# 3·10⁶ samples of ``heitz`` on Lambertian facets), and prb divides by the sample's weight × pdf: 1/x of a
+# subnormal overflows to ∞ and the gradient gets ∞ · 0 = NaN (seen with drjit's thread count 1, whose
+# kernels run on the calling thread; docs/gradients.md). Values below it carry no visible energy: returned as 0.
 FLT_MIN = 1.1754944e-38
 
 

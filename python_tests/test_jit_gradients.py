@@ -45,8 +45,6 @@ EPS32 = 2.0 ** -24
 # far below 1e-3 of the derivative for smooth f; allowed 1e-3 (a factor 2 or a sign is 1 or 2).
 TRUNCATION = 1e-3
 SEEDS = 12  # render checks: paired per-seed differences
-RENDER_CHECKS = 2 * 2 * 12  # forward and reverse × two losses × the rendered cases below
-Z_MAX = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / RENDER_CHECKS)) / 2.0)
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -249,6 +247,8 @@ RENDERED = [
                                    "reflectance": {"type": "rgb", "value": [0.9, 0.6, 0.2]}},
      "ball.bsdf.reflectance.value"),
 ]
+RENDER_CHECKS = 2 * 2 * len(RENDERED)  # forward and reverse × two losses × the rendered cases
+Z_MAX = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / RENDER_CHECKS)) / 2.0)
 
 
 @pytest.mark.parametrize("label, bsdf, key", RENDERED, ids=[r[0] for r in RENDERED])
@@ -441,21 +441,23 @@ def test_subnormal_values_give_no_nan_gradient():
         p.update()
 
 
-GLASS_WALKS = ["correlated", "uncorrelated", "heitz", "invariance", "auto"]
+# The glass walks whose derivative in η is not unbiased (docs/gradients.md, "The IOR of the glass walks"), and
+# those whose is (the position-free walks: drawn in the space of normals, with the next-event edge terms).
+ETA_REFUSING_GLASS_WALKS = ["heitz", "invariance"]
+ETA_GLASS_WALKS = ["correlated", "uncorrelated", "auto"]
 
 
-def test_glass_walks_refuse_eta_gradients():
-    """The glass walks' derivative in η is biased (docs/gradients.md, "The IOR of the glass walks": the
-    density of a refracted direction has an edge that moves with η): a render differentiated in ``eta``
-    refuses in one line, one differentiated in ``alpha`` runs; every glass walk refuses a call with η
-    differentiated (at trace time, before anything compiles), the closed forms do not."""
-    sc = scene({"type": "msx_posfree", "surface": "dielectric", "model": "correlated", "alpha": 0.5})
+def test_glass_walks_without_unbiased_eta_refuse_eta_gradients():
+    """A render differentiated in ``eta`` through a glass walk whose derivative in η would be biased refuses in
+    one line naming those that differentiate in η; one differentiated in ``alpha`` runs; per call (at trace
+    time, before anything compiles) those walks refuse, the others and the closed forms do not."""
+    sc = scene({"type": "msx_posfree", "surface": "dielectric", "model": "heitz", "alpha": 0.5})
     p = mi.traverse(sc)
     dr.enable_grad(p["ball.bsdf.eta"])
     p.update()
     text = refusal(sc, p)
-    assert "model='correlated' on surface 'dielectric' is not differentiable in 'eta'" in text, text[-2000:]
-    assert "single, compensated differentiate in 'eta'" in text, text[-2000:]
+    assert "model='heitz' on surface 'dielectric' is not differentiable in 'eta'" in text, text[-2000:]
+    assert "single, compensated, uncorrelated, correlated, auto differentiate in 'eta'" in text, text[-2000:]
     dr.disable_grad(p["ball.bsdf.eta"])
     dr.enable_grad(p["ball.bsdf.alpha.value"])
     p.update()
@@ -465,12 +467,12 @@ def test_glass_walks_refuse_eta_gradients():
     assert np.all(np.isfinite(np.array(g))) and float(dr.abs(g)[0]) > 0.0
     si = jit_support.lanes_si((0.3, 0.0, 0.954), 16, 0)
     wo = mi.Vector3f(-0.3, 0.1, -0.95)
-    for model in GLASS_WALKS + ["single", "compensated"]:
+    for model in ETA_REFUSING_GLASS_WALKS + ETA_GLASS_WALKS + ["single", "compensated"]:
         b = mi.load_dict({"type": "msx_posfree", "surface": "dielectric", "model": model, "alpha": 0.5})
         q = mi.traverse(b)
         dr.enable_grad(q["eta"])
         q.update()
-        if model in GLASS_WALKS:
+        if model in ETA_REFUSING_GLASS_WALKS:
             with pytest.raises(Exception, match="not differentiable in 'eta'"):
                 b.eval(mi.BSDFContext(), si, wo)
         else:
@@ -486,11 +488,25 @@ WALKS = [("correlated", "conductor"), ("uncorrelated", "conductor"), ("heitz", "
          ("invariance", "conductor"), ("correlated", "diffuse"), ("uncorrelated", "diffuse"), ("heitz", "diffuse"),
          ("correlated", "dielectric"), ("uncorrelated", "dielectric"), ("heitz", "dielectric"), ("auto", "conductor"),
          ("auto", "dielectric"), ("invariance", "dielectric"), ("invariance below reflected", "dielectric"),
+         ("correlated below", "dielectric"), ("correlated below reflected", "dielectric"),
          ("correlated bdpt", "conductor"), ("invariance bdpt", "conductor")]
 DIFFUSE_ALBEDO = {"type": "rgb", "value": [0.8, 0.6, 0.4]}
-# Per channel: α and the colour parameter (η, the albedo) of each walk; α only through the glass, whose walks
-# refuse η (test_glass_walks_refuse_eta_gradients).
-WALK_CHECKS = 3 * sum(1 if surface == "dielectric" else 2 for _, surface in WALKS)
+
+
+def walk_keys(model, surface):
+    """(key, h, direction) of the parameters a walk's check differentiates: α, and the colour parameter (η,
+    the albedo) or the glass's IOR where the walk's derivative in it is unbiased
+    (test_glass_walks_without_unbiased_eta_refuse_eta_gradients)."""
+    keys = [("alpha.value", 0.02, None)]
+    if surface != "dielectric":
+        keys.append(({"conductor": "eta.value", "diffuse": "reflectance.value"}[surface], 0.02, (1.0, 0.5, -0.7)))
+    elif model.split()[0] in ETA_GLASS_WALKS:
+        keys.append(("eta", 0.02, None))
+    return keys
+
+
+# Per channel, every key of every walk.
+WALK_CHECKS = 3 * sum(len(walk_keys(model, surface)) for model, surface in WALKS)
 Z_WALK = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / WALK_CHECKS)) / 2.0)
 
 
@@ -504,6 +520,7 @@ def test_walks_differentiate_without_bias(model, surface):
                 "dielectric": {"surface": "dielectric", "int_ior": 1.5}}[surface]
     # "model [bdpt] [below] [reflected]": the estimator; ω_i below the surface (inside the glass); the
     # dielectric's ω_o on ω_i's side (by default it is transmitted: the reflected side is the conductor's case).
+    keys = walk_keys(model, surface)
     model, *options = model.split()
     b = mi.load_dict({"type": "msx_posfree", **material, "model": model, "distribution": "ggx", "alpha": 0.5,
                       "estimator": "bdpt" if "bdpt" in options else "pt"})
@@ -517,9 +534,6 @@ def test_walks_differentiate_without_bias(model, surface):
     wo = dr.normalize(mi.Vector3f(-0.5, 0.4, side * (-0.77 if across else 0.77)))
     ptr = dr.gather(mi.BSDFPtr, mi.BSDFPtr(b), dr.zeros(mi.UInt32, n))  # as a render calls it
     ctx = mi.BSDFContext()
-    keys = [("alpha.value", 0.02, None)]
-    if surface != "dielectric":
-        keys.append(({"conductor": "eta.value", "diffuse": "reflectance.value"}[surface], 0.02, (1.0, 0.5, -0.7)))
     for key, h, v in keys:
         x0 = type(p[key])(p[key])
         direction = type(x0)(*v) if v and dr.depth_v(x0) > 1 else type(x0)(1.0)

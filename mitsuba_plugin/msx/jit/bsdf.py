@@ -154,17 +154,19 @@ def gradient_problem(cfg):
 
 
 def eta_gradient_problem(cfg):
-    """None unless ``cfg`` is a random walk through the dielectric, whose ``eta`` refuses gradients: the
-    density of a refracted direction jumps to zero where the generalized half-vector turns horizontal (GGX's
-    D there is α²/π, not 0), that edge moves with η, and the walks' score-function estimate misses its term
+    """None unless ``cfg`` is a random walk through the dielectric whose derivative in ``eta`` is not
+    unbiased (its walk's ``eta_differentiable`` is false): in the space of directions such a walk draws from,
+    the density of a refracted direction jumps to zero where the generalized half-vector turns horizontal
+    (GGX's D there is α²/π, not 0), that edge moves with η, and a score-function estimate misses its term
     (measured: docs/gradients.md, "The IOR of the glass walks"). Their α differentiates."""
-    if cfg.surface != "dielectric" or walk_name(cfg) not in WALKS_BY_SURFACE.get("dielectric", {}):
+    walk = WALKS_BY_SURFACE.get("dielectric", {}).get(walk_name(cfg)) if cfg.surface == "dielectric" else None
+    if walk is None or walk.eta_differentiable:
         return None
-    closed = ", ".join(m for m in DIFFERENTIABLE_MODELS["dielectric"]
-                       if walk_name_of(m) not in WALKS_BY_SURFACE["dielectric"])
-    return ("%s: model='%s' on surface 'dielectric' is not differentiable in 'eta': the glass walks' derivative "
-            "in the IOR is biased (docs/gradients.md); their 'alpha' is differentiable, and %s differentiate in "
-            "'eta' — or keep 'eta' out of the gradient (dr.disable_grad)" % (PLUGIN, cfg.model, closed))
+    able = ", ".join(m for m in DIFFERENTIABLE_MODELS["dielectric"]
+                     if getattr(WALKS_BY_SURFACE["dielectric"].get(walk_name_of(m)), "eta_differentiable", True))
+    return ("%s: model='%s' on surface 'dielectric' is not differentiable in 'eta': this walk's derivative "
+            "in the IOR would be biased (docs/gradients.md); its 'alpha' is differentiable, and %s differentiate "
+            "in 'eta' — or keep 'eta' out of the gradient (dr.disable_grad)" % (PLUGIN, cfg.model, able))
 
 
 # The smallest normal float32. A walk's estimate can be subnormal (a product of many small factors: 415 of
@@ -349,7 +351,11 @@ class DielectricModel:
         wo_c = mi.Vector3f(wo_c[0], wo_c[1], dr.select(r < 0.5, wo_c[2], -wo_c[2]))
         wo = dr.select(cosine, wo_c, wo_s)
         pdf = mis.dielectric_pdf(mf, eta, wi, wo)
-        value = self.walk.eval_pt(call.mf, call.eta, call.radiance, wi, wo, self.bounces(call, wi), eval_key(wo))
+        # The differentiated walk's own estimate (its draws differ from the plain walk's: the position-free
+        # walks draw normals and choices otherwise while differentiated), with the parameters detached.
+        with invariance.unrolled():
+            value = self.walk.eval_pt(mf, eta, call.radiance, wi, wo, self.bounces(call, wi), eval_key(wo),
+                                      mf_sample=mf)
         valid = (cosine | valid_s) & (wo[2] != 0.0) & (pdf > 0.0)
         return wo, pdf, self.tinted(call, wi, wo, dr.select(valid, value / pdf, 0.0)), valid
 

@@ -47,6 +47,9 @@ def attach(estimate, params, primal=None):
             y = estimate(*[t if k == i else v for k, v in enumerate(values)])
             dr.forward_from(t, flags=dr.ADFlag.Default | dr.ADFlag.AllowNoGrad)
             g = dr.grad(y)
+            # A lane whose walk degenerates (a direction exactly along the normal meets a horizontal facet,
+            # weight 0) can carry 0·∞ in its derivative: such a lane contributes nothing, and 0 is its value.
+            g = dr.select(dr.isfinite(g), g, 0.0)
         value = dr.detach(y)
         tangents.append((p - values[i]) * dr.detach(g))
     if value is None:

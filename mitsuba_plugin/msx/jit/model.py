@@ -56,12 +56,15 @@ class DielectricWalk:
     - ``sample_walk(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key)`` → (ω_o, weight, valid).
 
     Its MIS density is ``mis.dielectric_pdf`` (the single-scattering density mixed with a cosine lobe).
-    - ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md).
+    - ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md);
+    - ``eta_differentiable``: its derivative in ``eta`` is unbiased too (docs/gradients.md, "The IOR of the
+      glass walks"); otherwise a call with ``eta`` differentiated refuses.
     """
 
-    def __init__(self, eval_pt, sample_walk, differentiable=False):
+    def __init__(self, eval_pt, sample_walk, differentiable=False, eta_differentiable=False):
         self.eval_pt, self.sample_walk = eval_pt, sample_walk
         self.differentiable = differentiable
+        self.eta_differentiable = eta_differentiable
 
 
 class DiffuseWalk:
@@ -71,9 +74,12 @@ class DiffuseWalk:
     - ``sample_walk(mf, albedo, wi, sample1, u1, u2, max_bounces, key)`` → (ω_o, weight, valid).
 
     Its MIS density is a cosine lobe.
-    - ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md).
+    - ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md);
+    - ``eta_differentiable``: its derivative in ``eta`` is unbiased too (docs/gradients.md, "The IOR of the
+      glass walks"); otherwise a call with ``eta`` differentiated refuses.
     """
 
-    def __init__(self, eval_pt, sample_walk, differentiable=False):
+    def __init__(self, eval_pt, sample_walk, differentiable=False, eta_differentiable=False):
         self.eval_pt, self.sample_walk = eval_pt, sample_walk
         self.differentiable = differentiable
+        self.eta_differentiable = eta_differentiable

@@ -30,6 +30,7 @@ The walks are ``dr.while_loop``s whose state is the vertex index, w = −d_j in 
 frame sign, η_f, the throughput, the estimate, the lane's activity and its random stream (key, counter).
 """
 
+import math
 from functools import partial
 
 import drjit as dr
@@ -37,7 +38,7 @@ import mitsuba as mi
 
 from . import walk
 from .dielectric import eta_seen, radiance_scale, reflect_or_refract
-from .microfacet import Microfacet, dot
+from .microfacet import BECKMANN, Microfacet, dot, reflect
 from .model import DielectricWalk
 from .posfree import CORRELATED, RR_START, UNCORRELATED, roulette_importance
 from .rng import Stream
@@ -230,6 +231,150 @@ def scatter(mf, w, side, eta_f, u_choice, u1, u2):
     return d, refracted, f, side, eta_f, valid
 
 
+# Share of the refraction probability kept when a differentiated walk draws its choice (below).
+REFRACT_FLOOR = 0.5
+# Share of the critical-cone density in a differentiated walk's draw of m, and its width in w·m (below).
+CRITICAL_SHARE, CRITICAL_WIDTH = 0.2, 0.1
+# Least survival probability of a differentiated walk's roulette (docs/gradients.md): a survival ∝ the
+# throughput divides a derivative by the throughput, and near total internal reflection the throughput is
+# small where its derivative is not.
+RR_TRACED_FLOOR = 0.25
+
+
+def scatter_traced(mfa, mfs, w, side, eta_a, u_choice, u1, u2, u_mix):
+    """``scatter`` for a differentiated walk, in the space of microfacet normals, whose support does not move
+    with the parameters (docs/gradients.md, "The IOR of the glass walks"): m is drawn with the detached
+    parameters from a mixture of the visible normals of the detached w and, where the light can be totally
+    reflected (η_f < 1), a density ∝ 1/√(w·m − c_crit) near the critical cone w·m = c_crit = √(1 − η_f²)
+    (share CRITICAL_SHARE, within CRITICAL_WIDTH of it); the choice is drawn with a detached probability q_t
+    of refraction that keeps a floor (REFRACT_FLOOR) wherever refraction is possible; the new direction is
+    computed from m with the attached w and η (a reparameterization). Returns (d in the new frame, refracted,
+    side, valid, weight, m), the weight D_w(m)/p(m) × (1 − F)/q_t or F/(1 − q_t), p the mixture's detached
+    density. Near the critical cone 1 − F ~ cos θ_t and its derivative in η ~ 1/cos θ_t: the floor and the
+    mixture bound what the choice's and the normal's weights make of it."""
+    ws, es = dr.detach(w), dr.detach(eta_a)
+    c_crit = dr.safe_sqrt(1.0 - es * es)
+    width = dr.minimum(CRITICAL_WIDTH, 1.0 - c_crit)
+    share = dr.select((es < 1.0) & (width > 0.0), CRITICAL_SHARE, 0.0)
+    m_v, valid_v = mfs.sample_visible(ws, u1, u2)
+    c_g = c_crit + width * u1 * u1
+    s_g = dr.safe_sqrt(1.0 - c_g * c_g)
+    e1, e2 = mi.coordinate_system(ws)
+    phi = 2.0 * math.pi * u2
+    m_g = dr.normalize(c_g * ws + s_g * (dr.cos(phi) * e1 + dr.sin(phi) * e2))
+    critical = u_mix < share
+    m = dr.select(critical, m_g, m_v)
+    valid = dr.select(critical, m_g[2] > 0.0, valid_v)
+    cos_s = dot(ws, m)
+    valid &= cos_s > 0.0
+    # w·m − c_crit, for a critical-cone draw as drawn: recomputed from m it cancels in float32 (to 0 within
+    # ~1e-7 of the cone, where the density is largest).
+    x = dr.select(critical, width * u1 * u1, cos_s - c_crit)
+    g = dr.select((share > 0.0) & (x > 0.0) & (x < width), 1.0 / (4.0 * math.pi * dr.sqrt(width * x)), 0.0)
+    p_m = (1.0 - share) * mfs.d_visible(ws, m) + share * g
+    f_s = mi.fresnel(cos_s, es)[0]
+    q_t = dr.select(f_s < 1.0, REFRACT_FLOOR + (1.0 - REFRACT_FLOOR) * (1.0 - f_s), 0.0)
+    refracted = u_choice >= 1.0 - q_t
+    cos_wm = dot(w, m)
+    f, cos_t, _, eta_ti = mi.fresnel(cos_wm, eta_a)
+    d = dr.select(refracted, mi.refract(w, m, cos_t, eta_ti), reflect(w, m))
+    choice = dr.select(refracted, (1.0 - f) / dr.select(refracted, q_t, 1.0),
+                       f / dr.select(refracted, 1.0, 1.0 - q_t))
+    weight = choice * mfa.d_visible(w, m) / dr.select(p_m > 0.0, p_m, 1.0)
+    weight = dr.select(valid & (p_m > 0.0) & dr.isfinite(weight), weight, 0.0)
+    d = dr.select(refracted, -d, d)
+    side = dr.select(refracted, -side, side)
+    return d, refracted, side, valid, weight, m
+
+
+def eta_tangent_step(w, tw, m, eta_f, teta_f, refracted):
+    """The tangent of the next w (the state's −d in the new frame) at a fixed normal m, from the tangent tw
+    of w and teta_f of η_f (derivatives in the IOR η): a reflection gives w' = w − 2(w·m)m, a refraction
+    w' = refract(w, m, η_f) = m(c·s − T) − s·w with c = w·m, s = 1/η_f, T = √(1 − s²(1 − c²))."""
+    c = dot(w, m)
+    dc = dot(tw, m)
+    s = 1.0 / eta_f
+    ds = -s * s * teta_f
+    t = dr.safe_sqrt(1.0 - s * s * (1.0 - c * c))
+    dt = (s * s * c * dc - s * (1.0 - c * c) * ds) / dr.select(t > 0.0, t, 1.0)
+    t_refract = m * (dc * s + c * ds - dt) - ds * w - s * tw
+    t_reflect = tw - 2.0 * dc * m
+    return dr.select(refracted, t_refract, t_reflect)
+
+
+def d_horizontal(mf, m):
+    """D at a horizontal normal m, the limit from above: GGX's α_u³α_v³/(π(m_x²α_v² + m_y²α_u²)²) (α²/π
+    isotropic); Beckmann's is 0."""
+    if mf.dist == BECKMANN:
+        return mi.Float(0.0)
+    ax, ay = mf.alpha_u, mf.alpha_v
+    u = m[0] * m[0] * ay * ay + m[1] * m[1] * ax * ax
+    a = ax * ay
+    v = a * a * a / (math.pi * u * u)
+    return dr.select(dr.isfinite(v), v, 0.0)
+
+
+def edge_vertex(mf, eta_f, w, o, transmit):
+    """The next-event vertex value at a w where its half-vector is horizontal (w_z = −o_z for a reflection
+    towards o, −η_f·o_z for a transmission), as the limit from the side where it is not 0, and whether that
+    side is above (w_z larger). Reflection: h = (w + o)/|w + o|, valid above. Transmission: h = ±(w + η_f o)
+    horizontal, the sign that makes w·h > 0 > o·h; the code's h is −(w + η_f o) flipped upward, so that
+    sign is the one seen from the side where −(w + η_f o)_z has it: below for h = −(w + η_f o), else above."""
+    pre = dr.select(transmit, -(w + eta_f * o), w + o)
+    h = mi.Vector3f(pre[0], pre[1], 0.0)
+    length = dr.norm(h)
+    h = h / dr.select(length > 0.0, length, 1.0)
+    flip = transmit & (dot(w, h) < 0.0)
+    h = dr.select(flip, -h, h)
+    cw, co = dot(w, h), dot(o, h)
+    f = mi.fresnel(cw, eta_f)[0]
+    denom = cw + eta_f * co
+    v_t = cw * (-co) * eta_f * eta_f * (1.0 - f) * d_horizontal(mf, h) / (dr.abs(w[2]) * denom * denom)
+    v_r = f * d_horizontal(mf, h) / (4.0 * dr.abs(w[2]))
+    ok = (length > 0.0) & (cw > 0.0) & dr.select(transmit, (co < 0.0) & (f < 1.0), co > 0.0)
+    v = dr.select(transmit, v_t, v_r)
+    return dr.select(ok & dr.isfinite(v), dr.maximum(v, 0.0), 0.0), ~transmit | flip
+
+
+def eta_edge_term(segments, mf, w, tw, l, side, eta_f, teta_f, wo, lambda_o, refracted, u):
+    """The term of ∂/∂η a next-event value misses at the vertex after this one, for the branch ``refracted``
+    (a Python bool) of this vertex's event (docs/gradients.md, "The IOR of the glass walks"). In the space of
+    normals the walk's only moving discontinuity is the next vertex's value towards ω_o, which jumps to 0 on
+    the circle w'_z = z* where its half-vector turns horizontal (z* = −o_z for a reflection, −η_f·o_z for a
+    transmission): the term is ∫ over that circle of the next direction's density (this event's phase
+    function, its continue factor), the next value's limit and the relative speed ±(u_z − ∂z*/∂η), dφ —
+    estimated with one uniform azimuth (``u``). u_z is ∂w'_z/∂η at the fixed normal that maps w to w'."""
+    side_b = -side if refracted else side
+    eta_b = 1.0 / eta_f if refracted else eta_f
+    teta_b = -teta_f / (eta_f * eta_f) if refracted else teta_f
+    o = side_b * wo
+    transmit = o[2] < 0.0
+    z_star = dr.select(transmit, -eta_b * o[2], -o[2])
+    dz_star = dr.select(transmit, -o[2] * teta_b, 0.0)
+    ok = dr.abs(z_star) < 1.0
+    r = dr.safe_sqrt(1.0 - z_star * z_star)
+    phi = 2.0 * math.pi * u
+    w_next = mi.Vector3f(r * dr.cos(phi), r * dr.sin(phi), z_star)
+    refr = mi.Bool(refracted)
+    d = w_next if refracted else -w_next  # the event's direction in this vertex's frame
+    density = step_density(mf, eta_f, w, d, refr)
+    d_new = -w_next
+    up = d_new[2] > 0.0
+    lam = mf.abs_lambda(d_new)
+    c = dr.select(up, continue_up(segments, refr, l, lam), 1.0)
+    value, above = edge_vertex(mf, eta_b, w_next, o, transmit)
+    value = value * last(segments, transmit, lam, lambda_o)
+    if refracted:
+        m = -(w + eta_f * d)
+        m = dr.normalize(dr.select(m[2] < 0.0, -m, m))
+    else:
+        m = dr.normalize(w + d)
+    u_z = eta_tangent_step(w, tw, m, eta_f, teta_f, refr)[2]
+    speed = dr.select(above, u_z - dz_star, dz_star - u_z)
+    term = 2.0 * math.pi * density * c * value * speed
+    return dr.select(ok & dr.isfinite(term), term, 0.0)
+
+
 def valid_inputs(eta, wi):
     return dr.isfinite(eta) & (eta > 0.0) & (wi[2] != 0.0) & dr.all(dr.isfinite(wi))
 
@@ -241,7 +386,8 @@ def step_density(mf, eta_f, w, d, refracted):
     """The density of ``scatter``'s new direction d (in the current frame, before a refraction switches it)
     from w: m ~ D_w, then reflection with probability F (density F·D_w(h)/(4 w·h), h = m) or refraction
     (density (1 − F)·D_w(h)·η_f²|d·h|/(w·h + η_f d·h)², Walter's Jacobian), with Mitsuba's Fresnel term as
-    ``reflect_or_refract`` draws it. Used for the density ratios of the differentiated walk."""
+    ``reflect_or_refract`` draws it. Used by ``eta_edge_term`` for the density of the next direction on an
+    edge."""
     h_r = dr.normalize(w + d)
     h_t = -(w + eta_f * d)
     h_t = dr.normalize(dr.select(h_t[2] < 0.0, -h_t, h_t))
@@ -252,15 +398,10 @@ def step_density(mf, eta_f, w, d, refracted):
     p_t = (1.0 - f) * mf.d_visible(w, h) * eta_f * eta_f * dr.abs(cd) / (denom * denom)
     p_r = f * mf.d_visible(w, h) / (4.0 * cw)
     p = dr.select(refracted, p_t, p_r)
-    return dr.select((cw > 0.0) & dr.isfinite(p), p, 0.0)
-
-
-def step_ratio(mfa, mfs, eta_a, eta_s, w, d, refracted):
-    """``step_density`` under the attached statistics over the same under the detached ones it was drawn
-    from: value 1, derivative the score; 1 where the drawn step has no finite positive density."""
-    ps = step_density(mfs, eta_s, w, d, refracted)
-    ok = ps > 0.0
-    return dr.select(ok, step_density(mfa, eta_a, w, d, refracted) / dr.select(ok, ps, 1.0), 1.0)
+    # (d on the far side of h for a refraction, the near side for a reflection: a drawn step always is; an
+    # arbitrary d, as ``eta_edge_term`` asks about, need not be)
+    ok = (cw > 0.0) & dr.select(refracted, cd < 0.0, cd > 0.0)
+    return dr.select(ok & dr.isfinite(p), p, 0.0)
 
 
 def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None):
@@ -268,10 +409,14 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
     at every vertex (by reflection on ω_o's side, by transmission across), Russian roulette from vertex
     ``RR_START`` on; Radiance mode's 1/η_r² applied once (dielectric.rs ``eval_pt`` and ``pt_walk``).
 
-    ``mf_sample`` (docs/gradients.md): the statistics with their derivatives detached (the IOR too). Each
-    vertex then draws its normal and its reflect-or-refract choice from them, and the throughput carries
-    the ratio of the new direction's density under the attached parameters to its density under the
-    detached ones (``step_ratio``); the roulette is detached. The estimate's derivative is then unbiased."""
+    ``mf_sample`` (docs/gradients.md, "The IOR of the glass walks"): the statistics with their derivatives
+    detached (the IOR too). Each vertex then draws its normal and its reflect-or-refract choice with the
+    detached parameters (``scatter_traced``), computes the new direction from them with the attached ones,
+    and the throughput carries the ratio of the normal's and the choice's density under the attached
+    parameters to the detached draw's; the roulette is detached and keeps a floor (RR_TRACED_FLOOR); each
+    vertex adds, as a derivative only, the term of the next vertex's moving edge (``eta_edge_term``) for
+    both of its events, with the tangent of w in η carried in the state. The estimate's derivative in α and
+    in η is then unbiased."""
     eta = mi.Float(eta)
     wi, wo = mi.Vector3f(wi), mi.Vector3f(wo)
     start = valid_inputs(eta, wi) & (wo[2] != 0.0) & dr.all(dr.isfinite(wo))
@@ -283,7 +428,7 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
     def body(j, w, l, side, eta_f, thr, result, active, counter, *piped):
         mfa, mfs, lo, efa, efs = mf, mf, lambda_o, eta_f, eta_f
         if traced:  # the differentiated values come through the state (drjit rejects implicit wide reads)
-            au, av, lo, eta_a = piped
+            au, av, lo, eta_a, tw = piped
             mfa = Microfacet(mf.dist, au, av)
             mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
             efa = eta_seen(eta_a, side > 0.0)
@@ -294,18 +439,31 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
         lst = last(segments, transmit, l, lo)
         v = lst * dr.select(transmit, vertex_transmit(mfa, efa, w, o), vertex_reflect(mfa, efa, w, o))
         u_rr, u_choice = rng.next2()
-        kept, survived = walk.russian_roulette_keep(thr, u_rr, 1.0 / roulette_importance(v, lst, RR_NEE_GAIN))
+        kept, survived = walk.russian_roulette_keep(thr, u_rr, 1.0 / roulette_importance(v, lst, RR_NEE_GAIN),
+                                                    RR_TRACED_FLOOR if traced else 0.0)
         play = j >= RR_START
         thr = dr.select(play, kept, thr)
         active &= ~play | survived
         result = dr.select(active, result + thr * v, result)
         active &= j + 1 < max_bounces
         u1, u2 = rng.next2()
-        w_here = w
-        d, refracted, _, side, eta_f, valid = scatter(mfs, w, side, efs, u_choice, u1, u2)
-        active &= valid
         if traced:
-            thr = thr * step_ratio(mfa, mfs, efa, efs, w_here, dr.select(refracted, -d, d), refracted)
+            # ∂/∂η of the next vertex's value along its moving edge, for either event here (detached: it
+            # enters as (η − η̄)·term, a derivative only).
+            ws, teta = dr.detach(w), dr.select(side > 0.0, 1.0, -efs * efs)
+            u_e1, u_e2 = rng.next2()
+            u_mix = rng.next()
+            edge = sum(eta_edge_term(segments, mfs, ws, tw, dr.detach(l), side, efs, teta, wo, dr.detach(lo), b, u_e)
+                       for b, u_e in ((False, u_e1), (True, u_e2)))
+            result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
+            d, refracted, side, valid, weight, m = scatter_traced(mfa, mfs, w, side, efa, u_choice, u1, u2, u_mix)
+            tw = eta_tangent_step(ws, tw, m, efs, teta, refracted)
+            piped = (au, av, lo, eta_a, tw)
+            eta_f = dr.select(refracted, 1.0 / eta_f, eta_f)
+            thr = thr * weight
+        else:
+            d, refracted, _, side, eta_f, valid = scatter(mfs, w, side, efs, u_choice, u1, u2)
+        active &= valid
         up = d[2] > 0.0
         lam = mfa.abs_lambda(d)
         thr = dr.select(up, thr * continue_up(segments, refracted, l, lam), thr)
@@ -314,7 +472,7 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
 
     state = (mi.UInt32(0), w0, l0, side0, eta_f0, mi.Float(1.0), mi.Float(0.0), mi.Bool(start), mi.UInt32(0))
     if traced:
-        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o), mi.Float(eta))
+        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o), mi.Float(eta), mi.Vector3f(0.0))
     state = dr.while_loop(state, lambda *s: s[7], body, label="msx_posfree_dielectric_pt")
     return state[6] * radiance_scale(eta, radiance, wi[2] > 0.0, wo[2] > 0.0)
 
@@ -358,6 +516,7 @@ def sample_walk(segments, mf, eta, radiance, wi, sample1, u1, u2, max_bounces, k
 
 # The dielectric walks this module provides, by model name (jit/bsdf.py collects them).
 DIELECTRIC_WALKS = {
-    name: DielectricWalk(partial(eval_pt, name), partial(sample_walk, name), differentiable=True)
+    name: DielectricWalk(partial(eval_pt, name), partial(sample_walk, name), differentiable=True,
+                         eta_differentiable=True)
     for name in (UNCORRELATED, CORRELATED)
 }

@@ -8,12 +8,13 @@ import mitsuba as mi
 from .microfacet import max_channel
 
 
-def russian_roulette_keep(throughput, u, keep):
+def russian_roulette_keep(throughput, u, keep, floor=0.0):
     """Russian roulette that keeps a path surely while its largest channel is ≥ ``keep`` (a Float per
-    lane) and otherwise survives with probability max/keep, dividing the throughput by it (unbiased).
-    ``u`` is the lane's uniform number. Returns (throughput, survived). The survival probability is
-    detached: the decision is not differentiated, so neither is the division by it (docs/gradients.md)."""
-    q = dr.detach(dr.minimum(max_channel(throughput) / keep, 1.0))
+    lane) and otherwise survives with probability max/keep, at least ``floor``, dividing the throughput by
+    it (unbiased). ``u`` is the lane's uniform number. Returns (throughput, survived). The survival
+    probability is detached: the decision is not differentiated, so neither is the division by it
+    (docs/gradients.md)."""
+    q = dr.detach(dr.maximum(dr.minimum(max_channel(throughput) / keep, 1.0), floor))
     survived = (q > 0.0) & ((q >= 1.0) | (u < q))
     return dr.select(survived, throughput / q, 0.0), survived
 

@@ -254,3 +254,38 @@ def test_adaptive_sweep_measured_extrapolated_not_reachable(scene):
     assert "(measured)" in report._time_cell((1.0, 1.0), status["fine"][3.0])
     assert "extrapolated ×" in report._time_cell((4.0, status["noisy"][3.0]["factor"]), status["noisy"][3.0])
     assert "not reachable: bias floor 5.0" in report._time_cell((float("inf"), float("nan")), status["biased"][3.0])
+
+
+def test_reference_doubling_renders_only_what_it_lacks(scene, tmp_path):
+    """The reference's refinement (driver: its spp doubles) continues the smaller reference where the chunks
+    allow it (renders.continues): only the spp it lacks are rendered, and the result is bit-identical to
+    rendering it whole (same seeds per chunk, a half's sum recovered exactly from its mean)."""
+    from msx.evaluation import renders
+
+    _, ref, _ = scene
+    (tmp_path / "s.xml").write_text("<scene/>")
+    sc = renders.SweepScene("s", "test", "conductor", "roughconductor", [("invariance", "pt")], "direct")
+
+    class Fake(FakeRenderer):
+        variant = "fake"
+
+        def scene_path(self, name):
+            return tmp_path / f"{name}.xml"
+
+    row = ("invariance", "pt")
+    for small, big, continued in ((512, 1024, True), (1024, 4096, True), (64, 128, False)):
+        whole = Fake(ref, {"invariance": (0.0, 0.1)})
+        h1, h2, secs, _ = renders.reference(whole, sc, (40, 40), row, big, tmp_path / f"whole{big}")
+        part = Fake(ref, {"invariance": (0.0, 0.1)})
+        s = renders.reference(part, sc, (40, 40), row, small, tmp_path / f"small{small}")
+        calls_small = len(part.calls)
+        g1, g2, secs2, _ = renders.reference(part, sc, (40, 40), row, big, tmp_path / f"cont{big}",
+                                             smaller=(s[0], s[1], s[2], small))
+        assert renders.continues((s[0], s[1], s[2], small), big) is continued
+        assert np.array_equal(h1, g1) and np.array_equal(h2, g2)  # bit-identical either way
+        assert secs2 == pytest.approx(secs)  # the whole reference's render time either way
+        added = part.calls[calls_small:]
+        if continued:
+            assert sorted(added + part.calls[:calls_small]) == sorted(whole.calls)  # each chunk rendered once
+        else:
+            assert sorted(added) == sorted(whole.calls)

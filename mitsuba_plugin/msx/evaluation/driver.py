@@ -216,20 +216,25 @@ def _sweep_scene(renderer, scene, st, cache, out, prog, results, times_rows):
     ref_row = ("invariance", "pt")
     ref_spp = st.ref_factor * top
 
+    last = [None]  # the reference rendered last, (h1, h2, seconds, spp): a doubling renders only the spp it lacks
+
     def render_reference(spp):
         prog.update(0, spp, f"reference ({row_label(ref_row)}, {spp} spp)")
         h1, h2, seconds, cached = _references.reference(renderer, scene, size, ref_row, spp, cache,
-                                                        progress=lambda d, t: prog.update(d, t, "reference spp"))
+                                                        progress=lambda d, t: prog.update(d, t, "reference spp"),
+                                                        smaller=last[0])
+        last[0] = (h1, h2, seconds, spp)
         ref = 0.5 * (h1 + h2)
         return ref, renders.reference_noise(h1, h2, ref, mask), seconds, cached
 
     ref, noise, ref_seconds, cached = render_reference(ref_spp)
     cap = st.cap_spp(scene.name)
+    targets = common.targets_rms(scene.name)
 
     def more(row, by_spp):
         """The adaptive sweep's rule (uncertainty.wants_more) on this row's fit so far."""
         rs, _ = renders.statistics(scene, {row: by_spp}, ref, noise, mask)
-        return uncertainty.wants_more(_statuses(rs), max(by_spp), cap)
+        return uncertainty.wants_more(_statuses(rs, targets), max(by_spp), cap)
 
     data = renders.sweep(renderer, scene, st, progress=prog.update, more=more, cap_spp=cap)
     largest = max(max(by) for by in data.values())

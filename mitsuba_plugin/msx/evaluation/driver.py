@@ -186,12 +186,13 @@ def _machine():
 # ---------------------------------------------------------------- sweep scenes
 
 
-def _statuses(rs):
+def _statuses(rs, targets):
     """Each target's status (uncertainty.target_status) for one row's statistics rows (sorted by spp): its
-    fit rel_mse(n) = bias² + k/n, k = the median of variance × spp over its spps."""
+    fit rel_mse(n) = bias² + k/n, k = the median of variance × spp over its spps. targets: relative RMS
+    errors in % (the scene's, common.SWEEP_TARGETS)."""
     k = common.fit_variance_constant([r["spp"] for r in rs], [r["variance"] for r in rs])
     return [uncertainty.target_status(rms, rs[-1]["bias2"], rs[-1]["bias2_se"], k, rs[-1]["spp"])
-            for rms in common.TARGETS_RMS]
+            for rms in targets]
 
 
 def _time_ratio(rs, builtin_top, top):
@@ -278,8 +279,8 @@ def _sweep_scene(renderer, scene, st, cache, out, prog, results, times_rows):
                  unbiased=row in UNBIASED, terms=terms[row], seconds_range=(min(secs), max(secs)),
                  time_ratio=_time_ratio(rs, builtin_top, top),
                  slope=_slope([r["spp"] for r in rs], [r["variance"] for r in rs]), times={},
-                 status={s["target"]: s for s in _statuses(rs)}, spp_max=rs[-1]["spp"], cap=cap)
-        for rms in common.TARGETS_RMS:
+                 status={s["target"]: s for s in _statuses(rs, targets)}, spp_max=rs[-1]["spp"], cap=cap)
+        for rms in targets:
             s = t["status"][rms]
             t["times"][rms] = (common.time_to_reach((rms / 100.0) ** 2, b2, c), s["factor"])
             times_rows.append(dict(scene=scene.name, model=row[0], estimator=row[1], target_rms_pct=rms,
@@ -317,7 +318,8 @@ def _sweep_scene(renderer, scene, st, cache, out, prog, results, times_rows):
                                   title=f"Equal time ≈ {budget:.2f} s (heitz at {mid} spp), seed 0")
     evt_png = charts.error_vs_time(out / f"error_vs_time_{scene.name}.png", scene.title, stats)
     renders.write_exr(out / f"{scene.name}_reference.exr", ref)
-    return dict(scene=scene, stats=stats, table=table, cap=cap, fixed_spps=list(st.spps), ref=dict(row=ref_row, spp=ref_spp, noise=noise,
+    return dict(scene=scene, stats=stats, table=table, cap=cap, fixed_spps=list(st.spps), targets=targets,
+                targets_why=common.SWEEP_TARGETS[scene.name].why, ref=dict(row=ref_row, spp=ref_spp, noise=noise,
                 seconds=ref_seconds, cached=cached, smallest=smallest, efficiency_vs_heitz=eff_ratio),
                 mask_pixels=int(mask.sum()),
                 groups=groups, ranking=ranking,

@@ -86,7 +86,7 @@ def run(args):
     stages = [f"sweep {s.name}" for s in SWEEP_SCENES] + ["side-by-side scenes", "stability atlas", "lobes",
                                                           "energy curves"]
     stages += ([] if st.quick else ["microgeometry"]) + ["report"]
-    # Shares of a run's time per stage, for the run's ETA: the full run of docs/evaluation.md (adaptive sweep,
+    # Shares of a run's time per stage, for the run's ETA: the full run of 25 November in docs/evaluation.md (adaptive sweep,
     # default route) spent 102, 146, 310, 229, 234, 49 and 18 s in its first stages; the microgeometry took
     # 1377 s there with other work on the cores, about 600 s without (README), the share used here.
     weights = [0.06, 0.09, 0.18, 0.13, 0.14, 0.03, 0.01] + ([] if st.quick else [0.35]) + [0.002]

@@ -6,6 +6,7 @@ the same numbers."""
 
 import csv
 import math
+import re
 import subprocess
 import sys
 
@@ -155,3 +156,26 @@ def test_times_say_measured_or_extrapolated(two_runs):
     assert "measured" in seen  # --quick measures some (its 10 % targets on the copper sphere)
     html = (out / "index.html").read_text()
     assert "(measured)" in html and "not reachable: bias floor" in html
+
+
+def test_scene_targets_on_page_and_in_times(two_runs):
+    """Issue 18 item 3: each scene's targets are the ones of the table (common.SWEEP_TARGETS): times.csv has
+    every row at exactly those targets, and the page's scene section names them (its note and its columns)."""
+    from msx.evaluation.common import SWEEP_TARGETS
+
+    out = two_runs[0]
+    times = rows(out / "times.csv")
+    html = (out / "index.html").read_text()
+    for scene in SCENES:
+        targets = SWEEP_TARGETS[scene].targets_rms
+        by_row = {}
+        for t in times:
+            if t["scene"] == scene:
+                by_row.setdefault((t["model"], t["estimator"]), []).append(float(t["target_rms_pct"]))
+        assert by_row and all(v == list(targets) for v in by_row.values()), (scene, by_row)
+        section = html[html.index(f"<h3 id='{scene}'>"):]
+        section = section[:section.index("<h3", 4)] if "<h3" in section[4:] else section
+        assert "This scene's targets: <b>" + ", ".join(f"{x:g} %" for x in targets) + "</b>" in section
+        header = section[section.index("<h4>Every row</h4>"):section.index("</tr>", section.index("<h4>Every row</h4>"))]
+        assert [float(x) for x in re.findall(r"time to ([0-9.]+) % RMS", header)] == list(targets)
+    assert "--quick is a first look" in html

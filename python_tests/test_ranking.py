@@ -202,7 +202,6 @@ def test_adaptive_sweep_measured_extrapolated_not_reachable(scene):
 
     from msx.evaluation import driver as compare
     from msx.evaluation import renders
-    from msx.evaluation.common import TARGETS_RMS
 
     _, ref, mask = scene
     r2 = float(np.mean(ref[mask] ** 2))
@@ -214,10 +213,11 @@ def test_adaptive_sweep_measured_extrapolated_not_reachable(scene):
     sc = renders.SweepScene("synthetic", "test", "conductor", "roughconductor",
                             [(m, "pt" if m != "builtin" else "-") for m in rows], "direct")
     cap = 8 * 16
+    targets = (10.0, 3.0)  # the rule's, on a synthetic scene (the real scenes': common.SWEEP_TARGETS)
 
     def more(row, by_spp):
         rs, _ = renders.statistics(sc, {row: by_spp}, ref, 0.0, mask)
-        return U.wants_more(compare._statuses(rs), max(by_spp), cap)
+        return U.wants_more(compare._statuses(rs, targets), max(by_spp), cap)
 
     runs = []
     for _ in range(2):
@@ -229,7 +229,7 @@ def test_adaptive_sweep_measured_extrapolated_not_reachable(scene):
     status = {}
     for m in rows:
         rs = [r for r in stats if r["model"] == m]
-        status[m] = {s["target"]: s for s in compare._statuses(rs)}
+        status[m] = {s["target"]: s for s in compare._statuses(rs, targets)}
         assert [r["spp"] for r in rs] == sorted(data[(m, "pt" if m != "builtin" else "-")])
     # "fine": 3 % not reached at 8 spp (rel RMS ≈ 5.5 %), so the sweep went on to 32 spp and measured it.
     assert max(data[("fine", "pt")]) == 32
@@ -247,10 +247,78 @@ def test_adaptive_sweep_measured_extrapolated_not_reachable(scene):
     assert s["status"] == U.NOT_REACHABLE
     assert abs(s["floor_pct"] - 5.0) <= 3 * s["floor_se_pct"] + 0.05
     assert max(data[("biased", "pt")]) == 8  # nothing to gain from more spp: not extended
-    assert {t for t in TARGETS_RMS} == set(status["fine"])
+    assert set(targets) == set(status["fine"])
     # The page's cells say which is which.
     from msx.evaluation import report
 
     assert "(measured)" in report._time_cell((1.0, 1.0), status["fine"][3.0])
     assert "extrapolated ×" in report._time_cell((4.0, status["noisy"][3.0]["factor"]), status["noisy"][3.0])
     assert "not reachable: bias floor 5.0" in report._time_cell((float("inf"), float("nan")), status["biased"][3.0])
+
+
+def test_scene_targets_from_one_table():
+    """Issue 18 item 3: each sweep scene names the targets its cap can measure, in one table
+    (common.SWEEP_TARGETS): every sweep scene has its entry, the settings' caps come from it (full run and
+    --quick), the fit's statuses are those targets, and the page's note names them with the reason and says
+    per target whether the reference resolves it (noise ≤ 1/10 of the target's relative MSE)."""
+    import html
+
+    from msx.evaluation import common, driver, report
+
+    names = [s.name for s in driver.SWEEP_SCENES]
+    assert set(common.SWEEP_TARGETS) == set(names)
+    full, quick = common.settings(False, "scalar_rgb"), common.settings(True, "scalar_rgb")
+    for name in names:
+        entry = common.SWEEP_TARGETS[name]
+        targets = common.targets_rms(name)
+        assert targets == entry.targets_rms and list(targets) == sorted(targets, reverse=True)
+        assert full.cap_spp(name) == max(full.spps) * entry.extend
+        assert quick.cap_spp(name) == max(quick.spps) * entry.extend_quick
+        # One row, bias 0, k = 1 (variance × spp): the statuses are the scene's targets, in its order.
+        rs = [dict(spp=n, variance=1.0 / n, bias2=0.0, bias2_se=1e-6) for n in (1, 2, 4, 8)]
+        statuses = driver._statuses(rs, targets)
+        assert [s["target"] for s in statuses] == list(targets)
+        table = [dict(status={s["target"]: s for s in statuses})]
+        smallest = (min(targets) / 100) ** 2
+        for noise, word in ((0.05 * smallest, "resolved by the reference"), (0.2 * smallest, "not resolved")):
+            rep = dict(targets=targets, targets_why=entry.why, cap=full.cap_spp(name), table=table,
+                       ref=dict(noise=noise))
+            note = report._targets_note(rep)
+            assert "This scene's targets: <b>" + ", ".join(f"{x:g} %" for x in targets) + "</b>" in note
+            assert f"cap of {full.cap_spp(name)} spp" in note and html.escape(entry.why) in note
+            assert word in note
+
+
+def test_reference_doubling_renders_only_what_it_lacks(scene, tmp_path):
+    """The reference's refinement (driver: its spp doubles) continues the smaller reference where the chunks
+    allow it (renders.continues): only the spp it lacks are rendered, and the result is bit-identical to
+    rendering it whole (same seeds per chunk, a half's sum recovered exactly from its mean)."""
+    from msx.evaluation import renders
+
+    _, ref, _ = scene
+    (tmp_path / "s.xml").write_text("<scene/>")
+    sc = renders.SweepScene("s", "test", "conductor", "roughconductor", [("invariance", "pt")], "direct")
+
+    class Fake(FakeRenderer):
+        variant = "fake"
+
+        def scene_path(self, name):
+            return tmp_path / f"{name}.xml"
+
+    row = ("invariance", "pt")
+    for small, big, continued in ((512, 1024, True), (1024, 4096, True), (64, 128, False)):
+        whole = Fake(ref, {"invariance": (0.0, 0.1)})
+        h1, h2, secs, _ = renders.reference(whole, sc, (40, 40), row, big, tmp_path / f"whole{big}")
+        part = Fake(ref, {"invariance": (0.0, 0.1)})
+        s = renders.reference(part, sc, (40, 40), row, small, tmp_path / f"small{small}")
+        calls_small = len(part.calls)
+        g1, g2, secs2, _ = renders.reference(part, sc, (40, 40), row, big, tmp_path / f"cont{big}",
+                                             smaller=(s[0], s[1], s[2], small))
+        assert renders.continues((s[0], s[1], s[2], small), big) is continued
+        assert np.array_equal(h1, g1) and np.array_equal(h2, g2)  # bit-identical either way
+        assert secs2 == pytest.approx(secs)  # the whole reference's render time either way
+        added = part.calls[calls_small:]
+        if continued:
+            assert sorted(added + part.calls[:calls_small]) == sorted(whole.calls)  # each chunk rendered once
+        else:
+            assert sorted(added) == sorted(whole.calls)

@@ -35,8 +35,9 @@ def _route_digest(renderer) -> str:
     return _cache.digest_files(*code) + _cache.core_digest()
 
 
-def reference(renderer, scene, size, row, spp, folder, progress=None):
-    """As ``evaluation.renders.reference``: (h1, h2, seconds, from_cache), cached in `folder`."""
+def reference(renderer, scene, size, row, spp, folder, progress=None, smaller=None):
+    """As ``evaluation.renders.reference`` (``smaller``: a reference at fewer spp to continue from, where
+    ``renders.continues`` allows it): (h1, h2, seconds, from_cache), cached in `folder`."""
     from .evaluation import renders
 
     folder = Path(folder)
@@ -55,7 +56,7 @@ def reference(renderer, scene, size, row, spp, folder, progress=None):
     # into the cache atomically.
     work = Path(tempfile.mkdtemp(prefix=".reference-", dir=folder))
     try:
-        h1, h2, seconds, _ = renders.reference(renderer, scene, size, row, spp, work, progress)
+        h1, h2, seconds, _ = renders.reference(renderer, scene, size, row, spp, work, progress, smaller)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     _cache.write_file(path, lambda tmp: np.savez_compressed(tmp, h1=h1, h2=h2, seconds=seconds), key=key)

@@ -86,7 +86,7 @@ def run(args):
     stages = [f"sweep {s.name}" for s in SWEEP_SCENES] + ["side-by-side scenes", "stability atlas", "lobes",
                                                           "energy curves"]
     stages += ([] if st.quick else ["microgeometry"]) + ["report"]
-    # Shares of a run's time per stage, for the run's ETA: the full run of docs/evaluation.md (adaptive sweep,
+    # Shares of a run's time per stage, for the run's ETA: the full run of 25 November in docs/evaluation.md (adaptive sweep,
     # default route) spent 102, 146, 310, 229, 234, 49 and 18 s in its first stages; the microgeometry took
     # 1377 s there with other work on the cores, about 600 s without (README), the share used here.
     weights = [0.06, 0.09, 0.18, 0.13, 0.14, 0.03, 0.01] + ([] if st.quick else [0.35]) + [0.002]
@@ -186,12 +186,13 @@ def _machine():
 # ---------------------------------------------------------------- sweep scenes
 
 
-def _statuses(rs):
+def _statuses(rs, targets):
     """Each target's status (uncertainty.target_status) for one row's statistics rows (sorted by spp): its
-    fit rel_mse(n) = bias² + k/n, k = the median of variance × spp over its spps."""
+    fit rel_mse(n) = bias² + k/n, k = the median of variance × spp over its spps. targets: relative RMS
+    errors in % (the scene's, common.SWEEP_TARGETS)."""
     k = common.fit_variance_constant([r["spp"] for r in rs], [r["variance"] for r in rs])
     return [uncertainty.target_status(rms, rs[-1]["bias2"], rs[-1]["bias2_se"], k, rs[-1]["spp"])
-            for rms in common.TARGETS_RMS]
+            for rms in targets]
 
 
 def _time_ratio(rs, builtin_top, top):
@@ -216,20 +217,25 @@ def _sweep_scene(renderer, scene, st, cache, out, prog, results, times_rows):
     ref_row = ("invariance", "pt")
     ref_spp = st.ref_factor * top
 
+    last = [None]  # the reference rendered last, (h1, h2, seconds, spp): a doubling renders only the spp it lacks
+
     def render_reference(spp):
         prog.update(0, spp, f"reference ({row_label(ref_row)}, {spp} spp)")
         h1, h2, seconds, cached = _references.reference(renderer, scene, size, ref_row, spp, cache,
-                                                        progress=lambda d, t: prog.update(d, t, "reference spp"))
+                                                        progress=lambda d, t: prog.update(d, t, "reference spp"),
+                                                        smaller=last[0])
+        last[0] = (h1, h2, seconds, spp)
         ref = 0.5 * (h1 + h2)
         return ref, renders.reference_noise(h1, h2, ref, mask), seconds, cached
 
     ref, noise, ref_seconds, cached = render_reference(ref_spp)
     cap = st.cap_spp(scene.name)
+    targets = common.targets_rms(scene.name)
 
     def more(row, by_spp):
         """The adaptive sweep's rule (uncertainty.wants_more) on this row's fit so far."""
         rs, _ = renders.statistics(scene, {row: by_spp}, ref, noise, mask)
-        return uncertainty.wants_more(_statuses(rs), max(by_spp), cap)
+        return uncertainty.wants_more(_statuses(rs, targets), max(by_spp), cap)
 
     data = renders.sweep(renderer, scene, st, progress=prog.update, more=more, cap_spp=cap)
     largest = max(max(by) for by in data.values())
@@ -273,8 +279,8 @@ def _sweep_scene(renderer, scene, st, cache, out, prog, results, times_rows):
                  unbiased=row in UNBIASED, terms=terms[row], seconds_range=(min(secs), max(secs)),
                  time_ratio=_time_ratio(rs, builtin_top, top),
                  slope=_slope([r["spp"] for r in rs], [r["variance"] for r in rs]), times={},
-                 status={s["target"]: s for s in _statuses(rs)}, spp_max=rs[-1]["spp"], cap=cap)
-        for rms in common.TARGETS_RMS:
+                 status={s["target"]: s for s in _statuses(rs, targets)}, spp_max=rs[-1]["spp"], cap=cap)
+        for rms in targets:
             s = t["status"][rms]
             t["times"][rms] = (common.time_to_reach((rms / 100.0) ** 2, b2, c), s["factor"])
             times_rows.append(dict(scene=scene.name, model=row[0], estimator=row[1], target_rms_pct=rms,
@@ -312,7 +318,8 @@ def _sweep_scene(renderer, scene, st, cache, out, prog, results, times_rows):
                                   title=f"Equal time ≈ {budget:.2f} s (heitz at {mid} spp), seed 0")
     evt_png = charts.error_vs_time(out / f"error_vs_time_{scene.name}.png", scene.title, stats)
     renders.write_exr(out / f"{scene.name}_reference.exr", ref)
-    return dict(scene=scene, stats=stats, table=table, cap=cap, fixed_spps=list(st.spps), ref=dict(row=ref_row, spp=ref_spp, noise=noise,
+    return dict(scene=scene, stats=stats, table=table, cap=cap, fixed_spps=list(st.spps), targets=targets,
+                targets_why=common.SWEEP_TARGETS[scene.name].why, ref=dict(row=ref_row, spp=ref_spp, noise=noise,
                 seconds=ref_seconds, cached=cached, smallest=smallest, efficiency_vs_heitz=eff_ratio),
                 mask_pixels=int(mask.sum()),
                 groups=groups, ranking=ranking,

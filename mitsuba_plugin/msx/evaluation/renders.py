@@ -214,10 +214,28 @@ def reference_key(renderer: Renderer, name, params, spp, row):
     return hashlib.sha256(blob.encode()).hexdigest()[:24]
 
 
-def reference(renderer: Renderer, scene: SweepScene, size, row, spp, cache: Path, progress=None):
+def _reference_chunk(spp):
+    """spp per render of a reference of `spp` (each half in chunks; a chunk's seed is its offset in the half)."""
+    return max(1, min(spp // 2, 256))
+
+
+def continues(smaller, spp):
+    """True if a reference of spp can start from ``smaller`` = (h1, h2, seconds, its spp): same chunks, so
+    its halves' first chunks are the smaller one's renders (same seeds) and the result is bit-identical to
+    rendering it whole (a half's sum is its mean × its spp, exact in float64 for a power of two)."""
+    if smaller is None or not smaller[3] < spp:
+        return False
+    half = smaller[3] // 2
+    return (half > 0 and half & (half - 1) == 0 and smaller[3] % 2 == 0
+            and _reference_chunk(smaller[3]) == _reference_chunk(spp) and half % _reference_chunk(spp) == 0)
+
+
+def reference(renderer: Renderer, scene: SweepScene, size, row, spp, cache: Path, progress=None, smaller=None):
     """The converged render of the Smith multiple-scattering BSDF (`row`, an unbiased estimator):
     (image, per-pixel-mean noise as relative MSE, seconds, from_cache). Two independent halves give the
-    noise: var(mean) = MSE(h1, h2)/4 per pixel and channel."""
+    noise: var(mean) = MSE(h1, h2)/4 per pixel and channel. ``smaller`` = (h1, h2, seconds, spp) of a
+    reference of this scene and row at fewer spp: where ``continues`` allows it, only the spp it lacks are
+    rendered (seconds: the whole reference's render time)."""
     params = renderer.params(scene, row, size)
     key = reference_key(renderer, scene.name, params, spp, row)
     path = Path(cache) / f"reference-{scene.name}-{key}.npz"
@@ -225,9 +243,17 @@ def reference(renderer: Renderer, scene: SweepScene, size, row, spp, cache: Path
         d = np.load(path)
         return d["h1"], d["h2"], float(d["seconds"]), True
     halves, seconds = [], 0.0
-    chunk = max(1, min(spp // 2, 256))
+    chunk = _reference_chunk(spp)
+    start = continues(smaller, spp)
+    if start:
+        seconds = float(smaller[2])
     for half in range(2):
         acc, done = None, 0
+        if start:
+            done = smaller[3] // 2
+            acc = smaller[half] * done
+            if progress:
+                progress(half * (spp // 2) + done, spp)
         while done < spp // 2:
             n = min(chunk, spp // 2 - done)
             img, s = renderer.render(scene.name, params, n, seed=7_000_000 + half * 100_000 + done)

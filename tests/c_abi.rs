@@ -9,6 +9,15 @@
 //! does not hold its build lock while tests run). Building it every time,
 //! rather than only when `libmsx.a` is missing, guarantees that the C program
 //! never links a stale library from an earlier version of `src/`.
+//!
+//! A test executable under `<target dir>/debug` was built with the `test`
+//! profile, as was the library `cargo test` linked it with: the nested build
+//! asks for that profile (`--profile test`) and finds the library up to date.
+//! The `dev` profile, whose output shares that folder, would compile the
+//! library and its dependencies once more, unoptimised, and overwrite the
+//! test profile's `libmsx.rlib` (a library with a `staticlib` or `cdylib`
+//! crate type has no profile hash in its file names), so that the next
+//! `cargo test` rebuilt the library and relinked every test.
 
 // Lints relaxed for this test file: tuple types of test tables.
 #![allow(clippy::type_complexity)]
@@ -76,7 +85,9 @@ fn staticlib() -> PathBuf {
         .arg("--target-dir")
         .arg(target_dir());
     match profile.as_str() {
-        "debug" => {}
+        "debug" => {
+            cmd.args(["--profile", "test"]);
+        }
         "release" => {
             cmd.arg("--release");
         }

@@ -424,6 +424,7 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
     lambda_o = mf.lambda_(dr.select(wo[2] > 0.0, wo, -wo))
     w0, l0, side0, eta_f0 = initial_state(mf, eta, wi)
     traced = mf_sample is not None
+    eta_traced = traced and dr.grad_enabled(eta)  # the edge terms are derivatives in η only
 
     def body(j, w, l, side, eta_f, thr, result, active, counter, *piped):
         mfa, mfs, lo, efa, efs = mf, mf, lambda_o, eta_f, eta_f
@@ -451,11 +452,12 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
             # ∂/∂η of the next vertex's value along its moving edge, for either event here (detached: it
             # enters as (η − η̄)·term, a derivative only).
             ws, teta = dr.detach(w), dr.select(side > 0.0, 1.0, -efs * efs)
-            u_e1, u_e2 = rng.next2()
+            u_e1, u_e2 = rng.next2()  # drawn in every traced call: the same stream with η differentiated or not
             u_mix = rng.next()
-            edge = sum(eta_edge_term(segments, mfs, ws, tw, dr.detach(l), side, efs, teta, wo, dr.detach(lo), b, u_e)
-                       for b, u_e in ((False, u_e1), (True, u_e2)))
-            result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
+            if eta_traced:
+                edge = sum(eta_edge_term(segments, mfs, ws, tw, dr.detach(l), side, efs, teta, wo, dr.detach(lo),
+                                         b, u_e) for b, u_e in ((False, u_e1), (True, u_e2)))
+                result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
             d, refracted, side, valid, weight, m = scatter_traced(mfa, mfs, w, side, efa, u_choice, u1, u2, u_mix)
             tw = eta_tangent_step(ws, tw, m, efs, teta, refracted)
             piped = (au, av, lo, eta_a, tw)

@@ -12,10 +12,10 @@
 - The walks ``uncorrelated``, ``correlated``, ``heitz`` and ``invariance``: their derivative per call, through a symbolic
   call as in a render, forward and reverse, against central differences of the mean estimate (a z-test),
   and rendered as above (including BSDF-sampled paths: the walk samples its proposal while differentiated).
-- A walk not declared differentiable and the glass walks' IOR refuse to be differentiated (one line naming
-  the differentiable models) instead of returning a gradient that is wrong: plain AD through a walk gave the
-  opposite sign of the finite difference, and the glass walks' score in η misses a moving edge
-  (docs/gradients.md).
+- A walk not declared differentiable, and a glass walk not declared differentiable in its IOR, refuse to be
+  differentiated (one line naming the differentiable models) instead of returning a gradient that is wrong:
+  plain AD through a walk gave the opposite sign of the finite difference, and a glass walk's score in η
+  drawn in the space of directions misses a moving edge (docs/gradients.md).
 """
 
 import math
@@ -441,23 +441,35 @@ def test_subnormal_values_give_no_nan_gradient():
         p.update()
 
 
-# The glass walks whose derivative in η is not unbiased (docs/gradients.md, "The IOR of the glass walks"), and
-# those whose is (the position-free walks: drawn in the space of normals, with the next-event edge terms).
-ETA_REFUSING_GLASS_WALKS = ["heitz", "invariance"]
-ETA_GLASS_WALKS = ["correlated", "uncorrelated", "auto"]
+# The glass walks: every one differentiates in η (docs/gradients.md, "The IOR of the glass walks": drawn in the
+# space of normals, with the next-event edge terms).
+ETA_GLASS_WALKS = ["correlated", "uncorrelated", "heitz", "invariance", "auto"]
 
 
-def test_glass_walks_without_unbiased_eta_refuse_eta_gradients():
-    """A render differentiated in ``eta`` through a glass walk whose derivative in η would be biased refuses in
-    one line naming those that differentiate in η; one differentiated in ``alpha`` runs; per call (at trace
-    time, before anything compiles) those walks refuse, the others and the closed forms do not."""
+def test_a_glass_walk_without_unbiased_eta_refuses_eta_gradients(monkeypatch):
+    """A glass walk whose derivative in η would be biased (a new walk whose ``eta_differentiable`` is False —
+    here ``heitz``, made so for the test; a walk drawing its directions in the space of directions misses the
+    moving edge of the refraction density) refuses a render differentiated in ``eta`` in one line naming those
+    that differentiate in η; differentiated in ``alpha`` it runs; per call (at trace time, before anything
+    compiles) it refuses, and every glass walk of the engine and the closed forms do not."""
+    from msx.jit import heitz
+
+    si = jit_support.lanes_si((0.3, 0.0, 0.954), 16, 0)
+    wo = mi.Vector3f(-0.3, 0.1, -0.95)
+    for model in ETA_GLASS_WALKS + ["single", "compensated"]:
+        b = mi.load_dict({"type": "msx_posfree", "surface": "dielectric", "model": model, "alpha": 0.5})
+        q = mi.traverse(b)
+        dr.enable_grad(q["eta"])
+        q.update()
+        assert np.all(np.isfinite(np.array(b.eval(mi.BSDFContext(), si, wo)))), model
+    monkeypatch.setattr(heitz.DIELECTRIC_WALKS["heitz"], "eta_differentiable", False)
     sc = scene({"type": "msx_posfree", "surface": "dielectric", "model": "heitz", "alpha": 0.5})
     p = mi.traverse(sc)
     dr.enable_grad(p["ball.bsdf.eta"])
     p.update()
     text = refusal(sc, p)
     assert "model='heitz' on surface 'dielectric' is not differentiable in 'eta'" in text, text[-2000:]
-    assert "single, compensated, uncorrelated, correlated, auto differentiate in 'eta'" in text, text[-2000:]
+    assert "single, compensated, uncorrelated, correlated, invariance, auto differentiate in 'eta'" in text, text[-2000:]
     dr.disable_grad(p["ball.bsdf.eta"])
     dr.enable_grad(p["ball.bsdf.alpha.value"])
     p.update()
@@ -465,18 +477,17 @@ def test_glass_walks_without_unbiased_eta_refuse_eta_gradients():
     dr.backward(dr.mean(img, axis=None))
     g = dr.grad(p["ball.bsdf.alpha.value"])
     assert np.all(np.isfinite(np.array(g))) and float(dr.abs(g)[0]) > 0.0
-    si = jit_support.lanes_si((0.3, 0.0, 0.954), 16, 0)
-    wo = mi.Vector3f(-0.3, 0.1, -0.95)
-    for model in ETA_REFUSING_GLASS_WALKS + ETA_GLASS_WALKS + ["single", "compensated"]:
-        b = mi.load_dict({"type": "msx_posfree", "surface": "dielectric", "model": model, "alpha": 0.5})
-        q = mi.traverse(b)
-        dr.enable_grad(q["eta"])
-        q.update()
-        if model in ETA_REFUSING_GLASS_WALKS:
-            with pytest.raises(Exception, match="not differentiable in 'eta'"):
-                b.eval(mi.BSDFContext(), si, wo)
-        else:
-            assert np.all(np.isfinite(np.array(b.eval(mi.BSDFContext(), si, wo))))
+    b = mi.load_dict({"type": "msx_posfree", "surface": "dielectric", "model": "heitz", "alpha": 0.5})
+    q = mi.traverse(b)
+    dr.enable_grad(q["eta"])
+    q.update()
+    with pytest.raises(Exception, match="not differentiable in 'eta'"):
+        b.eval(mi.BSDFContext(), si, wo)
+    # A symbolic call traces every registered BSDF: none may be left refusing for the tests after this one.
+    dr.disable_grad(q["eta"])
+    q.update()
+    dr.disable_grad(p["ball.bsdf.alpha.value"])
+    p.update()
 
 
 # ------------------------------------------------------------------ the position-free walks, per call
@@ -488,20 +499,30 @@ WALKS = [("correlated", "conductor"), ("uncorrelated", "conductor"), ("heitz", "
          ("invariance", "conductor"), ("correlated", "diffuse"), ("uncorrelated", "diffuse"), ("heitz", "diffuse"),
          ("correlated", "dielectric"), ("uncorrelated", "dielectric"), ("heitz", "dielectric"), ("auto", "conductor"),
          ("auto", "dielectric"), ("invariance", "dielectric"), ("invariance below reflected", "dielectric"),
-         ("correlated below", "dielectric"), ("correlated below reflected", "dielectric"),
+         ("correlated below", "dielectric"), ("correlated below reflected", "dielectric"), ("heitz below", "dielectric"),
+         ("invariance below", "dielectric"),
          ("correlated bdpt", "conductor"), ("invariance bdpt", "conductor")]
 DIFFUSE_ALBEDO = {"type": "rgb", "value": [0.8, 0.6, 0.4]}
 
 
 def walk_keys(model, surface):
-    """(key, h, direction) of the parameters a walk's check differentiates: α, and the colour parameter (η,
-    the albedo) or the glass's IOR where the walk's derivative in it is unbiased
-    (test_glass_walks_without_unbiased_eta_refuse_eta_gradients)."""
+    """(key, h, direction) of the parameters a walk's check differentiates: every one ``mi.traverse`` lists.
+    α; a conductor's η and k (its Fresnel term, inside the walk), a diffuse surface's albedo, a glass's IOR.
+    The tints (``specular_reflectance``, ``specular_transmittance``) multiply the walk's estimate outside it
+    (jit/bsdf.py) whatever the walk: checked on ``correlated`` only, each where it acts (the reflection's on a
+    conductor and on glass with ω_o reflected, the transmission's with ω_o transmitted)."""
+    colour = (1.0, 0.5, -0.7)
     keys = [("alpha.value", 0.02, None)]
-    if surface != "dielectric":
-        keys.append(({"conductor": "eta.value", "diffuse": "reflectance.value"}[surface], 0.02, (1.0, 0.5, -0.7)))
-    elif model.split()[0] in ETA_GLASS_WALKS:
+    name, *options = model.split()
+    if surface == "conductor":
+        keys += [("eta.value", 0.02, colour), ("k.value", 0.02, colour)]
+    elif surface == "diffuse":
+        keys.append(("reflectance.value", 0.02, colour))
+    elif name in ETA_GLASS_WALKS:
         keys.append(("eta", 0.02, None))
+    if name == "correlated" and "bdpt" not in options and surface != "diffuse":
+        tint = "specular_transmittance" if surface == "dielectric" and "reflected" not in options else "specular_reflectance"
+        keys.append((tint + ".value", 0.02, colour))
     return keys
 
 

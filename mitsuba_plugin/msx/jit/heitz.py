@@ -32,11 +32,14 @@ Everything is float32 on arrays of lanes; ``expm1``/``log1p`` (not in drjit) are
 Kahan's correction so that the hit probability of a near-vertical ray keeps its relative precision.
 """
 
+import math
+
 import drjit as dr
 import mitsuba as mi
 
 from . import mis, walk
 from .dielectric import eta_seen, radiance_scale
+from .glass_traced import RR_TRACED_FLOOR, edge_vertex, eta_tangent_step, scatter_traced, step_density
 from .microfacet import INV_PI, ConductorFresnel, Microfacet, dot, reflect
 from .model import ConductorWalk, DielectricWalk, DiffuseWalk
 from .rng import Stream
@@ -425,8 +428,49 @@ def diffuse_sample(mf, albedo, wi, sample1, u1, u2, max_bounces, key):
 # ------------------------------------------------------------------ dielectric
 
 
+def dielectric_edge_term(mf, w, tw, t, outside, eta_f, teta_f, wo, lambda_o, refracted, u_phi, u_h):
+    """The term of ∂/∂η that the next vertex's next-event value misses on its moving edge, for the branch
+    ``refracted`` (a Python bool) of this vertex's event: as ``posfree_dielectric.eta_edge_term`` (docs/
+    gradients.md, "The IOR of the glass walks"), with the next vertex's height in place of the continue factor
+    — the next height step from this vertex's height (flipped by a refraction) along the new direction, drawn
+    conditioned on a hit with ``u_h`` (its hit probability in the weight), and ω_o's masking at that height —
+    and the value Heitz's phase function takes at a horizontal half-vector, F·D(h)/(4A(w)) for a reflection (A
+    the projected area) and η²(1 − F)(w·h)D(h)|o·h|/(A(w)(w·h + η o·h)²) for a transmission, i.e.
+    ``edge_vertex``'s value × |w_z|/A(w). One uniform azimuth (``u_phi``) estimates the integral over the
+    circle. Everything is detached: the term enters as (η − η̄)·term."""
+    outside_b = outside ^ refracted
+    eta_b = 1.0 / eta_f if refracted else eta_f
+    teta_b = -teta_f / (eta_f * eta_f) if refracted else teta_f
+    o = dr.select(outside_b, wo, -wo)
+    transmit = o[2] < 0.0
+    z_star = dr.select(transmit, -eta_b * o[2], -o[2])
+    dz_star = dr.select(transmit, -o[2] * teta_b, 0.0)
+    ok = dr.abs(z_star) < 1.0
+    r = dr.safe_sqrt(1.0 - z_star * z_star)
+    phi = 2.0 * math.pi * u_phi
+    w_next = mi.Vector3f(r * dr.cos(phi), r * dr.sin(phi), z_star)
+    refr = mi.Bool(refracted)
+    d = w_next if refracted else -w_next  # the event's direction in this vertex's frame
+    density = step_density(mf, eta_f, w, d, refr)
+    t_b = flip_height(t) if refracted else t
+    t_next, p_hit = sample_height_hit(mf, -w_next, t_b, u_h)
+    masking = masking_at(lambda_o, dr.select(transmit, flip_height(t_next), t_next))
+    value, above = edge_vertex(mf, eta_b, w_next, o, transmit)
+    area = mf.projected_area(w_next)
+    value = value * dr.abs(w_next[2]) / dr.select(area > 0.0, area, 1.0)
+    if refracted:
+        m = -(w + eta_f * d)
+        m = dr.normalize(dr.select(m[2] < 0.0, -m, m))
+    else:
+        m = dr.normalize(w + d)
+    u_z = eta_tangent_step(w, tw, m, eta_f, teta_f, refr)[2]
+    speed = dr.select(above, u_z - dz_star, dz_star - u_z)
+    term = 2.0 * math.pi * density * p_hit * masking * value * speed
+    return dr.select(ok & (area > 0.0) & dr.isfinite(term), term, 0.0)
+
+
 def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bounces, key, counter,
-                         mf_sample=None):
+                         mf_sample=None, tw=None):
     """Heitz's dielectric eval walk from a state on (Rust ``eval_from`` with ``Mat::Dielectric``): the ray
     travels along ``wr`` (frame of its side, ``outside``) from height ``t`` towards the vertex of order
     ``order``, carrying ``thr``; the lane's stream goes on at ``counter``. Returns the contributions of
@@ -438,10 +482,14 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
     flipped h) across, then the walk reflects or refracts about a visible normal (u < F) and plays
     Russian roulette.
 
-    ``mf_sample`` (docs/gradients.md): the statistics with their derivatives detached (η too). The heights,
-    normals and reflect-or-refract choices are then drawn from them, each height step weighted by its
-    density ratio (``height_step_ratio``) and each new direction by the ratio of its phase function — the
-    density of the direction the vertex draws — under the attached parameters to the detached one."""
+    ``mf_sample`` (docs/gradients.md, "The IOR of the glass walks"): the statistics with their derivatives
+    detached (η too). The heights are then drawn from them along the detached direction, each height step
+    weighted by its density ratio along the attached one (``height_step_ratio``); each vertex draws its normal
+    and its choice in the space of normals and computes the new direction with the attached parameters
+    (``glass_traced.scatter_traced``: the normal's and the choice's density ratio in the weight, the floors
+    near total internal reflection); the roulette is detached and keeps a floor; while η is differentiated
+    each vertex adds the next vertex's edge term for both of its events (``dielectric_edge_term``), with the
+    tangent of −``wr`` in η carried in the state (``tw``, 0 by default: the caller's direction fixed)."""
     last = max_bounces
     eta = mi.Float(eta)
     wo = mi.Vector3f(wo)
@@ -449,20 +497,22 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
     # Λ(ω_o) in the frame of ω_o's side (D and Λ are even under v ↦ −v).
     lambda_o = mf.lambda_(dr.select(wo_out, wo, -wo))
     traced = mf_sample is not None
+    eta_traced = traced and dr.grad_enabled(eta)  # the edge terms are derivatives in η only
 
     def body(order, wr, t, outside, thr, result, active, counter, *piped):
         mfa, mfs, lo, eta_a = mf, mf, lambda_o, eta
         if traced:  # the differentiated values come through the state
-            au, av, lo, eta_a = piped
+            au, av, lo, eta_a, tw = piped
             mfa = Microfacet(mf.dist, au, av)
             mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
         rng = Stream(key, counter)
         u_h, u_rr = rng.next2()
-        tn, p_hit = sample_height_hit(mfs, wr, t, u_h)
+        # Traced, the height is reparameterized: the step's uniform number is held and the attached Λ of the
+        # attached direction maps it to t' (and gives P_hit); the density ratio of a height held fixed would
+        # carry the score ∂Λ/Λ ~ ∂w_z/w_z, of infinite variance near the horizon.
+        tn, p_hit = sample_height_hit(mfa if traced else mfs, wr, t, u_h)
         active &= p_hit > 0.0
         thr = thr * p_hit
-        if traced:
-            thr = thr * height_step_ratio(mfa, mfs, wr, t, tn)
         t = tn
         wi_l = -wr
         wo_l = dr.select(outside, wo, -wo)
@@ -478,26 +528,32 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
         active &= order < last
         # Continue: reflect or refract about a visible normal, then the roulette.
         u1, u2 = rng.next2()
-        m, cos_wm, valid = visible_normal(mfs, wi_l, u1, u2)
-        ua, _ = rng.next2()
-        wr, crossed = dielectric_scatter(wi_l, m, cos_wm, e_s, ua)
+        ua, u_mix = rng.next2()
         if traced:
-            d = dr.select(crossed, -wr, wr)  # the new direction in the current frame
-            pa = dr.select(crossed, dielectric_phase_transmit(mfa, wi_l, d, e),
-                           dielectric_phase_reflect(mfa, wi_l, d, e))
-            ps = dr.select(crossed, dielectric_phase_transmit(mfs, wi_l, d, e_s),
-                           dielectric_phase_reflect(mfs, wi_l, d, e_s))
-            thr = thr * dr.select(ps > 0.0, pa / dr.select(ps > 0.0, ps, 1.0), 1.0)
+            ws, teta = dr.detach(wi_l), dr.select(outside, 1.0, -e_s * e_s)
+            u_e = rng.next2() + rng.next2()  # drawn in every traced call: the same stream with η or without
+            if eta_traced:
+                edge = sum(dielectric_edge_term(mfs, ws, tw, dr.detach(t), outside, e_s, teta, wo, dr.detach(lo), b, u_phi, u_hb)
+                           for b, u_phi, u_hb in ((False, u_e[0], u_e[1]), (True, u_e[2], u_e[3])))
+                result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
+            wr, crossed, _, valid, weight, m = scatter_traced(mfa, mfs, wi_l, mi.Float(1.0), e, ua, u1, u2, u_mix)
+            tw = eta_tangent_step(ws, tw, m, e_s, teta, crossed)
+            piped = (au, av, lo, eta_a, tw)
+            thr = thr * weight
+        else:
+            m, cos_wm, valid = visible_normal(mfs, wi_l, u1, u2)
+            wr, crossed = dielectric_scatter(wi_l, m, cos_wm, e_s, ua)
         outside = outside ^ crossed
         t = dr.select(crossed, flip_height(t), t)
-        thr, survived = walk.russian_roulette_keep(thr, u_rr, 1.0)
+        thr, survived = walk.russian_roulette_keep(thr, u_rr, 1.0, RR_TRACED_FLOOR if traced else 0.0)
         active &= valid & survived & dr.all(dr.isfinite(wr))
         return (order + 1, wr, t, outside, thr, result, active, rng.counter) + piped
 
     state = (mi.UInt32(order), mi.Vector3f(wr), mi.Float(t), mi.Bool(outside), mi.Float(thr), mi.Float(0.0),
              mi.Bool(active & (order <= last)), mi.UInt32(counter))
     if traced:
-        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o), mi.Float(eta))
+        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o), mi.Float(eta),
+                  mi.Vector3f(0.0) if tw is None else mi.Vector3f(tw))
     state = dr.while_loop(state, lambda *s: s[6], body, label="msx_heitz_dielectric_eval")
     return state[5]
 
@@ -577,5 +633,6 @@ CONDUCTOR_WALKS = {"heitz": ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, b
 
 # The walks on the other microsurfaces (jit/bsdf.py collects them; their MIS densities are
 # ``mis.dielectric_pdf`` and ``mis.diffuse_pdf``).
-DIELECTRIC_WALKS = {"heitz": DielectricWalk(dielectric_eval, dielectric_sample, differentiable=True)}
+DIELECTRIC_WALKS = {"heitz": DielectricWalk(dielectric_eval, dielectric_sample, differentiable=True,
+                                            eta_differentiable=True)}
 DIFFUSE_WALKS = {"heitz": DiffuseWalk(diffuse_eval, diffuse_sample, differentiable=True)}

@@ -71,6 +71,7 @@ with probability 1 − H_m/H_{m−1}; the weight is the product of the Fresnel t
 
 import contextlib
 import copy
+import math
 
 import drjit as dr
 import mitsuba as mi
@@ -79,6 +80,7 @@ from . import mis, walk
 from .microfacet import INV_PI, ConductorFresnel, Microfacet, dot, max_channel, reflect
 from . import heitz
 from .dielectric import eta_seen, radiance_scale
+from .glass_traced import RR_TRACED_FLOOR, edge_vertex, eta_tangent_step, scatter_traced, step_density
 from .model import ConductorWalk, DielectricWalk, DiffuseWalk
 from .posfree_dielectric import l_beta
 from .rng import Stream
@@ -878,6 +880,68 @@ def dielectric_valid(w, eta):
     return dr.all(dr.isfinite(w)) & (w[2] != 0.0) & dr.isfinite(eta) & (eta > 0.0)
 
 
+# First counter of the numbers a differentiated first run's edge terms draw (``first_run_edge_terms``): far
+# above any counter the walk's own stream reaches, so that the edge terms — computed only while η is
+# differentiated — leave the walk's own numbers (and so its value) as they are without them.
+EDGE_COUNTER_BASE = 1 << 24
+EDGE_COUNTERS_PER_VERTEX = 128
+
+
+def detached_chain(chain):
+    """A detached copy of a ``PieceChain`` (its pushes leave ``chain`` as it is)."""
+    rates, pi, a, has_up, scale, hit = chain.state()
+    return PieceChain([dr.detach(r) for r in rates], [dr.detach(x) for x in pi], a, has_up, dr.detach(scale),
+                      dr.detach(hit))
+
+
+def first_run_edge_terms(mf, chain, w, eta_f, teta_f, outside, wo, lambda_o, key, j, active):
+    """∂/∂η of the first run's next-event values along their moving edges (docs/gradients.md, "The IOR of
+    the glass walks"), for both events of the vertex at w, as ``posfree_dielectric.eta_edge_term``: in the
+    space of normals the one discontinuity that moves with η is the next vertex's value towards ω_o, which
+    jumps to 0 on the circle w'_z = z*. A reflection keeps the first run's directions fixed in η (its tangent
+    is 0), so only the circle moves, and only where ω_o is across (z* = −η_f o_z); its next vertex carries
+    the run's hit probability of the new direction (``push_up``) and ω_o's exit probability given the hits
+    (``transmit_exit``, one depth drawn) on a copy of the chain. A refraction's next vertex is the first of
+    Heitz's walk, from the depth drawn from the chain's law (``draw_depth``): ``heitz.dielectric_edge_term``
+    there. One uniform azimuth per event; its numbers come from counters of their own (EDGE_COUNTER_BASE).
+    Everything is detached: the sum enters as (η − η̄)·terms."""
+    base = mi.UInt32(EDGE_COUNTER_BASE) + j * EDGE_COUNTERS_PER_VERTEX
+    rng = Stream(key, base)
+    u_phi_r, u_phi_t = rng.next2()
+    u_h, _ = rng.next2()
+    chain = detached_chain(chain)
+    # The refraction: the next vertex is Heitz's, from the depth drawn from the chain's law (flipped there).
+    tau, _, counter, _ = draw_depth(chain, 0, key, rng.counter, active)
+    tw0 = mi.Vector3f(0.0)
+    refracted = heitz.dielectric_edge_term(mf, w, tw0, -tau, outside, eta_f, teta_f, wo, lambda_o, True,
+                                           u_phi_t, u_h)
+    # The reflection: only where ω_o is across does its circle move.
+    o = dr.select(outside, wo, -wo)
+    transmit = o[2] < 0.0
+    z_star = -eta_f * o[2]
+    dz_star = -o[2] * teta_f
+    ok = active & transmit & (dr.abs(z_star) < 1.0)
+    r = dr.safe_sqrt(1.0 - z_star * z_star)
+    phi = 2.0 * math.pi * u_phi_r
+    w_next = mi.Vector3f(r * dr.cos(phi), r * dr.sin(phi), z_star)
+    d = -w_next
+    density = step_density(mf, eta_f, w, d, mi.Bool(False))
+    up = d[2] > 0.0
+    lam = mf.lambda_(d)
+    copy_ = detached_chain(chain)
+    cont = copy_.push_up(lam, ok & up)
+    pushed = copy_.push_down(mf.abs_lambda(d), ok & ~up)
+    ok &= dr.select(up, cont > 0.0, pushed)
+    exit_t, _ = transmit_exit(copy_, lambda_o, key, counter, ok)
+    value, above = edge_vertex(mf, eta_f, w_next, o, transmit)
+    area = mf.projected_area(w_next)
+    value = value * dr.abs(w_next[2]) / dr.select(area > 0.0, area, 1.0)
+    speed = dr.select(above, -dz_star, dz_star)
+    reflected = 2.0 * math.pi * density * dr.select(up, cont, 1.0) * exit_t * value * speed
+    reflected = dr.select(ok & (area > 0.0) & dr.isfinite(reflected), reflected, 0.0)
+    return dr.select(active, refracted + reflected, 0.0)
+
+
 def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None):
     """One unbiased estimate of f(ω_i, ω_o)·|cos θ_o| of the rough dielectric with the heights of the
     first run integrated out (Rust ``dielectric::eval``), one channel. The first run (reflections in ω_i's
@@ -897,6 +961,7 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None)
     last = max_bounces
     slots = run_slots(last, DIELECTRIC_RUN_SLOTS)
     eta = mi.Float(eta)
+    eta_traced = traced and dr.grad_enabled(eta)  # the edge terms are derivatives in η only
     wi, wo = mi.Vector3f(wi), mi.Vector3f(wo)
     outside = wi[2] > 0.0
     same = (wo[2] > 0.0) == outside
@@ -912,7 +977,7 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None)
     def body(j, w, thr, result, active, counter, refracted, h_dir, h_t, chain_state, *piped):
         mfa, mfs, lo, ea, es = mf, mf, lambda_o, e, e
         if traced:  # the differentiated values come through the state
-            au, av, lo, eta_a = piped
+            au, av, lo, eta_a, h_tw = piped
             mfa = Microfacet(mf.dist, au, av)
             mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
             ea = eta_seen(eta_a, outside)
@@ -929,26 +994,36 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None)
         active &= order < last
         rng = Stream(key, counter)
         u_rr, u_f = rng.next2()
-        kept, survived = walk.russian_roulette(thr, u_rr)
+        kept, survived = walk.russian_roulette_keep(thr, u_rr, 1.0, RR_TRACED_FLOOR if traced else 0.0)
         play = j >= RR_START
         thr = dr.select(play, kept, thr)
         active &= ~play | survived
         # Scatter: visible normal, reflect with probability F.
         u1, u2 = rng.next2()
-        m, cos_wm, valid = heitz.visible_normal(mfs, w, u1, u2)
-        active &= valid
-        f = heitz.fresnel_dielectric(cos_wm, es)
-        o, ok_t = heitz.refract_unit(w, m, cos_wm, es)
-        refr = active & (u_f >= f) & ok_t
+        if traced:
+            # In the space of normals (glass_traced.scatter_traced): a reflection does not move with η, a
+            # refraction's direction does (its tangent goes to Heitz's walk with it).
+            u_mix, _ = rng.next2()
+            d_new, refr, _, valid, weight, m = scatter_traced(mfa, mfs, w, mi.Float(1.0), ea, u_f, u1, u2, u_mix)
+            active &= valid
+            refr &= active
+            teta = dr.select(outside, 1.0, -es * es)
+            if eta_traced:
+                edge = first_run_edge_terms(mfs, chain, w, es, teta, outside, wo, dr.detach(lo), key, j, active)
+                result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
+            o = -d_new
+            d = d_new
+            h_tw = dr.select(refr, eta_tangent_step(w, mi.Vector3f(0.0), m, es, teta, refr), h_tw)
+        else:
+            m, cos_wm, valid = heitz.visible_normal(mfs, w, u1, u2)
+            active &= valid
+            f = heitz.fresnel_dielectric(cos_wm, es)
+            o, ok_t = heitz.refract_unit(w, m, cos_wm, es)
+            refr = active & (u_f >= f) & ok_t
+            d = dr.normalize(reflect(w, m))
         tau, _, counter, depth_ratio = draw_depth(chain, 0, key, rng.counter, refr, traced)
-        d = dr.normalize(reflect(w, m))
-        if traced:  # the new direction's phase function (its density) over the detached one
-            pa = dr.select(refr, heitz.dielectric_phase_transmit(mfa, w, o, ea),
-                           heitz.dielectric_phase_reflect(mfa, w, d, ea))
-            ps = dr.select(refr, heitz.dielectric_phase_transmit(mfs, w, o, es),
-                           heitz.dielectric_phase_reflect(mfs, w, d, es))
-            step = dr.select(ps > 0.0, pa / dr.select(ps > 0.0, ps, 1.0), 1.0)
-            thr = dr.select(active, thr * step * dr.select(refr, depth_ratio, 1.0), thr)
+        if traced:
+            thr = dr.select(active, thr * weight * dr.select(refr, depth_ratio, 1.0), thr)
         refracted = refracted | refr
         h_dir = dr.select(refr, -o, h_dir)
         h_t = dr.select(refr, heitz.flip_height(-tau), h_t)
@@ -964,17 +1039,20 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None)
         l = mfa.abs_lambda(d)
         pushed = chain.push_down(l, active & ~up & dr.isfinite(l))
         active &= up | pushed
+        if traced:
+            piped = (au, av, lo, eta_a, h_tw)
         return (j + 1, -d, thr, result, active, counter, refracted, h_dir, h_t, chain.state()) + piped
 
     state = (mi.UInt32(0), mi.Vector3f(w0), mi.Float(1.0), mi.Float(0.0), mi.Bool(start), mi.UInt32(0),
              mi.Bool(False), mi.Vector3f(0.0, 0.0, 1.0), mi.Float(0.0), chain0.state())
     if traced:
-        state += (mi.Float(mf.alpha_u), mi.Float(mf.alpha_v), mi.Float(lambda_o), mi.Float(eta))
-    j, _, thr, result, _, counter, refracted, h_dir, h_t, _ = dr.while_loop(
-        state, lambda *s: s[4], body, label="msx_invariance_dielectric_eval")[:10]
-    # The rest of the refracted paths: Heitz's walk from the vertex after the refraction (order j + 1).
+        state += (mi.Float(mf.alpha_u), mi.Float(mf.alpha_v), mi.Float(lambda_o), mi.Float(eta), mi.Vector3f(0.0))
+    out = dr.while_loop(state, lambda *s: s[4], body, label="msx_invariance_dielectric_eval")
+    j, _, thr, result, _, counter, refracted, h_dir, h_t, _ = out[:10]
+    # The rest of the refracted paths: Heitz's walk from the vertex after the refraction (order j + 1), with
+    # the refracted direction's tangent in η.
     rest = heitz.dielectric_eval_from(mf, eta, wo, h_dir, h_t, ~outside, j + 1, thr, refracted, last, key,
-                                      counter, mf_sample=mf_sample)
+                                      counter, mf_sample=mf_sample, tw=out[14] if traced else None)
     v = (result + dr.select(refracted, rest, 0.0)) * radiance_scale(eta, radiance, outside, wo[2] > 0.0)
     return dr.select(dr.isfinite(v) & (v > 0.0), v, 0.0)
 
@@ -1057,7 +1135,8 @@ CONDUCTOR_WALKS = {"invariance": ConductorWalk(eval, sample, mis.HEIGHT_CORRELAT
                                               eval_bdpt=eval_bdpt, differentiable=True)}
 # The walks on the other microsurfaces (MIS densities: ``mis.diffuse_pdf``, ``mis.dielectric_pdf``).
 DIFFUSE_WALKS = {"invariance": DiffuseWalk(diffuse_eval, diffuse_sample)}
-DIELECTRIC_WALKS = {"invariance": DielectricWalk(dielectric_eval, dielectric_sample, differentiable=True)}
+DIELECTRIC_WALKS = {"invariance": DielectricWalk(dielectric_eval, dielectric_sample, differentiable=True,
+                                                 eta_differentiable=True)}
 
 # The Lambertian walk keeps its O(m²) table in ``dr.alloc_local``, which drjit 1.5's LLVM backend cannot
 # compile inside a symbolic call — and Mitsuba calls every BSDF through one (docs/engines.md): jit/bsdf.py

@@ -4,7 +4,7 @@
 
 use super::output::caught_panic;
 use super::params::*;
-use super::{write_error, MSX_ERR_INVALID_PARAMETER, MSX_ERR_NULL_POINTER, MSX_ERR_PANIC, MSX_OK};
+use super::{report_panic, write_error, MSX_ERR_INVALID_PARAMETER, MSX_ERR_NULL_POINTER, MSX_ERR_PANIC, MSX_OK};
 use glam::DVec3;
 use std::os::raw::c_char;
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -151,10 +151,7 @@ pub extern "C" fn msx_sim_new(params: *const MsxSimParams, out: *mut *mut MsxSim
             }
         }
     }));
-    result.unwrap_or_else(|_| {
-        write_error(err, err_len, "internal error (panic) in msx_sim_new");
-        MSX_ERR_PANIC
-    })
+    result.unwrap_or_else(|_| report_panic(err, err_len, "msx_sim_new"))
 }
 
 /// Frees a simulation (null is ignored).
@@ -163,10 +160,14 @@ pub extern "C" fn msx_sim_free(sim: *mut MsxSim) {
     if sim.is_null() {
         return;
     }
-    let _ = catch_unwind(AssertUnwindSafe(|| {
+    if catch_unwind(AssertUnwindSafe(|| {
         // SAFETY: the pointer came from Box::into_raw in msx_sim_new.
         drop(unsafe { Box::from_raw(sim) });
-    }));
+    }))
+    .is_err()
+    {
+        caught_panic();
+    }
 }
 
 /// Traces `rays_per_surface` more rays on every surface with `threads`
@@ -185,10 +186,7 @@ pub extern "C" fn msx_sim_run(sim: *mut MsxSim, rays_per_surface: u64, threads: 
         unsafe { (*sim).sim.run(rays_per_surface, threads) };
         MSX_OK
     }));
-    result.unwrap_or_else(|_| {
-        write_error(err, err_len, "internal error (panic) in msx_sim_run");
-        MSX_ERR_PANIC
-    })
+    result.unwrap_or_else(|_| report_panic(err, err_len, "msx_sim_run"))
 }
 
 /// Copies `src` to the caller's buffer `dst` of `len` elements if the lengths match.
@@ -238,7 +236,10 @@ pub extern "C" fn msx_sim_read(
         }
         rc
     }))
-    .unwrap_or(MSX_ERR_PANIC)
+    .unwrap_or_else(|_| {
+        caught_panic();
+        MSX_ERR_PANIC
+    })
 }
 
 /// Copies the heights of surface `index` (grid² values, row-major, x fastest;
@@ -267,5 +268,8 @@ pub extern "C" fn msx_sim_surface(sim: *const MsxSim, index: u32, heights: *mut 
         let h: Vec<f64> = (0..n).flat_map(|j| (0..n).map(move |i| (i, j))).map(|(i, j)| f.vertex(i, j)).collect();
         copy_out(&h, heights, len)
     }))
-    .unwrap_or(MSX_ERR_PANIC)
+    .unwrap_or_else(|_| {
+        caught_panic();
+        MSX_ERR_PANIC
+    })
 }

@@ -20,43 +20,60 @@ from .microfacet import BECKMANN, dot, reflect
 REFRACT_FLOOR = 0.5
 # Share of the critical-cone density in a differentiated walk's draw of m, and its width in w·m (below).
 CRITICAL_SHARE, CRITICAL_WIDTH = 0.2, 0.1
+# Share and width (in w·m) of the density ∝ 1/√(w·m) at the edge of the visible normals in a differentiated
+# walk's draw of m (below): the visible normals' density ∝ w·m vanishes there, and while w moves with η the
+# ratio D_w(m)/p(m) of a density that vanishes as fast has the score (∂w·m)/(w·m), of infinite variance.
+EDGE_SHARE, EDGE_WIDTH = 0.03, 0.1
 # Least survival probability of a differentiated walk's roulette (docs/gradients.md): a survival ∝ the
 # throughput divides a derivative by the throughput, and near total internal reflection the throughput is
 # small where its derivative is not.
 RR_TRACED_FLOOR = 0.25
 
 
+def cone_density(x, width):
+    """The density on the sphere of m = (c + x)·w + √(1 − (c + x)²)·(a direction ⟂ w) with x = width·u² and a
+    uniform azimuth: ∝ 1/√x on 0 < x < width, 1/(4π√(width·x)) per steradian (0 elsewhere)."""
+    return dr.select((x > 0.0) & (x < width), 1.0 / (4.0 * math.pi * dr.sqrt(width * x)), 0.0)
+
+
 def scatter_traced(mfa, mfs, w, side, eta_a, u_choice, u1, u2, u_mix):
     """``scatter`` for a differentiated walk, in the space of microfacet normals, whose support does not move
     with the parameters (docs/gradients.md, "The IOR of the glass walks"): m is drawn with the detached
-    parameters from a mixture of the visible normals of the detached w and, where the light can be totally
-    reflected (η_f < 1), a density ∝ 1/√(w·m − c_crit) near the critical cone w·m = c_crit = √(1 − η_f²)
-    (share CRITICAL_SHARE, within CRITICAL_WIDTH of it); the choice is drawn with a detached probability q_t
+    parameters from a mixture of the visible normals of the detached w, a density ∝ 1/√(w·m) at their edge
+    w·m → 0 (share EDGE_SHARE, within EDGE_WIDTH of it) and, where the light can be totally reflected (η_f < 1), a density
+    ∝ 1/√(w·m − c_crit) near the critical cone w·m = c_crit = √(1 − η_f²) (share CRITICAL_SHARE, within
+    CRITICAL_WIDTH of it); the choice is drawn with a detached probability q_t
     of refraction that keeps a floor (REFRACT_FLOOR) wherever refraction is possible; the new direction is
     computed from m with the attached w and η (a reparameterization). Returns (d in the new frame, refracted,
     side, valid, weight, m), the weight D_w(m)/p(m) × (1 − F)/q_t or F/(1 − q_t), p the mixture's detached
     density. Near the critical cone 1 − F ~ cos θ_t and its derivative in η ~ 1/cos θ_t: the floor and the
-    mixture bound what the choice's and the normal's weights make of it."""
+    mixture bound what the choice's and the normal's weights make of it; at the edge of the visible normals,
+    w·m → 0, the edge's share makes D_w(m)/p(m) vanish as √(w·m), so its derivative stays bounded."""
     ws, es = dr.detach(w), dr.detach(eta_a)
     c_crit = dr.safe_sqrt(1.0 - es * es)
     width = dr.minimum(CRITICAL_WIDTH, 1.0 - c_crit)
     share = dr.select((es < 1.0) & (width > 0.0), CRITICAL_SHARE, 0.0)
     m_v, valid_v = mfs.sample_visible(ws, u1, u2)
-    c_g = c_crit + width * u1 * u1
-    s_g = dr.safe_sqrt(1.0 - c_g * c_g)
     e1, e2 = mi.coordinate_system(ws)
     phi = 2.0 * math.pi * u2
-    m_g = dr.normalize(c_g * ws + s_g * (dr.cos(phi) * e1 + dr.sin(phi) * e2))
+    # The cones about w: w·m − c = width·u1², c = c_crit (critical) or 0 (the visible normals' edge).
     critical = u_mix < share
-    m = dr.select(critical, m_g, m_v)
-    valid = dr.select(critical, m_g[2] > 0.0, valid_v)
+    edge = ~critical & (u_mix < share + EDGE_SHARE)
+    x_drawn = dr.select(critical, width, EDGE_WIDTH) * u1 * u1
+    c_g = dr.select(critical, c_crit, 0.0) + x_drawn
+    s_g = dr.safe_sqrt(1.0 - c_g * c_g)
+    m_g = dr.normalize(c_g * ws + s_g * (dr.cos(phi) * e1 + dr.sin(phi) * e2))
+    cone = critical | edge
+    m = dr.select(cone, m_g, m_v)
+    valid = dr.select(cone, m_g[2] > 0.0, valid_v)
     cos_s = dot(ws, m)
     valid &= cos_s > 0.0
     # w·m − c_crit, for a critical-cone draw as drawn: recomputed from m it cancels in float32 (to 0 within
     # ~1e-7 of the cone, where the density is largest).
-    x = dr.select(critical, width * u1 * u1, cos_s - c_crit)
-    g = dr.select((share > 0.0) & (x > 0.0) & (x < width), 1.0 / (4.0 * math.pi * dr.sqrt(width * x)), 0.0)
-    p_m = (1.0 - share) * mfs.d_visible(ws, m) + share * g
+    x = dr.select(critical, x_drawn, cos_s - c_crit)
+    x_e = dr.select(edge, x_drawn, cos_s)
+    p_m = ((1.0 - share - EDGE_SHARE) * mfs.d_visible(ws, m) + share * cone_density(x, width)
+           + EDGE_SHARE * cone_density(x_e, EDGE_WIDTH))
     f_s = mi.fresnel(cos_s, es)[0]
     q_t = dr.select(f_s < 1.0, REFRACT_FLOOR + (1.0 - REFRACT_FLOOR) * (1.0 - f_s), 0.0)
     refracted = u_choice >= 1.0 - q_t

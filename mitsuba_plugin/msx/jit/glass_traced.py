@@ -157,3 +157,38 @@ def step_density(mf, eta_f, w, d, refracted):
     # arbitrary d, as an edge term asks about, need not be)
     ok = (cw > 0.0) & dr.select(refracted, cd < 0.0, cd > 0.0)
     return dr.select(ok & dr.isfinite(p), p, 0.0)
+
+
+def edge_point(mf, w, tw, o, eta_f, teta_f, refracted, u):
+    """One point of the circle where the next vertex's next-event value jumps (docs/gradients.md, "The IOR of
+    the glass walks"), for the event ``refracted`` (a Python bool) of the vertex at w: in the space of normals
+    that value towards ω_o (``o``, in the next vertex's frame) jumps to 0 where its half-vector turns
+    horizontal, on the circle w'_z = z* (z* = −o_z for a reflection, −η_b·o_z for a transmission, η_b the
+    next frame's relative IOR), which moves with η. At the azimuth 2πu: the next w' on the circle, whether
+    ω_o is across from it, this event's phase function there (``step_density``: the density of w'), the
+    position-free next-event value's limit on the side where it is not 0 (``edge_vertex``), and the relative
+    speed ±(u_z − ∂z*/∂η) of the next direction across the circle, u_z the speed of w'_z at the fixed normal
+    that maps w to w' (``eta_tangent_step``, from the tangent ``tw`` of w and ``teta_f`` of η_f). Returns
+    (w', transmit, density, value, speed, ok); a walk's edge term is 2π × their product × its own next-vertex
+    factors (one uniform azimuth estimates the integral over the circle, dz dφ being the solid angle)."""
+    eta_b = 1.0 / eta_f if refracted else eta_f
+    teta_b = -teta_f / (eta_f * eta_f) if refracted else teta_f
+    transmit = o[2] < 0.0
+    z_star = dr.select(transmit, -eta_b * o[2], -o[2])
+    dz_star = dr.select(transmit, -o[2] * teta_b, 0.0)
+    ok = dr.abs(z_star) < 1.0
+    r = dr.safe_sqrt(1.0 - z_star * z_star)
+    phi = 2.0 * math.pi * u
+    w_next = mi.Vector3f(r * dr.cos(phi), r * dr.sin(phi), z_star)
+    refr = mi.Bool(refracted)
+    d = w_next if refracted else -w_next  # the event's direction in this vertex's frame
+    density = step_density(mf, eta_f, w, d, refr)
+    value, above = edge_vertex(mf, eta_b, w_next, o, transmit)
+    if refracted:
+        m = -(w + eta_f * d)
+        m = dr.normalize(dr.select(m[2] < 0.0, -m, m))
+    else:
+        m = dr.normalize(w + d)
+    u_z = eta_tangent_step(w, tw, m, eta_f, teta_f, refr)[2]
+    speed = dr.select(above, u_z - dz_star, dz_star - u_z)
+    return w_next, transmit, density, value, speed, ok

@@ -39,7 +39,7 @@ import mitsuba as mi
 
 from . import mis, walk
 from .dielectric import eta_seen, radiance_scale
-from .glass_traced import RR_TRACED_FLOOR, edge_vertex, eta_tangent_step, scatter_traced, step_density
+from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
 from .microfacet import INV_PI, ConductorFresnel, Microfacet, dot, reflect
 from .model import ConductorWalk, DielectricWalk, DiffuseWalk
 from .rng import Stream
@@ -438,33 +438,13 @@ def dielectric_edge_term(mf, w, tw, t, outside, eta_f, teta_f, wo, lambda_o, ref
     the projected area) and η²(1 − F)(w·h)D(h)|o·h|/(A(w)(w·h + η o·h)²) for a transmission, i.e.
     ``edge_vertex``'s value × |w_z|/A(w). One uniform azimuth (``u_phi``) estimates the integral over the
     circle. Everything is detached: the term enters as (η − η̄)·term."""
-    outside_b = outside ^ refracted
-    eta_b = 1.0 / eta_f if refracted else eta_f
-    teta_b = -teta_f / (eta_f * eta_f) if refracted else teta_f
-    o = dr.select(outside_b, wo, -wo)
-    transmit = o[2] < 0.0
-    z_star = dr.select(transmit, -eta_b * o[2], -o[2])
-    dz_star = dr.select(transmit, -o[2] * teta_b, 0.0)
-    ok = dr.abs(z_star) < 1.0
-    r = dr.safe_sqrt(1.0 - z_star * z_star)
-    phi = 2.0 * math.pi * u_phi
-    w_next = mi.Vector3f(r * dr.cos(phi), r * dr.sin(phi), z_star)
-    refr = mi.Bool(refracted)
-    d = w_next if refracted else -w_next  # the event's direction in this vertex's frame
-    density = step_density(mf, eta_f, w, d, refr)
+    o = dr.select(outside ^ refracted, wo, -wo)
+    w_next, transmit, density, value, speed, ok = edge_point(mf, w, tw, o, eta_f, teta_f, refracted, u_phi)
     t_b = flip_height(t) if refracted else t
     t_next, p_hit = sample_height_hit(mf, -w_next, t_b, u_h)
     masking = masking_at(lambda_o, dr.select(transmit, flip_height(t_next), t_next))
-    value, above = edge_vertex(mf, eta_b, w_next, o, transmit)
     area = mf.projected_area(w_next)
     value = value * dr.abs(w_next[2]) / dr.select(area > 0.0, area, 1.0)
-    if refracted:
-        m = -(w + eta_f * d)
-        m = dr.normalize(dr.select(m[2] < 0.0, -m, m))
-    else:
-        m = dr.normalize(w + d)
-    u_z = eta_tangent_step(w, tw, m, eta_f, teta_f, refr)[2]
-    speed = dr.select(above, u_z - dz_star, dz_star - u_z)
     term = 2.0 * math.pi * density * p_hit * masking * value * speed
     return dr.select(ok & (area > 0.0) & dr.isfinite(term), term, 0.0)
 

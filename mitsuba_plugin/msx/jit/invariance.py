@@ -80,7 +80,7 @@ from . import mis, walk
 from .microfacet import INV_PI, ConductorFresnel, Microfacet, dot, max_channel, reflect
 from . import heitz
 from .dielectric import eta_seen, radiance_scale
-from .glass_traced import RR_TRACED_FLOOR, edge_vertex, eta_tangent_step, scatter_traced, step_density
+from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
 from .model import ConductorWalk, DielectricWalk, DiffuseWalk
 from .posfree_dielectric import l_beta
 from .rng import Stream
@@ -896,7 +896,7 @@ def detached_chain(chain):
 
 def first_run_edge_terms(mf, chain, w, eta_f, teta_f, outside, wo, lambda_o, key, j, active):
     """∂/∂η of the first run's next-event values along their moving edges (docs/gradients.md, "The IOR of
-    the glass walks"), for both events of the vertex at w, as ``posfree_dielectric.eta_edge_term``: in the
+    the glass walks"), for both events of the vertex at w, with ``glass_traced.edge_point``: in the
     space of normals the one discontinuity that moves with η is the next vertex's value towards ω_o, which
     jumps to 0 on the circle w'_z = z*. A reflection keeps the first run's directions fixed in η (its tangent
     is 0), so only the circle moves, and only where ω_o is across (z* = −η_f o_z); its next vertex carries
@@ -915,28 +915,19 @@ def first_run_edge_terms(mf, chain, w, eta_f, teta_f, outside, wo, lambda_o, key
     tw0 = mi.Vector3f(0.0)
     refracted = heitz.dielectric_edge_term(mf, w, tw0, -tau, outside, eta_f, teta_f, wo, lambda_o, True,
                                            u_phi_t, u_h)
-    # The reflection: only where ω_o is across does its circle move.
+    # The reflection: its direction has no tangent, so only where ω_o is across does its circle move.
     o = dr.select(outside, wo, -wo)
-    transmit = o[2] < 0.0
-    z_star = -eta_f * o[2]
-    dz_star = -o[2] * teta_f
-    ok = active & transmit & (dr.abs(z_star) < 1.0)
-    r = dr.safe_sqrt(1.0 - z_star * z_star)
-    phi = 2.0 * math.pi * u_phi_r
-    w_next = mi.Vector3f(r * dr.cos(phi), r * dr.sin(phi), z_star)
+    w_next, transmit, density, value, speed, ok = edge_point(mf, w, tw0, o, eta_f, teta_f, False, u_phi_r)
+    ok &= active & transmit
     d = -w_next
-    density = step_density(mf, eta_f, w, d, mi.Bool(False))
     up = d[2] > 0.0
-    lam = mf.lambda_(d)
     copy_ = detached_chain(chain)
-    cont = copy_.push_up(lam, ok & up)
+    cont = copy_.push_up(mf.lambda_(d), ok & up)
     pushed = copy_.push_down(mf.abs_lambda(d), ok & ~up)
     ok &= dr.select(up, cont > 0.0, pushed)
     exit_t, _ = transmit_exit(copy_, lambda_o, key, counter, ok)
-    value, above = edge_vertex(mf, eta_f, w_next, o, transmit)
     area = mf.projected_area(w_next)
     value = value * dr.abs(w_next[2]) / dr.select(area > 0.0, area, 1.0)
-    speed = dr.select(above, -dz_star, dz_star)
     reflected = 2.0 * math.pi * density * dr.select(up, cont, 1.0) * exit_t * value * speed
     reflected = dr.select(ok & (area > 0.0) & dr.isfinite(reflected), reflected, 0.0)
     return dr.select(active, refracted + reflected, 0.0)

@@ -38,7 +38,7 @@ import mitsuba as mi
 
 from . import walk
 from .dielectric import eta_seen, radiance_scale, reflect_or_refract
-from .glass_traced import RR_TRACED_FLOOR, edge_vertex, eta_tangent_step, scatter_traced, step_density
+from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
 from .microfacet import Microfacet, dot
 from .model import DielectricWalk
 from .posfree import CORRELATED, RR_START, UNCORRELATED, roulette_importance
@@ -241,33 +241,12 @@ def eta_edge_term(segments, mf, w, tw, l, side, eta_f, teta_f, wo, lambda_o, ref
     function, its continue factor), the next value's limit and the relative speed ±(u_z − ∂z*/∂η), dφ —
     estimated with one uniform azimuth (``u``). u_z is ∂w'_z/∂η at the fixed normal that maps w to w'."""
     side_b = -side if refracted else side
-    eta_b = 1.0 / eta_f if refracted else eta_f
-    teta_b = -teta_f / (eta_f * eta_f) if refracted else teta_f
-    o = side_b * wo
-    transmit = o[2] < 0.0
-    z_star = dr.select(transmit, -eta_b * o[2], -o[2])
-    dz_star = dr.select(transmit, -o[2] * teta_b, 0.0)
-    ok = dr.abs(z_star) < 1.0
-    r = dr.safe_sqrt(1.0 - z_star * z_star)
-    phi = 2.0 * math.pi * u
-    w_next = mi.Vector3f(r * dr.cos(phi), r * dr.sin(phi), z_star)
-    refr = mi.Bool(refracted)
-    d = w_next if refracted else -w_next  # the event's direction in this vertex's frame
-    density = step_density(mf, eta_f, w, d, refr)
+    w_next, transmit, density, value, speed, ok = edge_point(mf, w, tw, side_b * wo, eta_f, teta_f, refracted, u)
     d_new = -w_next
     up = d_new[2] > 0.0
     lam = mf.abs_lambda(d_new)
-    c = dr.select(up, continue_up(segments, refr, l, lam), 1.0)
-    value, above = edge_vertex(mf, eta_b, w_next, o, transmit)
-    value = value * last(segments, transmit, lam, lambda_o)
-    if refracted:
-        m = -(w + eta_f * d)
-        m = dr.normalize(dr.select(m[2] < 0.0, -m, m))
-    else:
-        m = dr.normalize(w + d)
-    u_z = eta_tangent_step(w, tw, m, eta_f, teta_f, refr)[2]
-    speed = dr.select(above, u_z - dz_star, dz_star - u_z)
-    term = 2.0 * math.pi * density * c * value * speed
+    c = dr.select(up, continue_up(segments, mi.Bool(refracted), l, lam), 1.0)
+    term = 2.0 * math.pi * density * c * value * last(segments, transmit, lam, lambda_o) * speed
     return dr.select(ok & dr.isfinite(term), term, 0.0)
 
 

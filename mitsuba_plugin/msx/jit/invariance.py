@@ -942,12 +942,13 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None)
     depth is drawn from its exact law, flipped, and Heitz's walk (``heitz.dielectric_eval_from``) carries
     the rest of the path. Radiance mode: × 1/η_r² when ω_o is across.
 
-    ``mf_sample`` (docs/gradients.md): the statistics with their derivatives detached (η too). The normals,
-    the reflect-or-refract choices and the depth at the refraction are then drawn from them; each new
-    direction carries the ratio of its phase function under the attached parameters to the detached one,
-    the depth its ``draw_depth`` ratio, the next event's sampled depth its own; the exit and hit
-    probabilities are attached, the roulette detached. The differentiated values travel in the loop's
-    state."""
+    ``mf_sample`` (docs/gradients.md, "The IOR of the glass walks"): the statistics with their derivatives
+    detached (η too). The normals and the reflect-or-refract choices are then drawn from them in the space of
+    normals (``glass_traced.scatter_traced``: their density ratios in the weight; a refracted direction moves
+    with η and hands its tangent to Heitz's walk), the depth at the refraction from the run's detached law
+    with its ``draw_depth`` ratio, the next event's sampled depth likewise; the exit and hit probabilities
+    are attached, the roulette detached with a floor; while η is differentiated each vertex adds its edge
+    terms (``first_run_edge_terms``). The differentiated values travel in the loop's state."""
     traced = mf_sample is not None
     last = max_bounces
     slots = run_slots(last, DIELECTRIC_RUN_SLOTS)

@@ -463,11 +463,11 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
     Russian roulette.
 
     ``mf_sample`` (docs/gradients.md, "The IOR of the glass walks"): the statistics with their derivatives
-    detached (η too). The heights are then drawn from them along the detached direction, each height step
-    weighted by its density ratio along the attached one (``height_step_ratio``); each vertex draws its normal
-    and its choice in the space of normals and computes the new direction with the attached parameters
-    (``glass_traced.scatter_traced``: the normal's and the choice's density ratio in the weight, the floors
-    near total internal reflection); the roulette is detached and keeps a floor; while η is differentiated
+    detached (η too). Each height step is then reparameterized (its uniform number held, the attached Λ of
+    the attached direction mapping it to the new height, its hit probability attached); each vertex draws
+    its normal and its choice in the space of normals and computes the new direction with the attached
+    parameters (``glass_traced.scatter_traced``: the normal's and the choice's density ratio in the weight,
+    the floors); the roulette is detached and keeps a floor; while η is differentiated
     each vertex adds the next vertex's edge term for both of its events (``dielectric_edge_term``), with the
     tangent of −``wr`` in η carried in the state (``tw``, 0 by default: the caller's direction fixed)."""
     last = max_bounces
@@ -513,7 +513,8 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
             ws, teta = dr.detach(wi_l), dr.select(outside, 1.0, -e_s * e_s)
             u_e = rng.next2() + rng.next2()  # drawn in every traced call: the same stream with η or without
             if eta_traced:
-                edge = sum(dielectric_edge_term(mfs, ws, tw, dr.detach(t), outside, e_s, teta, wo, dr.detach(lo), b, u_phi, u_hb)
+                t_s, lo_s = dr.detach(t), dr.detach(lo)
+                edge = sum(dielectric_edge_term(mfs, ws, tw, t_s, outside, e_s, teta, wo, lo_s, b, u_phi, u_hb)
                            for b, u_phi, u_hb in ((False, u_e[0], u_e[1]), (True, u_e[2], u_e[3])))
                 result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
             wr, crossed, _, valid, weight, m = scatter_traced(mfa, mfs, wi_l, mi.Float(1.0), e, ua, u1, u2, u_mix)

@@ -40,10 +40,10 @@ def scatter_traced(mfa, mfs, w, side, eta_a, u_choice, u1, u2, u_mix):
     """``scatter`` for a differentiated walk, in the space of microfacet normals, whose support does not move
     with the parameters (docs/gradients.md, "The IOR of the glass walks"): m is drawn with the detached
     parameters from a mixture of the visible normals of the detached w, a density ∝ 1/√(w·m) at their edge
-    w·m → 0 (share EDGE_SHARE, within EDGE_WIDTH of it) and, where the light can be totally reflected (η_f < 1), a density
-    ∝ 1/√(w·m − c_crit) near the critical cone w·m = c_crit = √(1 − η_f²) (share CRITICAL_SHARE, within
-    CRITICAL_WIDTH of it); the choice is drawn with a detached probability q_t
-    of refraction that keeps a floor (REFRACT_FLOOR) wherever refraction is possible; the new direction is
+    w·m → 0 (share EDGE_SHARE, within EDGE_WIDTH of it) and, where the light can be totally reflected
+    (η_f < 1), a density ∝ 1/√(w·m − c_crit) near the critical cone w·m = c_crit = √(1 − η_f²) (share
+    CRITICAL_SHARE, within CRITICAL_WIDTH of it); the choice is drawn with a detached probability q_t of
+    refraction that keeps a floor (REFRACT_FLOOR) wherever refraction is possible; the new direction is
     computed from m with the attached w and η (a reparameterization). Returns (d in the new frame, refracted,
     side, valid, weight, m), the weight D_w(m)/p(m) × (1 − F)/q_t or F/(1 − q_t), p the mixture's detached
     density. Near the critical cone 1 − F ~ cos θ_t and its derivative in η ~ 1/cos θ_t: the floor and the

@@ -500,7 +500,7 @@ WALKS = [("correlated", "conductor"), ("uncorrelated", "conductor"), ("heitz", "
          ("correlated", "dielectric"), ("uncorrelated", "dielectric"), ("heitz", "dielectric"), ("auto", "conductor"),
          ("auto", "dielectric"), ("invariance", "dielectric"), ("invariance below reflected", "dielectric"),
          ("correlated below", "dielectric"), ("correlated below reflected", "dielectric"), ("heitz below", "dielectric"),
-         ("invariance below", "dielectric"),
+         ("invariance below", "dielectric"), ("correlated aniso", "conductor"), ("heitz below aniso", "dielectric"),
          ("correlated bdpt", "conductor"), ("invariance bdpt", "conductor")]
 DIFFUSE_ALBEDO = {"type": "rgb", "value": [0.8, 0.6, 0.4]}
 
@@ -512,15 +512,16 @@ def walk_keys(model, surface):
     (jit/bsdf.py) whatever the walk: checked on ``correlated`` only, each where it acts (the reflection's on a
     conductor and on glass with ω_o reflected, the transmission's with ω_o transmitted)."""
     colour = (1.0, 0.5, -0.7)
-    keys = [("alpha.value", 0.02, None)]
     name, *options = model.split()
+    keys = [("alpha_u.value", 0.02, None), ("alpha_v.value", 0.02, None)] if "aniso" in options else \
+        [("alpha.value", 0.02, None)]
     if surface == "conductor":
         keys += [("eta.value", 0.02, colour), ("k.value", 0.02, colour)]
     elif surface == "diffuse":
         keys.append(("reflectance.value", 0.02, colour))
     elif name in ETA_GLASS_WALKS:
         keys.append(("eta", 0.02, None))
-    if name == "correlated" and "bdpt" not in options and surface != "diffuse":
+    if name == "correlated" and not {"bdpt", "aniso"} & set(options) and surface != "diffuse":
         tint = "specular_transmittance" if surface == "dielectric" and "reflected" not in options else "specular_reflectance"
         keys.append((tint + ".value", 0.02, colour))
     return keys
@@ -539,11 +540,13 @@ def test_walks_differentiate_without_bias(model, surface):
     draws other paths)."""
     material = {"conductor": {"material": "Cu"}, "diffuse": {"surface": "diffuse", "reflectance": DIFFUSE_ALBEDO},
                 "dielectric": {"surface": "dielectric", "int_ior": 1.5}}[surface]
-    # "model [bdpt] [below] [reflected]": the estimator; ω_i below the surface (inside the glass); the
-    # dielectric's ω_o on ω_i's side (by default it is transmitted: the reflected side is the conductor's case).
+    # "model [bdpt] [below] [reflected] [aniso]": the estimator; ω_i below the surface (inside the glass); the
+    # dielectric's ω_o on ω_i's side (by default it is transmitted: the reflected side is the conductor's case);
+    # α_u ≠ α_v.
     keys = walk_keys(model, surface)
     model, *options = model.split()
-    b = mi.load_dict({"type": "msx_posfree", **material, "model": model, "distribution": "ggx", "alpha": 0.5,
+    roughness = {"alpha_u": 0.4, "alpha_v": 0.7} if "aniso" in options else {"alpha": 0.5}
+    b = mi.load_dict({"type": "msx_posfree", **material, "model": model, "distribution": "ggx", **roughness,
                       "estimator": "bdpt" if "bdpt" in options else "pt"})
     p = mi.traverse(b)
     n = WALK_LANES

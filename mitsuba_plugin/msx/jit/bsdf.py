@@ -475,7 +475,9 @@ def make_bsdf_factory(variant):
                     # derivative taken outside the render (Mitsuba's render isolates its own); the call then
                     # computes it, differentiably.
                     traced = dr.grad_enabled(eta) or dr.grad_enabled(k)
-                    if self._cfg.model == "compensated" and not self._mirror and not traced:
+                    # Nor in spectral variants: there η and k depend on the wavelengths each lane samples
+                    # (a zero interaction evaluates them at λ = 0), so the average is a per-lane value.
+                    if self._cfg.model == "compensated" and not self._mirror and not traced and not mi.is_spectral:
                         clip = (lambda v: dr.clip(v, 0.0, MATERIAL_VALUE_MAX))
                         self._fresnel_average = analytic.fresnel_average(ConductorFresnel(clip(eta), clip(k)))
                         dr.eval(self._fresnel_average)

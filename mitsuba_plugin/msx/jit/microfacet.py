@@ -160,7 +160,9 @@ def fresnel_conductor(cos_i, eta, k):
     t3 = a2b2 * c2 + s2 * s2
     t4 = t2 * s2
     f = (t1 - t2) * t3 / ((t1 + t2) * (t3 + t4))
-    return dr.select(dr.isfinite(f), dr.clip(f, 0.0, 1.0), 1.0)
+    # type(f)(…): in spectral variants a select on the mask of a mi.Spectrum returns drjit's plain Array4f, which
+    # a walk's loop state (a mi.Spectrum) refuses; the cast keeps the spectrum's type (no arithmetic).
+    return type(f)(dr.select(dr.isfinite(f), dr.clip(f, 0.0, 1.0), 1.0))
 
 
 class ConductorFresnel:

@@ -1,0 +1,173 @@
+"""Every model × surface × estimator the Dr.Jit engine runs renders in every variant the README names, and
+its image means equal the other engine's within their noise (issue 32, item 0).
+
+The cases come from the engine's own table (``ENGINE_MODELS``, ``bdpt_models``), so a model added there is
+tested here without editing this file. All cases of a variant are spheres of one scene (a grid under a
+constant environment), so each variant costs one kernel compile and one render:
+
+| engine under test | its twin | conductor |
+|---|---|---|
+| ``llvm_ad_rgb`` (Dr.Jit) | ``scalar_rgb`` (native, on the Rust core) | ``material="Cu"`` |
+| ``llvm_ad_spectral`` (Dr.Jit) | ``scalar_spectral`` (native) | ``material="Cu"``: IORs at the sampled wavelengths |
+| ``llvm_ad_mono`` (Dr.Jit) | ``scalar_rgb`` (native), mean of its channels | grey ``eta``, ``k`` (equal in every channel) |
+
+Every engine draws its own random streams, so the per-pixel difference of two renders has mean 0. Per
+sphere, over the pixels that see only that sphere, ``z`` = mean difference / its standard error (the larger
+of the pixels' and of 2×2 block means', as python_tests/test_jit_scenes.py argues), with a Šidák-corrected
+family-wise false-alarm rate of 1e-3 over every sphere of this file.
+"""
+
+import json
+import math
+import os
+import statistics
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from llvm_support import llvm_unusable_reason  # noqa: E402  (sets DRJIT_LIBLLVM_PATH before drjit starts)
+
+np = pytest.importorskip("numpy")
+pytest.importorskip("mitsuba")
+
+_REASON = llvm_unusable_reason()
+if _REASON:
+    pytest.skip(_REASON, allow_module_level=True)
+
+SEED_OFFSET = int(os.environ.get("MSX_TEST_SEED_OFFSET", "0"))
+COLS, CELL, SPP, ALPHA = 6, 16, 64, 0.7
+GREY = {"eta": 0.2, "k": 3.0}
+
+
+def engine_cases():
+    """(surface, model, estimator) for everything the engine runs in a scene, from its table."""
+    import mitsuba as mi
+
+    mi.set_variant("llvm_ad_rgb")
+    from msx.jit import bsdf as jit_bsdf
+
+    cases = []
+    for surface, models in jit_bsdf.ENGINE_MODELS.items():
+        walks = jit_bsdf.WALKS_BY_SURFACE.get(surface, {})
+        for model in models:
+            if getattr(walks.get(model), "needs_local_arrays", False):
+                continue  # refused in a scene (dr.alloc_local in a symbolic call; jit/bsdf.py says why)
+            cases.append((surface, model, "pt"))
+        cases += [(surface, model, "bdpt") for model in jit_bsdf.bdpt_models(surface)]
+    return cases
+
+
+_RENDER = textwrap.dedent("""
+    import json, sys
+    import numpy as np
+    import mitsuba as mi
+    variant, spec_path, out = sys.argv[1:]
+    spec = json.load(open(spec_path))
+    mi.set_variant(variant)
+    import msx
+    msx.register()
+    cols, cell = spec["cols"], spec["cell"]
+    rows = (len(spec["bsdfs"]) + cols - 1) // cols
+    scene = {"type": "scene", "integrator": {"type": "path", "max_depth": 12},
+             "sensor": {"type": "orthographic",
+                        "to_world": mi.ScalarTransform4f().look_at([0, 0, 10], [0, 0, 0], [0, 1, 0])
+                        @ mi.ScalarTransform4f().scale([cols / 2, cols / 2, 1]),
+                        "film": {"type": "hdrfilm", "width": cols * cell, "height": rows * cell,
+                                 "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+                        "sampler": {"type": "independent"}},
+             "light": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}}}
+    for i, b in enumerate(spec["bsdfs"]):
+        x, y = i % cols - (cols - 1) / 2, (rows - 1) / 2 - i // cols
+        scene["s%d" % i] = {"type": "sphere", "center": [x, y, 0], "radius": 0.42,
+                            "bsdf": b if b is not None else {"type": "diffuse", "reflectance": 0.0}}
+    s = mi.load_dict(scene)
+    img = np.array(mi.render(s, spp=spec["spp"], seed=spec["seed"]), dtype=np.float64)
+    np.save(out, img)
+    print(json.dumps({"backend": msx.backend(), "variant": variant}))
+""")
+
+
+def bsdf_of(surface, model, estimator, conductor):
+    b = {"type": "msx_posfree", "surface": surface, "model": model, "estimator": estimator,
+         "distribution": "ggx", "alpha": ALPHA}
+    if surface == "conductor":
+        b.update(conductor)
+    return b
+
+
+def render(tmp_path, variant, bsdfs, seed, tag):
+    spec = {"cols": COLS, "cell": CELL, "spp": SPP, "seed": seed, "bsdfs": bsdfs}
+    spec_path = tmp_path / ("%s.json" % tag)
+    spec_path.write_text(json.dumps(spec))
+    out = tmp_path / ("%s.npy" % tag)
+    r = subprocess.run([sys.executable, "-c", _RENDER, variant, str(spec_path), str(out)],
+                       capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, "%s: %s" % (variant, r.stderr[-3000:])
+    last = r.stdout.strip().splitlines()[-1]  # after Mitsuba's log lines (which may end in a colour code)
+    return np.load(out), json.loads(last[last.index("{"):])["backend"]
+
+
+@pytest.fixture(scope="module")
+def cases():
+    return engine_cases()
+
+
+@pytest.fixture(scope="module")
+def masks(tmp_path_factory, cases):
+    """Per sphere, the pixels that see only that sphere: black under the white sky with black spheres."""
+    img, _ = render(tmp_path_factory.mktemp("mask"), "scalar_rgb", [None] * len(cases), 0, "mask")
+    black = img.max(axis=-1) == 0.0
+    rows = (len(cases) + COLS - 1) // COLS
+    out = []
+    for i in range(len(cases)):
+        r, c = divmod(i, COLS)
+        m = np.zeros_like(black)
+        m[r * CELL:(r + 1) * CELL, c * CELL:(c + 1) * CELL] = True
+        out.append(m & black)
+    assert img.shape[:2] == (rows * CELL, COLS * CELL)
+    return out
+
+
+GROUPS = [
+    # (engine under test, its twin, the conductor's parameters)
+    ("llvm_ad_rgb", "scalar_rgb", {"material": "Cu"}),
+    ("llvm_ad_spectral", "scalar_spectral", {"material": "Cu"}),
+    ("llvm_ad_mono", "scalar_rgb", GREY),
+]
+
+
+def z_max(n_tests, family_rate=1e-3):
+    return statistics.NormalDist().inv_cdf(1 - (1 - (1 - family_rate) ** (1 / n_tests)) / 2)
+
+
+@pytest.mark.parametrize("variant,twin,conductor", GROUPS, ids=[g[0] for g in GROUPS])
+def test_every_engine_model_renders_in_variant_and_matches_native(tmp_path, cases, masks, variant, twin,
+                                                                   conductor):
+    bsdfs = [bsdf_of(s, m, e, conductor) for s, m, e in cases]
+    jit, b1 = render(tmp_path, variant, bsdfs, 1 + SEED_OFFSET, "jit")
+    native, b2 = render(tmp_path, twin, bsdfs, 2 + SEED_OFFSET, "native")
+    assert (b1, b2) == ("jit", "native")
+    jit = jit.reshape(jit.shape[0], jit.shape[1], -1).mean(axis=-1)  # mono: one channel; else the channel mean
+    native = native.mean(axis=-1)
+    assert np.all(np.isfinite(jit)), "%s rendered a non-finite pixel" % variant
+    bound = z_max(len(cases) * len(GROUPS))
+    failures = []
+    for (surface, model, estimator), m in zip(cases, masks):
+        d = (jit - native)[m]
+        assert d.size >= 64, (surface, model, d.size)
+        # 2×2 blocks inside the sphere's cell (pixels outside the mask count as absent)
+        ys, xs = np.nonzero(m)
+        keys = (ys // 2) * 10_000 + xs // 2
+        _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
+        blocks = np.bincount(inverse, weights=d) / counts
+        se = max(d.std(ddof=1) / math.sqrt(d.size), blocks.std(ddof=1) / math.sqrt(blocks.size))
+        z = d.mean() / se
+        line = "%s %-10s %-12s %-4s: %s %.5f, %s %.5f, z %+.2f" % (
+            variant, surface, model, estimator, variant, jit[m].mean(), twin, native[m].mean(), z)
+        print(line)
+        assert jit[m].mean() > 0.01, line  # something was rendered
+        if abs(z) > bound:
+            failures.append(line)
+    assert not failures, "beyond |z| %.2f:\n%s" % (bound, "\n".join(failures))

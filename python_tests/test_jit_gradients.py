@@ -85,6 +85,25 @@ def directions(n, seed, lower):
     return wi.astype(np.float32), wo.astype(np.float32)
 
 
+def lobe_probability(wi, wo, eta):
+    """The probability with which a dielectric's sampler chose the lobe of (ω_i, ω_o) (numpy, per lane): F for a
+    reflection, 1 − F for a refraction, at the generalised half vector, with Mitsuba's ``fresnel``."""
+    reflect = wi[2] * wo[2] > 0.0
+    eta_r = np.where(wi[2] > 0.0, eta, 1.0 / eta)
+    m = wi + wo * np.where(reflect, 1.0, eta_r)
+    m = m / np.linalg.norm(m, axis=0)
+    m = m * np.sign(m[2])
+    cos_i = (wi * m).sum(axis=0)
+    eta_it = np.where(cos_i >= 0.0, eta, 1.0 / eta)
+    cos_i = np.abs(cos_i)
+    cos_t2 = 1.0 - (1.0 - cos_i * cos_i) / (eta_it * eta_it)
+    cos_t = np.sqrt(np.maximum(cos_t2, 0.0))
+    r_s = (cos_i - eta_it * cos_t) / (cos_i + eta_it * cos_t)
+    r_p = (eta_it * cos_i - cos_t) / (eta_it * cos_i + cos_t)
+    f = np.where(cos_t2 <= 0.0, 1.0, 0.5 * (r_s * r_s + r_p * r_p))
+    return np.where(reflect, f, 1.0 - f)
+
+
 def interaction(wi):
     n = wi.shape[1]
     si = dr.zeros(mi.SurfaceInteraction3f, n)
@@ -183,10 +202,26 @@ def test_closed_form_models_differentiate_like_finite_differences(label, params)
         valid = np.stack([np.any(o[2] != 0.0, axis=0) for o in (plus, minus, plus2, minus2)])
         smooth = (np.abs(moved2 - 2.0 * moved1) <= 0.25 * moved2 + 1e-5) & (valid.any(axis=0) == valid.all(axis=0))
         assert smooth.mean() > 0.9, f"{label} {key}: the sampled directions jump on {1 - smooth.mean():.2%} of lanes"
+        score = 0.0
+        if dielectric:
+            # A dielectric's sampler picks its lobe with a detached probability P (F or 1 − F) and, as
+            # roughdielectric does, its weight P/P keeps P's derivative: dw = d(value) + w·d ln P, where finite
+            # differences at fixed random numbers see only the first term. d ln P from the sampled directions.
+            eta0 = float(x0[0]) if key == "eta" else params["int_ior"] / params.get("ext_ior", 1.000277)
+
+            def log_p(o, t):
+                return np.log(np.maximum(lobe_probability(wi, o[3], eta0 + (t * float(v[0]) if key == "eta" else 0.0)),
+                                         1e-30))
+
+            s1 = (log_p(plus, h) - log_p(minus, -h)) / (2.0 * h)
+            s2 = (log_p(plus2, 2 * h) - log_p(minus2, -2 * h)) / (4.0 * h)
+            score = (4.0 * s1 - s2) / 3.0
         for name, f0, f_plus, f_minus, f_plus2, f_minus2, d in zip(names, base, plus, minus, plus2, minus2, fwd):
             # Richardson's extrapolation of central differences at h and 2h: the h² error term cancels.
             d1, d2 = (f_plus - f_minus) / (2.0 * h), (f_plus2 - f_minus2) / (4.0 * h)
             fd = (4.0 * d1 - d2) / 3.0
+            if name == "sample weight":
+                fd = fd + f0 * score
             rounding = ULPS * EPS32 * (np.abs(f_plus) + np.abs(f_minus) + np.abs(f_plus2) + np.abs(f_minus2)) / h
             # Where f curves fast (a lobe near the horizon), the h⁴ term is not small: bounded by the h² term
             # that the extrapolation removed, |d1 − d2|. Where f has a kink at x (a min or max in a formula)

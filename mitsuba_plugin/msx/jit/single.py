@@ -9,9 +9,23 @@ import mitsuba as mi
 from .microfacet import BECKMANN, dot, reflect
 
 
-def distribution(mf):
+def visible(mf):
+    """Whether normals are drawn from the visible normals (the default) or from D·cos θ_m — the built-ins'
+    ``sample_visible=false``, set on the call's microfacet statistics as ``sample_all_normals``)."""
+    return not getattr(mf, "sample_all_normals", False)
+
+
+def distribution(mf, scale=None):
+    """Mitsuba's distribution for ``mf``; ``scale``: roughdielectric's widening of α for sampling all normals
+    (Walter et al.'s 1.2 − 0.2·√|cos θ_i|)."""
     kind = mi.MicrofacetType.Beckmann if mf.dist == BECKMANN else mi.MicrofacetType.GGX
-    return mi.MicrofacetDistribution(kind, mf.alpha_u, mf.alpha_v, True)
+    au, av = (mf.alpha_u, mf.alpha_v) if scale is None else (mf.alpha_u * scale, mf.alpha_v * scale)
+    return mi.MicrofacetDistribution(kind, au, av, visible(mf))
+
+
+def _all_normals_weight(distr, wi, wo, m):
+    """The sample weight's G term when normals are drawn from D·cos θ_m: G(ω_i, ω_o)·(ω_i·m)/(cos θ_i cos θ_m)."""
+    return distr.G(wi, wo, m) * dr.dot(wi, m) / (wi[2] * m[2])
 
 
 def eval_pdf(mf, fresnel, wi, wo):
@@ -23,18 +37,22 @@ def eval_pdf(mf, fresnel, wi, wo):
     ok = (wi[2] > 0.0) & (wo[2] > 0.0) & (d > 0.0)
     value = fresnel.eval(dot(wi, h)) * (d * g1_i * distr.smith_g1(wo, h) / (4.0 * wi[2]))
     pdf_ok = ok & (dot(wi, h) > 0.0) & (dot(wo, h) > 0.0)
-    pdf = d * g1_i / (4.0 * wi[2])
+    pdf = d * g1_i / (4.0 * wi[2]) if visible(mf) else distr.pdf(wi, h) / (4.0 * dot(wo, h))
     return dr.select(ok, value, 0.0), dr.select(pdf_ok, pdf, 0.0)
 
 
 def sample(mf, fresnel, wi, u1, u2):
     """(ω_o, pdf, weight = f·cos θ_o/pdf, valid): conductor.rs ``sample``."""
     distr = distribution(mf)
-    m, _ = distr.sample(wi, mi.Point2f(u1, u2))
+    m, pdf_m = distr.sample(wi, mi.Point2f(u1, u2))
     wo = reflect(wi, m)
-    pdf = distr.eval(m) * distr.smith_g1(wi, m) * dr.abs(dot(wi, m)) / wi[2] / (4.0 * dot(wo, m))
+    if visible(mf):
+        pdf = distr.eval(m) * distr.smith_g1(wi, m) * dr.abs(dot(wi, m)) / wi[2] / (4.0 * dot(wo, m))
+        g = distr.smith_g1(wo, m)
+    else:
+        pdf, g = pdf_m / (4.0 * dot(wo, m)), _all_normals_weight(distr, wi, wo, m)
     valid = (wi[2] > 0.0) & (pdf > 0.0) & dr.isfinite(pdf) & (wo[2] > 0.0)
-    weight = fresnel.eval(dot(wi, m)) * distr.smith_g1(wo, m)
+    weight = fresnel.eval(dot(wi, m)) * g
     return wo, pdf, weight, valid
 
 
@@ -79,7 +97,10 @@ def dielectric_pdf(mf, eta, wi, wo):
     denom = wim + eta_r * wom
     dwh_dwo = dr.select(reflect_pair, 1.0 / (4.0 * wom), eta_r * eta_r * wom / (denom * denom))
     wi_up = dr.mulsign(wi, wi[2])
-    prob = distr.eval(m) * distr.smith_g1(wi_up, m) * dr.abs(dr.dot(wi_up, m)) / dr.abs(wi[2])
+    if visible(mf):
+        prob = distr.eval(m) * distr.smith_g1(wi_up, m) * dr.abs(dr.dot(wi_up, m)) / dr.abs(wi[2])
+    else:
+        prob = distribution(mf, 1.2 - 0.2 * dr.sqrt(dr.abs(wi[2]))).pdf(wi_up, m)
     f = mi.fresnel(wim, eta)[0]
     p = prob * dr.select(reflect_pair, f, 1.0 - f) * dr.abs(dwh_dwo)
     ok = valid & (wi[2] != 0.0) & (wim * wi[2] > 0.0) & (wom * wo[2] > 0.0) & dr.isfinite(p)
@@ -91,20 +112,30 @@ def dielectric_sample(mf, eta, wi, sample1, u1, u2, radiance):
     distr = distribution(mf)
     cos_i = wi[2]
     wi_up = dr.mulsign(wi, cos_i)
-    m, _ = distr.sample(wi_up, mi.Point2f(u1, u2))
-    pdf = distr.eval(m) * distr.smith_g1(wi_up, m) * dr.abs(dr.dot(wi_up, m)) / dr.abs(cos_i)
+    if visible(mf):
+        m, _ = distr.sample(wi_up, mi.Point2f(u1, u2))
+        pdf = distr.eval(m) * distr.smith_g1(wi_up, m) * dr.abs(dr.dot(wi_up, m)) / dr.abs(cos_i)
+    else:
+        m, pdf = distribution(mf, 1.2 - 0.2 * dr.sqrt(dr.abs(cos_i))).sample(wi_up, mi.Point2f(u1, u2))
     valid = (cos_i != 0.0) & dr.isfinite(cos_i) & (pdf != 0.0) & dr.isfinite(pdf)
     wim = dr.dot(wi, m)
     f, cos_t, eta_it, eta_ti = mi.fresnel(wim, eta)
     selected_r = sample1 <= f
-    pdf = pdf * dr.select(selected_r, f, 1.0 - f)
+    # The lobe is chosen with probability F (detached, as roughdielectric does): its weight F/F is 1, and while
+    # F carries a gradient (a moving ω_i or η) that weight keeps F's derivative, dF/F (or −dF/(1 − F)).
+    pdf = pdf * dr.detach(dr.select(selected_r, f, 1.0 - f))
+    lobe = mi.Float(1.0)
+    if dr.grad_enabled(f):
+        lobe = dr.select(selected_r, dr.replace_grad(mi.Float(1.0), f / dr.detach(f)),
+                         dr.replace_grad(mi.Float(1.0), (1.0 - f) / (1.0 - dr.detach(f))))
     wo_r = reflect(wi, m)
     wo_t = mi.refract(wi, m, cos_t, eta_ti)
     wo = dr.select(selected_r, wo_r, wo_t)
     wom = dr.dot(wo, m)
     denom = wim + eta_it * wom
     dwh_dwo = dr.select(selected_r, 1.0 / (4.0 * wom), eta_it * eta_it * wom / (denom * denom))
-    weight = dr.select(selected_r | (not radiance), 1.0, eta_ti * eta_ti) * distr.smith_g1(wo, m)
+    g = distr.smith_g1(wo, m) if visible(mf) else _all_normals_weight(distr, wi, wo, m)
+    weight = lobe * dr.select(selected_r | (not radiance), 1.0, eta_ti * eta_ti) * g
     pdf = pdf * dr.abs(dwh_dwo)
     valid &= (pdf > 0.0) & dr.isfinite(pdf) & dr.isfinite(weight)
     return wo, pdf, weight, valid

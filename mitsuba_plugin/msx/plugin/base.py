@@ -12,7 +12,7 @@ configured surface.
 import drjit as dr
 
 from .._native import ffi, lib
-from .parameters import PLUGIN, Config, MsxParameterError, channels_of
+from .parameters import PLUGIN, Config, MsxParameterError, channels_of, warn
 
 ERR_LEN = 512
 
@@ -119,7 +119,9 @@ def make_base_class(mi, kind, nch):
 
         def _config(self, props):
             """The parsed and validated parameters (``parameters.py``)."""
-            return Config(mi, props)
+            cfg = Config(mi, props)
+            warn(mi, cfg.sample_visible_note(engine=False))
+            return cfg
 
         _lobes = staticmethod(lobes)
 

@@ -296,7 +296,7 @@ def _native_props(cfg) -> dict:
 
 def make_factory(mi):
     """The ``msx_posfree`` factory of the native back end for the current (scalar) variant."""
-    from .parameters import Config
+    from .parameters import Config, warn
 
     load()
     try:
@@ -309,6 +309,7 @@ def make_factory(mi):
 
     def factory(props):
         cfg = Config(mi, props)  # the same parsing, validation and messages as the Python back end
+        warn(mi, cfg.sample_visible_note(engine=False))
         return mi.load_dict(dict(type=NATIVE_PLUGIN, **_native_props(cfg)))
 
     return factory

@@ -125,7 +125,10 @@ SURFACE_PARAMS = {
     "diffuse": ("reflectance",),
 }
 COMMON_PARAMS = ("surface, distribution, alpha, alpha_u, alpha_v, model, estimator, max_bounces, seed, auto_tolerance, "
-                 "mis_density")
+                 "mis_density, sample_visible")
+# The models whose sampling ``sample_visible=false`` changes (as the built-ins': normals drawn from D·cos θ_m);
+# in the Dr.Jit engine only (jit/single.py). A walk draws visible normals by construction.
+SAMPLE_VISIBLE_MODELS = ("single", "fastmsx", "compensated")
 
 MAX_BOUNCES_LIMIT = lib.MSX_MAX_BOUNCES_LIMIT
 SEED_LIMIT = 2**64
@@ -164,6 +167,21 @@ def _choice(props, name, default, allowed):
     raise MsxParameterError(
         "%s: unknown value '%s' for parameter '%s'; allowed values: %s" % (PLUGIN, value, name, ", ".join(allowed))
     )
+
+
+def _bool(props, name, default):
+    if not (name in props):
+        return default
+    value = props.get(name)
+    if not isinstance(value, bool):
+        raise MsxParameterError("%s: parameter '%s' must be a boolean (got %r)" % (PLUGIN, name, value))
+    return value
+
+
+def warn(mi, text):
+    """One line in Mitsuba's log (a warning), when ``text`` is not None."""
+    if text is not None:
+        mi.Log(mi.LogLevel.Warn, text)
 
 
 def _int(props, name, default, lo, hi):
@@ -292,10 +310,25 @@ def _same_ior(a, b):
     return float(a) == float(b)
 
 
+def _check_names(props):
+    """A parameter name msx_posfree does not know: one line with the closest known name (Mitsuba itself says
+    only "unreferenced property", after the load)."""
+    import difflib
+
+    known = sorted(set(COMMON_PARAMS.split(", ")) | {n for names in SURFACE_PARAMS.values() for n in names})
+    keys = props.keys() if hasattr(props, "keys") else ()
+    for name in keys:
+        if name not in known:
+            close = difflib.get_close_matches(name, known, n=1)
+            raise MsxParameterError("%s: unknown parameter '%s'%s; the parameters are %s" % (
+                PLUGIN, name, " (did you mean '%s'?)" % close[0] if close else "", ", ".join(known)))
+
+
 class Config:
     """Parsed parameters of one msx_posfree instance."""
 
     def __init__(self, mi, props):
+        _check_names(props)
         self.surface = _choice(props, "surface", "conductor", SURFACES)
         own = SURFACE_PARAMS[self.surface]
         for other, names in SURFACE_PARAMS.items():
@@ -352,12 +385,26 @@ class Config:
                 "%s: parameter 'auto_tolerance' applies to model='auto' only (model is '%s')" % (PLUGIN, self.model)
             )
         self.auto_tolerance = _fraction(props, "auto_tolerance", lib.MSX_DEFAULT_AUTO_TOLERANCE)
+        self.sample_visible = _bool(props, "sample_visible", True)
         self.mis_density = _choice(props, "mis_density", DEFAULT_MIS_DENSITY, MIS_DENSITIES)
         if ("mis_density" in props) and not self.mis_density_applies():
             raise MsxParameterError(
                 "%s: parameter 'mis_density' applies to the conductor walks only (surface='conductor' with model %s; "
                 "here surface='%s', model='%s')" % (PLUGIN, ", ".join(MIS_DENSITY_MODELS), self.surface, self.model)
             )
+
+    def sample_visible_note(self, engine):
+        """None when ``sample_visible`` is honoured (true, the default, everywhere; false for the closed forms
+        in the Dr.Jit engine, ``engine``), else the one line that says it is not, and why."""
+        if self.sample_visible or (engine and self.model in SAMPLE_VISIBLE_MODELS):
+            return None
+        if self.model not in SAMPLE_VISIBLE_MODELS:
+            why = ("model='%s' is a random walk that draws visible normals by construction; the option changes "
+                   "the noise of a built-in's samples, not the expected image" % self.model)
+        else:
+            why = ("this back end draws visible normals (sample_visible=false is honoured by the Dr.Jit engine of "
+                   "the vectorized variants); the expected image is the same, only the noise differs")
+        return "%s: sample_visible=false is ignored: %s" % (PLUGIN, why)
 
     def mis_density_applies(self):
         """Whether ``mis_density`` changes anything: a conductor walk reports it for MIS."""

@@ -35,7 +35,7 @@ import weakref
 import numpy as np
 
 from .._native import ffi, lib
-from .parameters import PLUGIN
+from .parameters import PLUGIN, warn
 from .base import ERR_LEN, make_base_class, make_factory, native_channels, one_line
 from .vectorized_config import vectorized_config
 
@@ -206,7 +206,9 @@ def make_bsdf_class(mi, variant):
 
             def _config(self, props):
                 # parameters.Config reads constant textures as Python floats: parse through the wrappers.
-                return vectorized_config(mi, props)
+                cfg = vectorized_config(mi, props)
+                warn(mi, cfg.sample_visible_note(engine=False))
+                return cfg
 
             # ------------------------------------------------- symbolic fallback
 

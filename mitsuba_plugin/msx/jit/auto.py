@@ -40,8 +40,31 @@ class OrderOneRule:
         return (mu * mu >= self.lo) & (alpha <= threshold)
 
 
+# benches/scene_bench.py's count of auto's calls: [calls, calls that walk], while counting (``count_calls``).
+_COUNTER = [None]
+
+
+def count_calls(stop=False):
+    """Starts counting ``auto``'s calls in the kernels traced from now on (returns the counter: calls, calls
+    that walk), or stops (``stop``). For measurement: a counting kernel is a kernel of its own."""
+    _COUNTER[0] = None if stop else dr.zeros(mi.UInt32, 2)
+    if not stop:
+        dr.make_opaque(_COUNTER[0])
+    return _COUNTER[0]
+
+
+def walked_fraction(counter):
+    """The fraction of the counted calls that walked (NaN if none was counted)."""
+    calls, walks = (int(v) for v in counter.numpy())
+    return walks / calls if calls else float("nan")
+
+
 def cap(rule, mf, mu, max_bounces, full=True):
     """The bounce cap of each lane: 1 where order 1 suffices (and ``full`` allows the rule), else
     ``max_bounces``."""
     one = rule.order_one_suffices(dr.maximum(mf.alpha_u, mf.alpha_v), mu) & full
+    counter = _COUNTER[0]
+    if counter is not None:
+        dr.scatter_reduce(dr.ReduceOp.Add, counter, mi.UInt32(1), mi.UInt32(0))
+        dr.scatter_reduce(dr.ReduceOp.Add, counter, mi.UInt32(1), mi.UInt32(1), active=~one)
     return dr.select(one, mi.UInt32(1), mi.UInt32(max_bounces))

@@ -151,31 +151,50 @@ def lambda_up(alpha_tan2):
     return dr.select(r <= 0.0, 0.0, v)
 
 
-def newton_monotone(fdf, x0, hi, scale, iterations=NEWTON_ITERATIONS):
+def newton_monotone(fdf, x0, hi, scale, iterations=NEWTON_ITERATIONS, loop=False):
     """Solves f(x) = 0 for f increasing on (−∞, hi] with f(hi) ≥ 0 by Newton's method from ``x0``,
-    safeguarded by bisection once a bracket is known (beckmann.rs), per lane, in ``iterations``
-    unrolled steps. ``fdf(x)`` returns (f(x), f'(x)); a lane stops once its step is below
-    NEWTON_TOL·(|x| + scale). Returns (x, converged)."""
+    safeguarded by bisection once a bracket is known (beckmann.rs), per lane, in at most ``iterations``
+    steps. ``fdf(x)`` returns (f(x), f'(x)); a lane stops once its step is below
+    NEWTON_TOL·(|x| + scale). Returns (x, converged).
+
+    ``loop``: the steps run in a symbolic ``dr.while_loop`` that a packet leaves once all its lanes have
+    stopped (most need 2–4 steps), else unrolled (while the inputs carry derivatives: a loop would need
+    drjit's reverse-mode loop machinery). A stopped lane never moves again, so both give the same bits."""
     hi = mi.Float(hi)
     x0 = mi.Float(x0)
     lo = dr.full(mi.Float, -dr.inf, dr.width(hi))
     x = dr.select(dr.isfinite(x0) & (x0 < hi), x0, hi - 1.0)
     active = dr.full(mi.Bool, True, dr.width(x))
+    if loop:
+        def body(i, x, lo, hi, active):
+            x, lo, hi, active = _newton_step(fdf, x, lo, hi, active, scale)
+            return i + 1, x, lo, hi, active
+
+        _, x, lo, hi, active = dr.while_loop((mi.UInt32(0), x, lo, hi, active),
+                                             lambda i, x, lo, hi, active: active & (i < iterations), body,
+                                             label="msx_beckmann_newton")
+        return x, ~active
     for _ in range(iterations):
-        fx, dfx = fdf(x)
-        nxt = x - fx / dfx
-        # Converged: the step is below float32 resolution (the Rust's |next − x| test, or f = 0).
-        done = (fx == 0.0) | ((dr.abs(nxt - x) <= NEWTON_TOL * (dr.abs(x) + scale)) & dr.isfinite(dfx))
-        upper = fx > 0.0
-        hi = dr.select(active & upper, x, hi)
-        lo = dr.select(active & ~upper, x, lo)
-        inside = (nxt > lo) & (nxt < hi) & dr.isfinite(nxt)
-        fallback = dr.select(dr.isfinite(lo), 0.5 * (lo + hi), x - (1.0 + dr.abs(x)))
-        nxt = dr.select(done & dr.isfinite(nxt), nxt, dr.select(inside, nxt, fallback))
-        nxt = dr.select(fx == 0.0, x, nxt)
-        x = dr.select(active, nxt, x)
-        active &= ~done
+        x, lo, hi, active = _newton_step(fdf, x, lo, hi, active, scale)
     return x, ~active
+
+
+def _newton_step(fdf, x, lo, hi, active, scale):
+    """One safeguarded Newton step of ``newton_monotone`` (lanes not ``active`` keep their x)."""
+    fx, dfx = fdf(x)
+    nxt = x - fx / dfx
+    # Converged: the step is below float32 resolution (the Rust's |next − x| test, or f = 0).
+    done = (fx == 0.0) | ((dr.abs(nxt - x) <= NEWTON_TOL * (dr.abs(x) + scale)) & dr.isfinite(dfx))
+    upper = fx > 0.0
+    hi = dr.select(active & upper, x, hi)
+    lo = dr.select(active & ~upper, x, lo)
+    inside = (nxt > lo) & (nxt < hi) & dr.isfinite(nxt)
+    fallback = dr.select(dr.isfinite(lo), 0.5 * (lo + hi), x - (1.0 + dr.abs(x)))
+    nxt = dr.select(done & dr.isfinite(nxt), nxt, dr.select(inside, nxt, fallback))
+    nxt = dr.select(fx == 0.0, x, nxt)
+    x = dr.select(active, nxt, x)
+    active &= ~done
+    return x, lo, hi, active
 
 
 def sample_slope_x(cos_theta, sin_theta, u, iterations=NEWTON_ITERATIONS):
@@ -239,7 +258,7 @@ def sample_slope_x(cos_theta, sin_theta, u, iterations=NEWTON_ITERATIONS):
 
     sqrt_l = dr.sqrt(l)
 
-    def fdf(x):
+    def above(x):
         # Above the horizon Newton runs on √(ln G(hi) − ln G(x)) − √(−ln u), the same root: that
         # function is nearly linear over the whole range (exactly so at θ = π/2, where G ∝ e^{−x²}; it
         # grows like |x| in the Gaussian tail and like t − x near the truncation at t), so Newton
@@ -247,15 +266,23 @@ def sample_slope_x(cos_theta, sin_theta, u, iterations=NEWTON_ITERATIONS):
         la, da = ln_g(x)
         r = dr.maximum(ln_g_hi - la, 0.0)
         root_r = dr.sqrt(r)
-        fa = sqrt_l - root_r
-        da = da / (2.0 * root_r)
-        fb, db = lg_and_dlg(x)
+        return sqrt_l - root_r, da / (2.0 * root_r)
+
+    plain = not dr.grad_enabled(cos_theta, sin_theta, u)
+
+    def fdf(x):
+        if plain:  # each side only in the packets that have lanes there (a symbolic if_stmt branches)
+            zero = (lambda x: (dr.zeros(mi.Float, dr.width(x)), dr.zeros(mi.Float, dr.width(x))))
+            fa, da = dr.if_stmt((x,), up, above, zero, label="msx_beckmann_above")
+            fb, db = dr.if_stmt((x,), ~up, lg_and_dlg, zero, label="msx_beckmann_below")
+        else:
+            (fa, da), (fb, db) = above(x), lg_and_dlg(x)
         return dr.select(up, fa, fb), dr.select(up, da, db)
 
     x0 = dr.select(up, x0_up, -s0)
     hi = dr.select(up, hi_up, 0.0)
     scale = dr.select(up, 1.0, 1.0 / (1.0 + 2.0 * tau))
-    root, _ = newton_monotone(fdf, x0, hi, scale, iterations)
+    root, _ = newton_monotone(fdf, x0, hi, scale, iterations, loop=plain)
     x = dr.select(up, root, t + root)
     x = dr.select(vertical, gauss, x)
     valid = dr.select(vertical, cos_theta > 0.0, dr.isfinite(x))

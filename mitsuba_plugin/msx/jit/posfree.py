@@ -116,19 +116,31 @@ def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex
         active &= ~play | survived
         result = dr.select(active & nee_ok, result + thr * fr.eval(cos_wh) * nee, result)
         active &= j + 1 < max_bounces
-        # The next direction, from the visible normals of w.
-        u1, u2 = rng.next2()
-        m, valid = mfs.sample_visible(w, u1, u2)
-        cos_wm = dot(w, m)
-        d_next = reflect(w, m)
-        thr = thr * fr.eval(cos_wm)
+
+        def next_vertex(w, l, thr, active, counter):
+            """The next direction, from the visible normals of w."""
+            rng = Stream(key, counter)
+            u1, u2 = rng.next2()
+            m, valid = mfs.sample_visible(w, u1, u2)
+            cos_wm = dot(w, m)
+            d_next = reflect(w, m)
+            thr = thr * fr.eval(cos_wm)
+            if traced:
+                thr = thr * ((mfa.d(m) * dr.detach(l)) / (mfs.d(m) * l))
+            up = d_next[2] > 0.0
+            lam = mfa.abs_lambda(d_next)
+            thr = dr.select(up, thr * continue_up(segments, l, lam), thr)
+            return -d_next, lam, thr, active & valid & (cos_wm > 0.0), rng.counter
+
+        step = (w, l, thr, active, rng.counter)
         if traced:
-            thr = thr * ((mfa.d(m) * dr.detach(l)) / (mfs.d(m) * l))
-        up = d_next[2] > 0.0
-        lam = mfa.abs_lambda(d_next)
-        thr = dr.select(up, thr * continue_up(segments, l, lam), thr)
-        active &= valid & (cos_wm > 0.0)
-        return (j + 1, -d_next, lam, thr, result, active, rng.counter) + piped
+            w, l, thr, active, counter = next_vertex(*step)
+        else:
+            # A packet whose lanes have all ended (the last vertex; auto's order-1 lanes) skips the sampling:
+            # a symbolic if_stmt branches per packet. An ended lane's state is never read again.
+            w, l, thr, active, counter = dr.if_stmt(step, active, next_vertex, lambda *a: a,
+                                                    label="msx_posfree_next_vertex")
+        return (j + 1, w, l, thr, result, active, counter) + piped
 
     width = dr.width(thr)
     state = (mi.UInt32(first_vertex), mi.Vector3f(w), mi.Float(l), mi.Spectrum(thr),

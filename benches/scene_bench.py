@@ -1,0 +1,154 @@
+"""Scene benchmark: any Mitsuba scene rendered with its rough BSDFs as written (the built-ins) and with every
+``roughconductor`` / ``roughdielectric`` turned into ``msx_posfree`` with one model after another — only the
+BSDF's ``type`` changes (plus ``surface="dielectric"`` for glass and the ``model``), every other parameter and
+the rest of the file stay as they are.
+
+All renders run in this process, in ``llvm_ad_rgb`` with the Dr.Jit engine, one scene alive at a time (a
+symbolic BSDF call traces every live BSDF instance into the kernel), the configurations interleaved over
+``--repeats`` rounds; each timed render follows an untimed one of the same scene (kernels compiled, drjit's
+kernel cache warm) and is waited for (``dr.sync_thread``). Per configuration: the median time and the image
+mean, both × the built-in's. For ``auto``: the fraction of its BSDF calls that run a walk (the others are its
+closed-form order 1), counted inside the kernel.
+
+Only ratios measured in one run mean anything (machines are shared and noisy).
+
+    python3 benches/scene_bench.py SCENE.xml [SCENE.xml ...] [--models single,auto,correlated,heitz,invariance]
+        [--spp 64] [--res 320] [--repeats 3] [--set alpha=0.8] [-D key=value]
+
+A shipped scene may be named instead of a path (``material_preview.xml``, ``fig09_copper_sphere.xml``).
+"""
+
+import argparse
+import os
+import re
+import statistics
+import sys
+import time
+from pathlib import Path
+
+LLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
+ROUGH = {"roughconductor": None, "roughdielectric": "dielectric"}
+_OPEN = re.compile(r'<bsdf\b[^>]*\btype\s*=\s*"(roughconductor|roughdielectric)"[^>]*>')
+
+
+def swap(text, model, overrides):
+    """The scene's text with every rough built-in turned into msx_posfree ``model`` (None: unchanged), and
+    ``overrides`` ({name: value}) set on each of them (a float parameter replaced or added)."""
+    def one(match):
+        tag = match.group(0)
+        surface = ROUGH[match.group(1)]
+        if model is not None:
+            tag = tag.replace('"%s"' % match.group(1), '"msx_posfree"', 1)
+        added = ""
+        if model is not None:
+            added += '<string name="model" value="%s"/>' % model
+            if surface:
+                added += '<string name="surface" value="%s"/>' % surface
+        for name in overrides:
+            added += '<float name="%s" value="%s"/>' % (name, overrides[name])
+        if tag.endswith("/>"):
+            return tag[:-2] + ">" + added + "</bsdf>"
+        return tag + added
+
+    return _OPEN.sub(one, text)
+
+
+def _drop_duplicates(text, names):
+    """Keeps the first value of each overridden parameter inside every swapped BSDF element (the one
+    ``swap`` added right after the opening tag), dropping the scene's own."""
+    def fix(block):
+        body = block.group(0)
+        for name in names:
+            pat = re.compile(r'\s*<float name="%s" value="[^"]*"\s*/>' % re.escape(name))
+            hits = list(pat.finditer(body))
+            for h in reversed(hits[1:]):
+                body = body[:h.start()] + body[h.end():]
+        return body
+    return re.sub(r'<bsdf type="(?:msx_posfree|roughconductor|roughdielectric)".*?</bsdf>', fix, text, flags=re.S)
+
+
+def resolve(name):
+    p = Path(name)
+    if p.exists():
+        return p.resolve()
+    import msx
+
+    return Path(msx.scene_path(name))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("scenes", nargs="+")
+    ap.add_argument("--models", default="single,auto,correlated,heitz,invariance")
+    ap.add_argument("--spp", type=int, default=64)
+    ap.add_argument("--res", type=int, default=320, help="image width (height keeps the scene's aspect)")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--set", action="append", default=[], help="name=value set on every swapped BSDF (e.g. alpha=0.8)")
+    ap.add_argument("-D", "--define", action="append", default=[], help="scene default key=value")
+    args = ap.parse_args(argv)
+    if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(LLVM19):
+        os.environ["DRJIT_LIBLLVM_PATH"] = LLVM19
+    import drjit as dr
+    import mitsuba as mi
+
+    mi.set_variant("llvm_ad_rgb")
+    import msx
+    from msx.jit import auto as jit_auto
+
+    msx.register()
+    overrides = dict(kv.split("=", 1) for kv in args.set)
+    defines = dict(kv.split("=", 1) for kv in args.define)
+    models = [None] + [m for m in args.models.split(",") if m]
+    for name in args.scenes:
+        path = resolve(name)
+        text = path.read_text()
+        if not _OPEN.search(text):
+            print("%s: no roughconductor or roughdielectric to swap" % path, file=sys.stderr)
+            continue
+        sources = {m: _drop_duplicates(swap(text, m, overrides), overrides) for m in models}
+        mi.file_resolver().prepend(str(path.parent))  # includes and assets, as load_file
+        probe = mi.load_string(sources[None], **defines)
+        film = probe.sensors()[0].film().size()
+        width = args.res
+        height = max(1, round(film[1] * width / film[0]))
+        del probe
+        params = dict(defines, width=str(width), height=str(height))
+        times = {m: [] for m in models}
+        means = {}
+        walked = {}
+        if True:
+            for rep in range(args.repeats):
+                for m in models:
+                    scene = mi.load_string(sources[m], **params)
+                    if m == "auto" and rep == 0:  # an extra render that counts (its own kernel)
+                        counter = jit_auto.count_calls()
+                        dr.eval(mi.render(scene, spp=args.spp, seed=rep))
+                        dr.sync_thread()
+                        walked[m] = jit_auto.walked_fraction(counter)
+                        jit_auto.count_calls(stop=True)
+                    img = mi.render(scene, spp=args.spp, seed=rep)
+                    dr.eval(img)
+                    dr.sync_thread()
+                    t0 = time.perf_counter()
+                    img = mi.render(scene, spp=args.spp, seed=100 + rep)
+                    dr.eval(img)
+                    dr.sync_thread()
+                    times[m].append(time.perf_counter() - t0)
+                    means.setdefault(m, []).append(float(dr.mean(img, axis=None).array[0]))
+                    del scene, img
+                print("%s: round %d/%d done" % (path.name, rep + 1, args.repeats), file=sys.stderr)
+        base_t = statistics.median(times[None])
+        base_m = statistics.mean(means[None])
+        label = ", ".join("%s=%s" % kv for kv in overrides.items())
+        print("\n%s (%d×%d, %d spp%s): built-in %.3f s" % (path.name, width, height, args.spp,
+                                                          ", " + label if label else "", base_t))
+        print("| model | time × built-in | image mean × built-in | calls that walk |")
+        print("|---|---|---|---|")
+        for m in models[1:]:
+            print("| %s | %.2f | %.4f | %s |" % (m, statistics.median(times[m]) / base_t,
+                                                 statistics.mean(means[m]) / base_m,
+                                                 "%.1f %%" % (100 * walked[m]) if m in walked else ""))
+
+
+if __name__ == "__main__":
+    main()

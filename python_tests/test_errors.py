@@ -57,8 +57,9 @@ BAD = [
     (dict(ext_ior="air"), ["ext_ior"]),
     (dict(specular_transmittance=0.5), ["specular_transmittance"]),
     (dict(reflectance=0.5), ["reflectance"]),
-    (dict(alpah=0.3), ["alpah"]),  # misspelled: Mitsuba's unreferenced-property check
-    (dict(materiel="Cu"), ["materiel"]),
+    (dict(alpah=0.3), ["unknown parameter 'alpah'", "did you mean 'alpha'?"]),  # misspelled
+    (dict(materiel="Cu"), ["unknown parameter 'materiel'", "did you mean 'material'?"]),
+    (dict(sample_visible="no"), ["sample_visible", "boolean"]),
 ]
 
 
@@ -69,6 +70,16 @@ def test_bad_parameter_raises_naming_it(variant, params, words):
     msg = load_error(mi, **params)
     for w in words:
         assert w in msg, "message %r lacks %r" % (msg, w)
+
+
+@pytest.mark.parametrize("variant", ["scalar_rgb", "scalar_spectral"])
+def test_bad_parameter_message_is_not_buried_in_msx_frames(variant):
+    """Mitsuba quotes a Python plugin's traceback in its error: one frame of msx at most, then the line."""
+    mi = set_variant(variant)
+    msg = load_error(mi, alpha=-1.0)
+    msx_frames = [line for line in msg.splitlines() if line.strip().startswith("File") and "/msx/" in line]
+    assert len(msx_frames) <= 1, msg
+    assert msg.strip().splitlines()[-1].startswith("MsxParameterError: msx_posfree: parameter 'alpha'"), msg
 
 
 def test_good_parameters_load(rgb):
@@ -83,6 +94,8 @@ def test_good_parameters_load(rgb):
         dict(model="heitz", mis_density="cui"),
         dict(model="auto", mis_density="cui_typo"),
         dict(alpha={"type": "checkerboard", "color0": 0.1, "color1": 0.4}),
+        dict(sample_visible=False, model="single"),
+        dict(sample_visible=True, model="correlated", surface="dielectric"),
     ]:
         b = mi.load_dict(dict(type="msx_posfree", **params))
         assert "MsxPosfree" in str(b)

@@ -13,6 +13,7 @@ the hit and forwards each BSDF call to the C ABI (``include/msx.h``).
 """
 
 import os
+import functools
 import threading
 
 from ._scenes import scene_path
@@ -130,7 +131,7 @@ def register(backend=None):
             from .plugin.scalar import make_bsdf_class
 
             factory = make_bsdf_class(mi, variant)
-    mi.register_bsdf("msx_posfree", lambda props: _create(factory, props))
+    mi.register_bsdf("msx_posfree", functools.partial(_create, factory))  # no frame of its own in a traceback
     _REGISTERED[variant] = (chosen, factory)
     return factory
 
@@ -142,8 +143,16 @@ def _create(factory, props):
     """Mitsuba's scene loader instantiates plugins on several threads at once; the factories load helper
     objects with mi.load_dict (conductor presets, the native plugin), which crashed when two threads did so
     concurrently. One instance at a time (instantiation is rare; rendering is not affected)."""
+    from .plugin.parameters import MsxParameterError
+
     with _CREATE_LOCK:
-        return factory(props)
+        try:
+            return factory(props)
+        except MsxParameterError as e:
+            # Mitsuba quotes the Python traceback in its message: a scene's mistake is the one line, not the
+            # frames of msx's parser that found it.
+            error = MsxParameterError(str(e))
+    raise error
 
 
 def backend():

@@ -12,7 +12,8 @@ Mitsuba's Adam optimizer and ``prb`` gradients (Dr.Jit engine, ``llvm_ad_rgb``),
 
     python3 examples/fit_roughness.py [--quick] [--out DIR]
 
-Prints the loss per iteration, saves ``fit_roughness.png`` (α and loss against iteration) in DIR, and ends
+Prints the loss per iteration, saves ``fit_roughness.png`` (α and loss against iteration) in DIR (default
+``out/``, never the repository root), and ends
 with one line: ``fitted alpha: msx-correlated A, msx-invariance B, roughconductor C (true 0.8)``.
 """
 
@@ -82,7 +83,7 @@ def fit(label, bsdf, target, settings, log):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="small settings (a few minutes)")
-    ap.add_argument("--out", default=".", help="folder of fit_roughness.png")
+    ap.add_argument("--out", default="out", help="folder of fit_roughness.png (default: out/, created)")
     args = ap.parse_args(argv)
     if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(LLVM19):
         os.environ["DRJIT_LIBLLVM_PATH"] = LLVM19
@@ -142,6 +143,7 @@ def main(argv=None):
         ax_l.set_ylabel("mean squared error against the target")
         ax_l.legend()
         fig.suptitle("Fitting the roughness of rough copper (target: Heitz 2016 multiple scattering, alpha 0.8)")
+        os.makedirs(args.out, exist_ok=True)
         path = os.path.join(args.out, "fit_roughness.png")
         fig.savefig(path, dpi=110)
         log(f"wrote {path}\n")

@@ -171,3 +171,51 @@ def test_every_engine_model_renders_in_variant_and_matches_native(tmp_path, case
         if abs(z) > bound:
             failures.append(line)
     assert not failures, "beyond |z| %.2f:\n%s" % (bound, "\n".join(failures))
+
+
+def core_cases():
+    """(surface, model, estimator) for everything the core's table of names lists (the scalar back ends run all)."""
+    from msx.plugin.parameters import MODEL_INFO
+
+    out = []
+    for name, info in MODEL_INFO.items():
+        if "ggx" not in info.distributions:
+            continue
+        out += [(s, name, "pt") for s in info.surfaces]
+        out += [(s, name, "bdpt") for s in info.bdpt_surfaces]
+    return out
+
+
+def test_every_core_model_renders_in_scalar_spectral_as_in_scalar_rgb(tmp_path):
+    """The scalar variants run every model of the core's table (the engine's refusals included): grey
+    materials (F = 1, glass, grey facets) give the same image means in scalar_spectral as in scalar_rgb."""
+    cases = core_cases()
+    assert len(cases) > len(engine_cases())  # the core runs more than the engine (e.g. invariance on diffuse)
+    bsdfs = [bsdf_of(s, m, e, {"material": "none"}) for s, m, e in cases]
+    rgb, b1 = render(tmp_path, "scalar_rgb", bsdfs, 3 + SEED_OFFSET, "rgb")
+    spectral, b2 = render(tmp_path, "scalar_spectral", bsdfs, 4 + SEED_OFFSET, "spectral")
+    assert (b1, b2) == ("native", "native")
+    mask_img, _ = render(tmp_path, "scalar_rgb", [None] * len(cases), 0, "mask")
+    black = mask_img.max(axis=-1) == 0.0
+    a, b = rgb.mean(axis=-1), spectral.mean(axis=-1)
+    assert np.all(np.isfinite(a)) and np.all(np.isfinite(b))
+    bound = z_max(len(cases))
+    failures = []
+    for i, (surface, model, estimator) in enumerate(cases):
+        r, c = divmod(i, COLS)
+        m = np.zeros_like(black)
+        m[r * CELL:(r + 1) * CELL, c * CELL:(c + 1) * CELL] = True
+        m &= black
+        d = (a - b)[m]
+        ys, xs = np.nonzero(m)
+        _, inverse, counts = np.unique((ys // 2) * 10_000 + xs // 2, return_inverse=True, return_counts=True)
+        blocks = np.bincount(inverse, weights=d) / counts
+        se = max(d.std(ddof=1) / math.sqrt(d.size), blocks.std(ddof=1) / math.sqrt(blocks.size))
+        z = d.mean() / se
+        line = "%-10s %-12s %-4s: scalar_rgb %.5f, scalar_spectral %.5f, z %+.2f" % (
+            surface, model, estimator, a[m].mean(), b[m].mean(), z)
+        print(line)
+        assert a[m].mean() > 0.01, line
+        if abs(z) > bound:
+            failures.append(line)
+    assert not failures, "beyond |z| %.2f:\n%s" % (bound, "\n".join(failures))

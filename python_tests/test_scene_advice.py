@@ -305,3 +305,15 @@ def test_choose_cheapest_with_ties():
     es = [dict(model="heitz", cost=1.0), dict(model="correlated", cost=1.5)]
     assert choose(es, order)["model"] == "heitz"  # measured cheaper beyond the tie
     assert choose([], order) is None
+
+
+def test_shipped_material_preview():
+    """The shipped multi-material scene: a metal, a glass and a polished metal shared by <ref id> inside
+    twosided are found; the diffuse sphere and the floor are not msx's."""
+    import msx
+
+    sc = scene_xml.discover(msx.scene_path("material_preview.xml"))
+    by = {m.key: m for m in sc.materials}
+    assert set(by) == {"chromium", "copper", "glass"}
+    assert by["chromium"].wrappers == ["twosided"] and by["chromium"].users == 1
+    assert by["glass"].surface == "dielectric" and by["copper"].params["alpha"] == "0.8"

@@ -113,6 +113,41 @@ def test_edits_change_only_the_bsdf_element(scene_file, model):
                 assert params[c.attrib["name"]] == c.attrib.get("value")
 
 
+def test_edits_inside_included_files(tmp_path):
+    """The film and a material in included files (one including the other): the edited copies are written
+    elsewhere and the <include>s point to them; the scene's own files are not touched."""
+    (tmp_path / "stage.xml").write_text('<scene version="3.0.0"><sensor type="perspective"><film type="hdrfilm">'
+                                        '<integer name="width" value="$width"/></film></sensor>'
+                                        '<include filename="objects.xml"/></scene>')
+    (tmp_path / "objects.xml").write_text(MORE)
+    (tmp_path / "s.xml").write_text('<scene version="3.0.0"><default name="width" value="640"/>'
+                                    '<include filename="stage.xml"/></scene>')
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    sc = scene_xml.discover(tmp_path / "s.xml")
+    [m] = sc.materials
+    assert sc.film is not None and sc.film.file.name == "stage.xml" and m.node.file.name == "objects.xml"
+    edits = scene_xml.Edits()
+    scene_xml.set_model(edits, sc, m, "correlated")
+    scene_xml.set_params(edits, sc.files[sc.film.file], sc.film, [("integer", "width", "32"),
+                                                                    ("integer", "height", "16")])
+    copies = tmp_path / "copies"
+    copies.mkdir()
+    n = [0]
+
+    def write_copy(data):
+        n[0] += 1
+        path = copies / f"{n[0]}.xml"
+        path.write_bytes(data)
+        return path
+
+    main = scene_xml.apply_with_includes(edits, sc, write_copy)
+    objects, stage = (copies / "1.xml").read_text(), (copies / "2.xml").read_text()
+    assert "type='msx_posfree'" in objects and '<string name="model" value="correlated"/>' in objects
+    assert 'value="32"' in stage and 'name="height" value="16"' in stage and str(copies / "1.xml") in stage
+    assert main.decode() == before["s.xml"].decode().replace("stage.xml", str(copies / "2.xml"))
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
+
+
 def test_write_scene_byte_identical_elsewhere(scene_file, tmp_path):
     """--write-scene with every kind of recommendation: the file differs only inside the BSDF elements it
     changes; a material left as it is (no recommendation) and an unchanged built-in (single) keep their bytes."""

@@ -100,8 +100,7 @@ class SceneRenderer(renders.Renderer):
         return max(8, round(w * scale)), max(8, round(h * scale))
 
     def _film(self):
-        sensor = next((c for c in self.scene.root.children if c.tag == "sensor"), None)
-        return next((c for c in sensor.children if c.tag == "film"), None) if sensor is not None else None
+        return self.scene.film
 
     def scene_path(self, name):
         return self.scene.path
@@ -121,8 +120,8 @@ class SceneRenderer(renders.Renderer):
         main = sc.files[sc.path]
         film = self._film()
         if film is not None:
-            scene_xml.set_params(edits, main, film, [("integer", "width", str(self.size[0])),
-                                                     ("integer", "height", str(self.size[1]))])
+            scene_xml.set_params(edits, sc.files[film.file], film, [("integer", "width", str(self.size[0])),
+                                                                    ("integer", "height", str(self.size[1]))])
         new = []
         for k, v in self.defines.items():
             if k in sc.defaults:
@@ -136,14 +135,13 @@ class SceneRenderer(renders.Renderer):
                 scene_xml.set_model(edits, sc, other, "builtin")
         if probe and "id" not in material.top.attrib:
             scene_xml.set_attr(edits, sc.files[material.top.file], material.top, "id", PROBE_ID)
-        chain = material.include_chain  # the <include>s from the scene file down to the material's file
-        for k in reversed(range(len(chain))):
-            included = chain[k + 1].file if k + 1 < len(chain) else material.node.file
-            data = edits.apply(included, sc.files[included])
-            copy = self.workdir / (hashlib.sha256(data).hexdigest()[:16] + ".xml")
-            copy.write_bytes(data)
-            scene_xml.set_attr(edits, sc.files[chain[k].file], chain[k], "filename", str(copy))
-        return edits.apply(sc.path, main)
+        return scene_xml.apply_with_includes(edits, sc, self._copy)
+
+    def _copy(self, data: bytes) -> Path:
+        """An edited included file, in the work folder (named by its content)."""
+        copy = self.workdir / (hashlib.sha256(data).hexdigest()[:16] + ".xml")
+        copy.write_bytes(data)
+        return copy
 
     def probe_id(self, material):
         top = material.top

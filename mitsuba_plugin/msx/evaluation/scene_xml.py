@@ -146,6 +146,8 @@ class Scene:
     defaults: dict        # the scene file's own <default>s: {name: Node}
     materials: list
     notes: list           # one line per problem met while reading (an include not found, …)
+    chains: dict = field(default_factory=dict)  # {included file: the <include> nodes from the scene file to it}
+    film: Node | None = None  # the first <film> of a <sensor> (in the scene file or an included one)
 
 
 def _include_target(node: Node, values, scene_dir: Path):
@@ -169,9 +171,11 @@ def discover(path, defines: dict | None = None) -> Scene:
     defaults = {c.attrib["name"]: c for c in root.children if c.tag == "default" and "name" in c.attrib}
     values = {k: n.attrib.get("value", "") for k, n in defaults.items()}
     values.update(defines or {})
-    notes, found, refs = [], [], {}
+    notes, found, refs, chains, films = [], [], {}, {}, []
 
     def visit(node: Node, chain, seen):
+        if node.tag == "film" and node.parent is not None and node.parent.tag == "sensor":
+            films.append(node)
         if node.tag == "ref" and "id" in node.attrib:
             refs[resolve(node.attrib["id"], values)] = refs.get(resolve(node.attrib["id"], values), 0) + 1
         if node.tag == "include":
@@ -188,6 +192,7 @@ def discover(path, defines: dict | None = None) -> Scene:
             except SceneXmlError as e:
                 notes.append(str(e))
                 return
+            chains.setdefault(target, chain + [node])
             for child in inc_root.children:
                 visit(child, chain + [node], seen | {target.resolve()})
             return
@@ -203,7 +208,7 @@ def discover(path, defines: dict | None = None) -> Scene:
     materials, keys = [], set()
     for node, kind, chain in found:
         materials.append(_material(node, kind, chain, values, refs, keys))
-    return Scene(path, files, root, values, defaults, materials, notes)
+    return Scene(path, files, root, values, defaults, materials, notes, chains, films[0] if films else None)
 
 
 def _param_values(node: Node, values):
@@ -391,3 +396,21 @@ def standalone(scene: Scene, m: Material, model: str | None) -> str:
     element = element_after(edits, scene, m).decode()
     defaults = "".join(f'<default name="{k}" value="{_escape(str(v)).decode()}"/>' for k, v in scene.values.items())
     return f'<scene version="3.0.0">{defaults}{element}</scene>'
+
+
+def apply_with_includes(edits: Edits, scene: Scene, write_copy) -> bytes:
+    """The scene file's edited bytes. An edited included file is written elsewhere by ``write_copy(bytes) →
+    path`` and the <include> that names it (itself maybe in an included file, then edited too) points there."""
+    pending = {f for f in edits.files() if f != scene.path}
+    while pending:
+        deepest = max(pending, key=lambda f: len(scene.chains.get(f, [])))
+        pending.discard(deepest)
+        chain = scene.chains.get(deepest)
+        if not chain:
+            continue
+        copy = write_copy(edits.apply(deepest, scene.files[deepest]))
+        inc = chain[-1]
+        set_attr(edits, scene.files[inc.file], inc, "filename", str(copy))
+        if inc.file != scene.path:
+            pending.add(inc.file)
+    return edits.apply(scene.path, scene.files[scene.path])

@@ -331,6 +331,33 @@ def test_scene_options_need_a_scene(tmp_path):
     assert r.returncode == 1 and "only with a scene" in r.stderr
 
 
+def test_ctrl_c_leaves_nothing_half_written(tmp_path):
+    """Ctrl-C during the renders: exit 130 with "msx: interrupted" last, and no page, CSV or partial folder in
+    --out, no written scene."""
+    import os
+    import signal
+    import time
+
+    scene = tmp_path / "s.xml"
+    scene.write_text(SYNTHETIC)
+
+    def like_a_terminal_job():
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            signal.signal(sig, signal.SIG_DFL)
+
+    p = subprocess.Popen([sys.executable, "-m", "msx", "compare", str(scene), "--quick", "--out", str(tmp_path / "o"),
+                          "--cache", str(tmp_path / "c"), "--write-scene", str(tmp_path / "w.xml")],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                         preexec_fn=like_a_terminal_job, env={**os.environ, "MSX_STOP_GRACE": "inf"})
+    time.sleep(5.0)  # into the first material's renders, usually; before or after ends the same way
+    os.killpg(p.pid, signal.SIGINT)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert err.strip().splitlines()[-1] == "msx: interrupted" and "Traceback" not in err
+    assert not (tmp_path / "w.xml").exists()
+    assert not (tmp_path / "o").exists() or not list((tmp_path / "o").iterdir())
+
+
 def test_choose_cheapest_with_ties():
     from msx.evaluation.scene_advice import choose
 

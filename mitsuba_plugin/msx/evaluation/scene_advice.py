@@ -324,6 +324,7 @@ def _preflight(variant, scene, materials):
             mi.load_string(scene_xml.standalone(scene, m, model))
             return None
         except Exception as e:  # noqa: BLE001 - Mitsuba's or msx's message, in one line
+            _stopped(e)
             return one_line(e)
 
     for m in scene.materials:
@@ -418,8 +419,7 @@ def run(args):
             except RenderError:
                 raise
             except Exception as e:  # noqa: BLE001 - a material msx refuses: one line, the others evaluated
-                if isinstance(e, KeyboardInterrupt):
-                    raise
+                _stopped(e)
                 _say(f"msx: material {m.key}: not evaluated: {one_line(e)}")
                 results.append(dict(material=m, problem=one_line(e)))
             renderer.release()
@@ -440,6 +440,13 @@ def run(args):
         print("  " + summary_line(r))
     if written:
         print(f"wrote {written}")
+
+
+def _stopped(error):
+    """A Ctrl-C that arrived while Mitsuba ran msx's plugin constructor comes back wrapped in Mitsuba's error:
+    it stops the run (msx/cli.py), it is not a material msx refuses."""
+    if "KeyboardInterrupt" in str(error) or "Stopped" in type(error).__name__:
+        raise KeyboardInterrupt from error
 
 
 def _say(line):

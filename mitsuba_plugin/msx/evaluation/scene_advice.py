@@ -546,8 +546,10 @@ def _write_outputs(stage, out, scene, results, st, variant, seconds, written, no
                  [f"reference ({_label(r['ref_row'])}, {r['ref_spp']} spp)"]
         grid = charts.image_grid(stage / f"{key}_models.png", imgs, labels, cols=len(imgs), crop=crop,
                                  title=f"{m.key}: converged candidates ({max(st.spps)} spp × {st.seeds} seeds)")
-        diff = charts.difference_grid(stage / f"{key}_diff.png", r["ref"], [r["means"][row] for row in rows],
-                                      [_label(row) for row in rows], r["mask"],
+        (y0, y1), (x0, x1) = crop
+        cut = lambda im: im[y0:y1, x0:x1]  # noqa: E731 - the material's bounding box, as the grid above
+        diff = charts.difference_grid(stage / f"{key}_diff.png", cut(r["ref"]), [cut(r["means"][row]) for row in rows],
+                                      [_label(row) for row in rows], cut(r["mask"]),
                                       f"{m.key}: candidate − reference (the material's pixels)")
         evt = charts.error_vs_time(stage / f"{key}_error_vs_time.png", f"{m.key}: error against time",
                                    r["stats"])

@@ -345,7 +345,8 @@ def test_ctrl_c_leaves_nothing_half_written(tmp_path):
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
             signal.signal(sig, signal.SIG_DFL)
 
-    p = subprocess.Popen([sys.executable, "-m", "msx", "compare", str(scene), "--quick", "--out", str(tmp_path / "o"),
+    # Without --quick (a longer run: 64 spp, a 2048-spp reference), so that the signal comes while it renders.
+    p = subprocess.Popen([sys.executable, "-m", "msx", "compare", str(scene), "--out", str(tmp_path / "o"),
                           "--cache", str(tmp_path / "c"), "--write-scene", str(tmp_path / "w.xml")],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
                          preexec_fn=like_a_terminal_job, env={**os.environ, "MSX_STOP_GRACE": "inf"})

@@ -48,6 +48,15 @@ if hasattr(signal, "SIGHUP"):
     _STOP_SIGNALS[signal.SIGHUP] = "hang-up (SIGHUP: the terminal closed)"
 
 
+_received = []  # the stop signals received in this process (stop_received)
+
+
+def stop_received() -> bool:
+    """True once a stop signal arrived: code that catches errors to go on (``msx compare SCENE.xml``, one
+    material at a time) must not swallow a stop that came back wrapped in Mitsuba's or Dr.Jit's error."""
+    return bool(_received)
+
+
 def _say(line: str):
     """One line on stderr; a closed terminal (after SIGHUP) is not an error."""
     try:
@@ -114,6 +123,7 @@ class _StopSignals:
         KeyboardInterrupt (SIGINT) or Stopped."""
         if self.signum is None:
             self.signum = signum
+        _received.append(signum)
         raise KeyboardInterrupt if signum == signal.SIGINT else Stopped(signum)
 
     def _unraisable(self, info):

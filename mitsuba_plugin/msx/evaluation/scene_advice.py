@@ -443,9 +443,16 @@ def run(args):
 
 
 def _stopped(error):
-    """A Ctrl-C that arrived while Mitsuba ran msx's plugin constructor comes back wrapped in Mitsuba's error:
-    it stops the run (msx/cli.py), it is not a material msx refuses."""
-    if "KeyboardInterrupt" in str(error) or "Stopped" in type(error).__name__:
+    """A Ctrl-C that arrived while Mitsuba loaded or rendered (msx's plugin constructor, a render's custom op)
+    comes back wrapped in Mitsuba's or Dr.Jit's error: it stops the run (msx/cli.py), it is not a material msx
+    refuses."""
+    from ..cli import stop_received
+
+    chain, e = [], error
+    while e is not None and len(chain) < 10:
+        chain.append(e)
+        e = e.__cause__ or e.__context__
+    if stop_received() or any(isinstance(x, KeyboardInterrupt) or "KeyboardInterrupt" in str(x) for x in chain):
         raise KeyboardInterrupt from error
 
 

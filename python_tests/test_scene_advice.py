@@ -134,11 +134,11 @@ def test_edits_inside_included_files(tmp_path):
     copies.mkdir()
     n = [0]
 
-    def write_copy(data):
+    def write_copy(file, data):
         n[0] += 1
         path = copies / f"{n[0]}.xml"
         path.write_bytes(data)
-        return path
+        return str(path)
 
     main = scene_xml.apply_with_includes(edits, sc, write_copy)
     objects, stage = (copies / "1.xml").read_text(), (copies / "2.xml").read_text()
@@ -165,7 +165,24 @@ def test_write_scene_byte_identical_elsewhere(scene_file, tmp_path):
     assert new.endswith(data[b.end:])
     between_old = data[a.end:b.start]
     assert between_old in new
-    assert not list(tmp_path.glob(".out.xml*"))  # the temporary file is gone (written atomically)
+    assert not list(tmp_path.glob(".out.*"))  # the temporary files are gone (written atomically)
+    # Nothing was recommended for the included material: no copy of its file.
+    assert not (tmp_path / "out.more.xml").exists() and b'filename="more.xml"' in new
+
+
+def test_write_scene_included_material(scene_file, tmp_path):
+    """A material in an included file: written into a copy beside the target, which the target includes
+    instead; that copy differs from the included file only inside the BSDF element."""
+    from msx.evaluation import scene_advice
+
+    sc = scene_xml.discover(scene_file)
+    m = next(m for m in sc.materials if m.key == "included")
+    out = scene_advice.write_scene(sc, [dict(material=m, recommended="correlated")], tmp_path / "w.xml")
+    copy = tmp_path / "w.more.xml"
+    assert out.read_bytes() == sc.files[sc.path].replace(b'filename="more.xml"', b'filename="w.more.xml"')
+    original = sc.files[m.node.file]
+    assert _outside_equal(original, copy.read_bytes(), m.node)
+    assert b"<string name=\"model\" value=\"correlated\"/>" in copy.read_bytes()
 
 
 # ---------------------------------------------------------------- end to end

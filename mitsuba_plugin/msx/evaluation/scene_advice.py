@@ -137,11 +137,11 @@ class SceneRenderer(renders.Renderer):
             scene_xml.set_attr(edits, sc.files[material.top.file], material.top, "id", PROBE_ID)
         return scene_xml.apply_with_includes(edits, sc, self._copy)
 
-    def _copy(self, data: bytes) -> Path:
+    def _copy(self, file, data: bytes) -> str:
         """An edited included file, in the work folder (named by its content)."""
         copy = self.workdir / (hashlib.sha256(data).hexdigest()[:16] + ".xml")
         copy.write_bytes(data)
-        return copy
+        return str(copy)
 
     def probe_id(self, material):
         top = material.top
@@ -489,26 +489,37 @@ def summary_line(r):
 
 def write_scene(scene, results, target, renderer=None):
     """The scene file with each evaluated material set to its recommended model (scene_xml.set_model: only
-    that BSDF element's type and parameters change), written atomically; checked by loading it."""
+    that BSDF element's type and parameters change), written atomically; checked by loading it. A material in
+    an included file is written into a copy of that file beside the target, ``<target stem>.<its name>``,
+    which the target's <include> names instead."""
     edits = scene_xml.Edits()
     for r in results:
         m, model = r["material"], r.get("recommended")
         if r.get("problem") or not model:
             continue
-        if m.include_chain:
-            _say(f"msx: --write-scene: material {m.key} is defined in {m.node.file.name} (an included file), "
-                 "which is left as it is")
-            continue
         if model == "single" and m.kind != "msx_posfree":
             continue  # the built-in is single scattering itself: nothing to change
         scene_xml.set_model(edits, scene, m, model)
-    data = edits.apply(scene.path, scene.files[scene.path])
     target = Path(target)
-    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+    copies = {}  # {final path: bytes} of the included files with a change
+
+    def copy_beside(file, data):
+        path = target.with_name(f"{target.stem}.{Path(file).name}")
+        copies[path] = data
+        return path.name
+
+    data = scene_xml.apply_with_includes(edits, scene, copy_beside)
+    tmps = {path: path.with_name(f".{path.name}.{os.getpid()}.tmp") for path in [*copies, target]}
     try:
-        tmp.write_bytes(data)
+        for path, tmp in tmps.items():
+            tmp.write_bytes(copies.get(path, data))
         if renderer is not None:  # it must load (the original's folder on the resolver path for its files)
             renderer._use()
+            if copies:
+                renderer.mi.Thread.thread().file_resolver().prepend(str(target.resolve().parent))
+            for path, tmp in tmps.items():  # loaded under their final names
+                if path != target:
+                    os.replace(tmp, path)
             used = set().union(*(scene_xml._REF.findall(d.decode(errors="replace")) for d in scene.files.values()))
             try:
                 renderer.mi.load_string(data.decode(), **{k: v for k, v in renderer.defines.items() if k in used})
@@ -519,15 +530,23 @@ def write_scene(scene, results, target, renderer=None):
                 # The original does not load either: the materials at fault are left as written.
                 _say(f"msx: --write-scene {target}: does not load, as the original does not (material "
                      f"{', '.join(unloadable)} left as written): {one_line(e)}")
-        os.replace(tmp, target)
+        for path, tmp in tmps.items():
+            if tmp.exists():
+                os.replace(tmp, path)
     except BaseException as e:
-        tmp.unlink(missing_ok=True)
+        for path, tmp in tmps.items():
+            tmp.unlink(missing_ok=True)
+            if path != target and path in copies:
+                path.unlink(missing_ok=True)
         if isinstance(e, Exception):
             raise RenderError(f"--write-scene {target}: {one_line(e)}") from None
         raise
     if target.resolve().parent != scene.path.resolve().parent:
         _say(f"msx: {target} refers to files relative to {scene.path.parent} (render it from there, or copy it "
              "beside the original)")
+    for path in copies:
+        _say(f"msx: --write-scene: wrote {path} (an included file with a material changed; {target.name} "
+             "includes it instead)")
     return target
 
 

@@ -399,8 +399,9 @@ def standalone(scene: Scene, m: Material, model: str | None) -> str:
 
 
 def apply_with_includes(edits: Edits, scene: Scene, write_copy) -> bytes:
-    """The scene file's edited bytes. An edited included file is written elsewhere by ``write_copy(bytes) →
-    path`` and the <include> that names it (itself maybe in an included file, then edited too) points there."""
+    """The scene file's edited bytes. An edited included file is written elsewhere by ``write_copy(file,
+    bytes) → the name to include it by`` and the <include> that names it (itself maybe in an included file, then
+    edited too) points there."""
     pending = {f for f in edits.files() if f != scene.path}
     while pending:
         deepest = max(pending, key=lambda f: len(scene.chains.get(f, [])))
@@ -408,7 +409,7 @@ def apply_with_includes(edits: Edits, scene: Scene, write_copy) -> bytes:
         chain = scene.chains.get(deepest)
         if not chain:
             continue
-        copy = write_copy(edits.apply(deepest, scene.files[deepest]))
+        copy = write_copy(deepest, edits.apply(deepest, scene.files[deepest]))
         inc = chain[-1]
         set_attr(edits, scene.files[inc.file], inc, "filename", str(copy))
         if inc.file != scene.path:

@@ -195,10 +195,11 @@ SYNTHETIC = """<scene version="3.0.0">
         <film type="hdrfilm"><integer name="width" value="96"/><integer name="height" value="48"/></film>
     </sensor>
     <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
-    <shape type="sphere" id="smooth">
+    <bsdf type="roughconductor" id="smooth"><string name="material" value="Cr"/><string name="distribution" value="ggx"/>
+        <float name="alpha" value="0.05"/></bsdf>
+    <shape type="sphere">
         <point name="center" value="-1.05, 0, 0"/><float name="radius" value="1"/>
-        <bsdf type="roughconductor"><string name="material" value="Cr"/><string name="distribution" value="ggx"/>
-            <float name="alpha" value="0.05"/></bsdf>
+        <bsdf type="twosided"><ref id="smooth"/></bsdf>
     </shape>
     <shape type="sphere" id="rough">
         <point name="center" value="1.05, 0, 0"/><float name="radius" value="1"/>
@@ -238,6 +239,7 @@ def synthetic(tmp_path_factory):
 
 
 def test_known_answers(synthetic):
+    """(The α 0.05 material is shared by <ref id> from inside a twosided: its pixels are found all the same.)"""
     base, r = synthetic
     assert r.returncode == 0, r.stderr[-2000:]
     mats = {m["material"]: m for m in rows(base / "out" / "materials.csv")}
@@ -385,6 +387,10 @@ def test_choose_cheapest_with_ties():
     es = [dict(model="heitz", cost=1.0), dict(model="correlated", cost=1.5)]
     assert choose(es, order)["model"] == "heitz"  # measured cheaper beyond the tie
     assert choose([], order) is None
+    es = [dict(model="heitz", cost=1.0, cost_se=0.2), dict(model="correlated", cost=1.5, cost_se=0.1)]
+    assert choose(es, order)["model"] == "correlated"  # beyond 10 %, not beyond 3 standard errors: a tie
+    es = [dict(model="heitz", cost=1.0, noisy_time=True), dict(model="single", cost=3.0, noisy_time=True)]
+    assert choose(es, order)["model"] == "single"  # renders too short to time: the order decides
 
 
 def test_shipped_material_preview():

@@ -32,7 +32,9 @@ from .. import _cache, _references
 from .._render import RenderError, one_line, output_folder
 from . import common, renders, scene_xml, uncertainty
 
-PROBE_ID = "msx-probe-material"
+# The mask's render marks the material with this seed: its BSDF's description (that of msx_posfree, inside any
+# wrapper that holds it, by <ref id> or not) names it, so the shapes that use it are found.
+MARK_SEED = 918_273_645
 # The candidates, in the order of their cost per sample (the a priori order that breaks ties of measured time:
 # benches/README.md): Mitsuba's built-in, then msx's models; `heitz` is the unbiased walk.
 CANDIDATES = {"conductor": ["builtin", "single", "compensated", "auto", "correlated", "heitz"],
@@ -110,13 +112,16 @@ class SceneRenderer(renders.Renderer):
                     height=str(self.size[1]), scene_files=self.digest,
                     defines=json.dumps(self.defines, sort_keys=True))
 
-    def text(self, material, model, probe=True):
-        """The scene's text with `material` set to `model`, the film at the capped size, the -D values in its
-        <default>s and (probe) an id on the material's outermost BSDF; edited included files are written to
-        the work folder and the includes point there."""
+    def text(self, material, model, mark=False):
+        """The scene's text with `material` set to `model` (mark: an msx model, with the seed MARK_SEED), the
+        film at the capped size and the -D values in its <default>s; edited included files are written to the
+        work folder and the includes point there."""
         sc = self.scene
         edits = scene_xml.Edits()
         scene_xml.set_model(edits, sc, material, model)
+        if mark:
+            scene_xml.set_params(edits, sc.files[material.node.file], material.node,
+                                 [("integer", "seed", str(MARK_SEED))])
         main = sc.files[sc.path]
         film = self._film()
         if film is not None:
@@ -133,8 +138,6 @@ class SceneRenderer(renders.Renderer):
         for other in self.scene.materials:  # one msx refuses as written: its built-in twin (said on the page)
             if other is not material and not other.loads and other.builtin:
                 scene_xml.set_model(edits, sc, other, "builtin")
-        if probe and "id" not in material.top.attrib:
-            scene_xml.set_attr(edits, sc.files[material.top.file], material.top, "id", PROBE_ID)
         return scene_xml.apply_with_includes(edits, sc, self._copy)
 
     def _copy(self, file, data: bytes) -> str:
@@ -142,10 +145,6 @@ class SceneRenderer(renders.Renderer):
         copy = self.workdir / (hashlib.sha256(data).hexdigest()[:16] + ".xml")
         copy.write_bytes(data)
         return str(copy)
-
-    def probe_id(self, material):
-        top = material.top
-        return scene_xml.resolve(top.attrib["id"], self.scene.values) if "id" in top.attrib else PROBE_ID
 
     def _scene(self, name, params):
         import drjit as dr
@@ -158,7 +157,7 @@ class SceneRenderer(renders.Renderer):
 
             gc.collect()
             material = self.materials[params["material"]]
-            text = self.text(material, params["model"] if params["model"] != "builtin" else "builtin")
+            text = self.text(material, params["model"], mark=params.get("mark") == "1")
             threads = dr.thread_count()  # as _render.load_scene: Mitsuba 3.9 deadlocks reading an EXR on 1 thread
             if threads < 2:
                 dr.set_thread_count(2)
@@ -169,12 +168,13 @@ class SceneRenderer(renders.Renderer):
                     dr.set_thread_count(threads)
         return self._loaded[1]
 
-    def mask(self, run: MaterialRun, row):
-        """The material's pixels: the whole footprint of the pixel hits a shape whose BSDF is the material's
-        outermost BSDF."""
-        scene = self._scene(run.name, self.params(run, row))
-        pid = self.probe_id(run.material)
-        targets = [s for s in scene.shapes() if s.bsdf() is not None and s.bsdf().id() == pid]
+    def mask(self, run: MaterialRun):
+        """The material's pixels: the whole footprint of the pixel hits a shape that uses the material (its BSDF,
+        or a BSDF holding it, describes the marked msx_posfree)."""
+        row = next(r for r in run.rows if r[0] != "builtin")
+        scene = self._scene(run.name, dict(self.params(run, row), mark="1"))
+        mark = f"seed={MARK_SEED}"
+        targets = [s for s in scene.shapes() if s.bsdf() is not None and mark in str(s.bsdf())]
         return self.shapes_mask(scene, targets)
 
 
@@ -224,21 +224,30 @@ def _verdict(entry):
 
 
 def choose(entries, order):
-    """The cheapest of `entries` (dicts with 'model', 'cost': time per sample): the lowest measured cost;
-    costs within TIME_TIE of the lowest are ties, broken by `order` (the a priori cost order)."""
+    """The cheapest of `entries` (dicts with 'model', 'cost': time per sample, optionally 'cost_se' its standard
+    error over the seeds and 'noisy_time': renders too short to time): a candidate ties with the lowest cost
+    unless it costs more by over TIME_TIE and 3 standard errors of the difference; renders too short to time
+    tie with everything. Ties go to the first in `order` (the a priori cost order)."""
     if not entries:
         return None
-    costs = [e["cost"] for e in entries if math.isfinite(e["cost"])]
-    low = min(costs) if costs else float("nan")
-    tied = [e for e in entries if not math.isfinite(low) or e["cost"] <= low * (1 + TIME_TIE)]
-    return min(tied, key=lambda e: order.index(e["model"]) if e["model"] in order else len(order))
+    finite = [e for e in entries if math.isfinite(e["cost"])]
+    low = min(finite, key=lambda e: e["cost"]) if finite else None
+
+    def tied(e):
+        if low is None or not math.isfinite(e["cost"]) or e.get("noisy_time") or low.get("noisy_time"):
+            return True
+        margin = max(TIME_TIE * low["cost"], uncertainty.Z * math.hypot(e.get("cost_se", 0.0), low.get("cost_se", 0.0)))
+        return e["cost"] <= low["cost"] + margin
+
+    return min([e for e in entries if tied(e)], key=lambda e: order.index(e["model"]) if e["model"] in order
+               else len(order))
 
 
 def evaluate(renderer, run: MaterialRun, st: AdviceSettings, cache: Path, progress=None):
     """Renders one material's candidates and reference; returns its verdict (dict)."""
     m = run.material
     ref_row = ("invariance", "pt") if m.surface != "diffuse" else ("heitz", "pt")
-    mask = renderer.mask(run, run.rows[0])
+    mask = renderer.mask(run)
     if not mask.any():
         return dict(material=m, problem="not seen from the camera (no pixel of the image shows it first)")
     h1, h2, ref_seconds, cached = _references.reference(
@@ -255,7 +264,9 @@ def evaluate(renderer, run: MaterialRun, st: AdviceSettings, cache: Path, progre
     for row in run.rows:
         r = next(x for x in stats if (x["model"], x["estimator"]) == row and x["spp"] == top)
         secs = float(np.mean(data[row][top].seconds))
-        e = dict(r, row=row, terms=terms[row], se=r["bias2_se"], cost=secs / top, seconds_top=secs,
+        spread = np.std(data[row][top].seconds, ddof=1) / math.sqrt(len(data[row][top].seconds)) / top \
+            if len(data[row][top].seconds) > 1 else 0.0
+        e = dict(r, row=row, terms=terms[row], se=r["bias2_se"], cost=secs / top, cost_se=float(spread), seconds_top=secs,
                  time_ratio=(secs / top) / base_t if base_t > 0 else float("nan"), noisy_time=secs < NOISY_RENDER,
                  unbiased=row[0] in UNBIASED_MODELS)
         e["verdict"] = _verdict(e)
@@ -673,7 +684,8 @@ def _page(scene, results, pngs, st, variant, seconds, written, notes):
                f"mean radiance over the material's pixels and {LOOK_RMS:g} % RMS per pixel, each bound "
                f"{uncertainty.Z:g} standard errors on the pessimistic side; <b>visibly off</b>: beyond a threshold "
                "by more than 3 standard errors; else <b>cannot tell</b>. <b>Fast model</b>: the cheapest candidate "
-               f"that looks right (measured time per sample; within {TIME_TIE:.0%}, the simpler model). "
+               f"that looks right (measured time per sample; within {TIME_TIE:.0%} or 3 standard errors of each "
+               f"other, or from renders shorter than {NOISY_RENDER * 1000:.0f} ms, the simpler model). "
                "<b>Accurate model</b>: the cheapest whose bias² is tied with the unbiased walk's and whose mean "
                "radiance is within noise of the reference (the unbiased walk always qualifies). What multiple "
                "scattering changes: single scattering (the built-in) against the reference (the Smith model with "

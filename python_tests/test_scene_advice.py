@@ -302,6 +302,27 @@ def test_bad_input_one_line_each_rest_evaluated(synthetic):
     assert mats["smooth"]["status"] == mats["rough"]["status"] == "evaluated"
 
 
+def test_reference_reused_same_numbers(synthetic, tmp_path):
+    """A second run with the first one's cache renders only the candidates: the reference comes from the cache
+    (keyed by the scene's files, the material, the -D values and the settings) and the numbers are the same."""
+    base, _ = synthetic
+    r = subprocess.run([sys.executable, "-m", "msx", "compare", str(base / "synthetic.xml"), "--quick", "--out",
+                        str(tmp_path / "again"), "--cache", str(base / "cache"), "--material", "smooth"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "renders (heitz" in r.stderr and "reference (" not in r.stderr  # no reference spp rendered
+    assert "from the cache" in (tmp_path / "again" / "index.html").read_text()
+    first = [c for c in rows(base / "out" / "candidates.csv") if c["material"] == "smooth"]
+    again = rows(tmp_path / "again" / "candidates.csv")
+    # The same samples (same seeds), summed by Dr.Jit's threads in another order: equal up to float rounding,
+    # i.e. far below each number's standard error; the verdicts and ranks identical.
+    assert [(c["model"], c["verdict"], c["rank"]) for c in again] == [(c["model"], c["verdict"], c["rank"])
+                                                                      for c in first]
+    for a, b in zip(again, first):
+        for value, se in (("bias2", "bias2_se"), ("mean_error_pct", "mean_error_se_pct")):
+            assert abs(float(a[value]) - float(b[value])) <= 1e-3 * float(b[se]), (a, b)
+
+
 def test_unloadable_material_others_evaluated(tmp_path):
     """A material that does not load as written (a conductor's parameter on msx's glass): one line naming it;
     the other material is evaluated with it rendered as its built-in twin; the written scene is still written

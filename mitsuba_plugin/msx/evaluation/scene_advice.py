@@ -53,7 +53,6 @@ class AdviceSettings:
     spps: list           # the sweep of every candidate
     seeds: int           # independent renders per spp
     ref_spp: int         # the reference (two halves)
-    size: int = 0        # unused (renders.sweep passes (size, size) to params, which ignore it)
 
 
 def settings(quick: bool) -> AdviceSettings:
@@ -64,7 +63,7 @@ def settings(quick: bool) -> AdviceSettings:
 
 @dataclass
 class MaterialRun:
-    """What renders.sweep, renders.statistics and msx/_references.py need of a scene: one material."""
+    """What renders.statistics and msx/_references.py need of a scene: one material."""
     name: str
     material: scene_xml.Material
     rows: list
@@ -147,26 +146,30 @@ class SceneRenderer(renders.Renderer):
         return str(copy)
 
     def _scene(self, name, params):
+        """The loaded scene of these parameters; the candidates of one material stay loaded together (the
+        interleaved sweep switches between them at every render: ``sweep``)."""
         import drjit as dr
 
         self._use()
         key = (name, tuple(sorted(params.items())))
-        if self._loaded is None or self._loaded[0] != key:
-            self._loaded = None
-            import gc
-
-            gc.collect()
+        if not hasattr(self, "_scenes"):
+            self._scenes = {}
+        if key not in self._scenes:
             material = self.materials[params["material"]]
             text = self.text(material, params["model"], mark=params.get("mark") == "1")
             threads = dr.thread_count()  # as _render.load_scene: Mitsuba 3.9 deadlocks reading an EXR on 1 thread
             if threads < 2:
                 dr.set_thread_count(2)
             try:
-                self._loaded = (key, self.mi.load_string(text.decode()))
+                self._scenes[key] = self.mi.load_string(text.decode())
             finally:
                 if threads < 2:
                     dr.set_thread_count(threads)
-        return self._loaded[1]
+        return self._scenes[key]
+
+    def release(self):
+        self._scenes = {}
+        super().release()
 
     def mask(self, run: MaterialRun):
         """The material's pixels: the whole footprint of the pixel hits a shape that uses the material (its BSDF,
@@ -243,19 +246,45 @@ def choose(entries, order):
                else len(order))
 
 
+def sweep(renderer, run: MaterialRun, st: AdviceSettings, progress=None):
+    """{row: {spp: renders.Image}}: every candidate at every spp and seed, with the seeds of renders.sweep
+    (the same images), but interleaved — for each spp and seed, one render of each candidate in turn — so that
+    a change of the machine's load during the sweep falls on every candidate alike: their times per sample,
+    which choose the cheapest model, are compared under the same load."""
+    data = {row: {spp: renders.Image([], []) for spp in st.spps} for row in run.rows}
+    params = {row: renderer.params(run, row) for row in run.rows}
+    for row in run.rows:
+        renderer.warm_up(run.name, params[row])  # loads it and compiles its kernels, untimed
+    total, done = len(run.rows) * len(st.spps) * st.seeds, 0
+    for spp in st.spps:
+        for k in range(st.seeds):
+            for row in run.rows:
+                img, seconds = renderer.render(run.name, params[row], spp,
+                                               seed=renders._seed_base(run, row) + 1000 * k + spp)
+                data[row][spp].images.append(img)
+                data[row][spp].seconds.append(seconds)
+                done += 1
+                if progress:
+                    progress(done, total, f"renders ({_label(row)}, {spp} spp)")
+    renderer.release()
+    return data
+
+
 def evaluate(renderer, run: MaterialRun, st: AdviceSettings, cache: Path, progress=None):
     """Renders one material's candidates and reference; returns its verdict (dict)."""
     m = run.material
     ref_row = ("invariance", "pt") if m.surface != "diffuse" else ("heitz", "pt")
     mask = renderer.mask(run)
+    renderer.release()  # one scene loaded at a time, but for the candidates of the sweep
     if not mask.any():
         return dict(material=m, problem="not seen from the camera (no pixel of the image shows it first)")
     h1, h2, ref_seconds, cached = _references.reference(
         renderer, run, renderer.size, ref_row, st.ref_spp, cache,
         progress=(lambda d, t: progress(d, t, f"reference ({_label(ref_row)}, {st.ref_spp} spp)")) if progress else None)
     ref = 0.5 * (h1 + h2)
+    renderer.release()
     noise = renders.reference_noise(h1, h2, ref, mask)
-    data = renders.sweep(renderer, run, st, progress=progress)
+    data = sweep(renderer, run, st, progress=progress)
     stats, terms = renders.statistics(run, data, ref, noise, mask)
     top = max(st.spps)
     base_row = ("builtin", "-") if ("builtin", "-") in data else run.rows[0]

@@ -48,6 +48,15 @@ if hasattr(signal, "SIGHUP"):
     _STOP_SIGNALS[signal.SIGHUP] = "hang-up (SIGHUP: the terminal closed)"
 
 
+_received = []  # the stop signals received in this process (stop_received)
+
+
+def stop_received() -> bool:
+    """True once a stop signal arrived: code that catches errors to go on (``msx compare SCENE.xml``, one
+    material at a time) must not swallow a stop that came back wrapped in Mitsuba's or Dr.Jit's error."""
+    return bool(_received)
+
+
 def _say(line: str):
     """One line on stderr; a closed terminal (after SIGHUP) is not an error."""
     try:
@@ -114,6 +123,7 @@ class _StopSignals:
         KeyboardInterrupt (SIGINT) or Stopped."""
         if self.signum is None:
             self.signum = signum
+        _received.append(signum)
         raise KeyboardInterrupt if signum == signal.SIGINT else Stopped(signum)
 
     def _unraisable(self, info):
@@ -229,6 +239,17 @@ def cmd_render(args):
 
 
 def cmd_compare(args):
+    if args.scene is not None:
+        if args.scenes:
+            raise UsageError("--scenes is for the papers' scenes; with SCENE.xml leave it out")
+        from .evaluation import scene_advice
+
+        scene_advice.run(args)
+        return
+    given = [o for o, v in (("-D", args.define), ("--write-scene", args.write_scene), ("--material", args.material))
+             if v]
+    if given:
+        raise UsageError(f"{', '.join(given)}: only with a scene (msx compare SCENE.xml …)")
     from .evaluation import driver as compare
 
     compare.run(args)
@@ -295,8 +316,18 @@ def build_parser():
     r.add_argument("-D", "--define", action="append", help="scene parameter key=value (XML <default>)")
     r.set_defaults(func=cmd_render)
 
-    c = sub.add_parser("compare", help="render the paper comparisons side by side with Mitsuba's built-ins",
+    c = sub.add_parser("compare", help="render the paper comparisons side by side with Mitsuba's built-ins; with "
+                                       "SCENE.xml: which model each material of that scene needs",
                        parents=[common])
+    c.add_argument("scene", nargs="?", default=None,
+                   help="a Mitsuba scene (a path, or a shipped scene by name): per material msx can stand in for, "
+                        "does multiple scattering change the image and which model is the cheapest that looks right "
+                        "(docs/evaluation.md)")
+    c.add_argument("-D", "--define", action="append", help="scene parameter key=value (XML <default>), with SCENE")
+    c.add_argument("--write-scene", default=None, metavar="OUT.xml",
+                   help="with SCENE: write the scene with each material set to its recommended model")
+    c.add_argument("--material", action="append", default=None, metavar="KEY",
+                   help="with SCENE: evaluate only this material (its id as the report names it; repeatable)")
     c.add_argument("--quick", action="store_true", help="small settings: a first look in a few minutes (CI)")
     c.add_argument("--scenes", default=None, help="folder with the scene XMLs (default: the installed scenes)")
     c.add_argument("--out", default="out", help="report folder (index.html, CSVs, PNGs)")

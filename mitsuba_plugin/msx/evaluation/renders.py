@@ -144,8 +144,12 @@ class Renderer:
 
     def object_mask(self, name, params, sub=3):
         """Pixels whose whole footprint (sub × sub rays) hits a surface with msx_posfree: the object's pixels."""
-        mi = self.mi
         scene = self._scene(name, dict(params, bsdf="msx_posfree", model="correlated", estimator="pt"))
+        return self.shapes_mask(scene, _msx_shapes(scene), sub)
+
+    def shapes_mask(self, scene, targets, sub=3):
+        """Pixels of a loaded scene whose whole footprint (sub × sub rays) hits one of the shapes `targets`."""
+        mi = self.mi
         sensor = scene.sensors()[0]
         film = sensor.film()
         w, h = film.crop_size()
@@ -156,16 +160,15 @@ class Renderer:
             ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(mi.Float(u), mi.Float(v)), mi.Point2f(0.5, 0.5))
             si = scene.ray_intersect(ray)
             ours = mi.Bool(False)
-            for shape in _msx_shapes(scene):
+            for shape in targets:
                 ours = ours | (si.is_valid() & (si.shape == mi.ShapePtr(shape)))
             hit = np.array(ours.numpy(), dtype=bool)
             return hit.reshape(h, w, sub * sub).all(axis=2)
-        return self._mask_scalar(scene, w, h, sub)
+        return self._mask_scalar(scene, w, h, sub, targets)
 
-    def _mask_scalar(self, scene, w, h, sub):
+    def _mask_scalar(self, scene, w, h, sub, targets):
         mi = self.mi
         sensor = scene.sensors()[0]
-        targets = _msx_shapes(scene)
         mask = np.ones((h, w), dtype=bool)
         for y in range(h):
             for x in range(w):

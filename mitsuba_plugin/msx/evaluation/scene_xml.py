@@ -347,8 +347,9 @@ def remove(edits: Edits, data: bytes, node: Node):
 
 def set_model(edits: Edits, scene: Scene, m: Material, model: str):
     """Edits that make material `m` render with `model`: "builtin" (Mitsuba's single-scattering twin) or a
-    model of msx_posfree (estimator pt). Parameters msx_posfree does not take (``sample_visible``) or the
-    built-in does not take (msx's own) are removed; everything else is left as it is."""
+    model of msx_posfree (estimator pt). Parameters the built-in does not take (msx's own) are removed;
+    everything else is left as it is (msx_posfree takes every parameter of the built-ins, ``sample_visible``
+    included)."""
     data = scene.files[m.node.file]
     node = m.node
     if model == "builtin":
@@ -365,9 +366,6 @@ def set_model(edits: Edits, scene: Scene, m: Material, model: str):
         return
     if m.kind != "msx_posfree":
         set_attr(edits, data, node, "type", "msx_posfree")
-        for c in node.children:
-            if resolve(c.attrib.get("name", ""), scene.values) == "sample_visible":
-                remove(edits, data, c)
     drop = ["estimator"] + ([] if model == "auto" else ["auto_tolerance"])
     from ..plugin.parameters import MIS_DENSITY_MODELS
 

@@ -67,6 +67,17 @@ def _drop_duplicates(text, names):
     return re.sub(r'<bsdf type="(?:msx_posfree|roughconductor|roughdielectric)".*?</bsdf>', fix, text, flags=re.S)
 
 
+def resize(mi, scene, width, height):
+    """The first sensor's film at width × height (uncropped), whatever the scene declares."""
+    p = mi.traverse(scene)
+    key = next(k for k in p.keys() if k.endswith("film.size"))
+    prefix = key[:-len("size")]
+    p[key] = mi.ScalarVector2u(width, height)
+    p[prefix + "crop_size"] = mi.ScalarVector2u(width, height)
+    p[prefix + "crop_offset"] = mi.ScalarPoint2u(0, 0)
+    p.update()
+
+
 def resolve(name):
     p = Path(name)
     if p.exists():
@@ -112,7 +123,7 @@ def main(argv=None):
         width = args.res
         height = max(1, round(film[1] * width / film[0]))
         del probe
-        params = dict(defines, width=str(width), height=str(height))
+        params = dict(defines)
         times = {m: [] for m in models}
         means = {}
         walked = {}
@@ -120,6 +131,7 @@ def main(argv=None):
             for rep in range(args.repeats):
                 for m in models:
                     scene = mi.load_string(sources[m], **params)
+                    resize(mi, scene, width, height)
                     if m == "auto" and rep == 0:  # an extra render that counts (its own kernel)
                         counter = jit_auto.count_calls()
                         dr.eval(mi.render(scene, spp=args.spp, seed=rep))

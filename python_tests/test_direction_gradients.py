@@ -32,12 +32,13 @@ N, ANGLE, H = 4096, 0.2, 1e-3
 
 @pytest.fixture(scope="module")
 def table():
-    mi.set_variant("llvm_ad_rgb")
-    import msx
+    """The engine's table, with the engine registered in drjit's default symbolic mode for the module (a
+    module run earlier may have registered the batched route, which turns symbolic loops off)."""
+    import jit_support
     from msx.jit import bsdf as jit_bsdf
 
-    msx.register()
-    return jit_bsdf
+    with jit_support.engine_mode():
+        yield jit_bsdf
 
 
 def _params(surface, model):

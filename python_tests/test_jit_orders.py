@@ -68,10 +68,10 @@ Z_MAX = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / N_COMPARISONS))
 
 @pytest.fixture(scope="module", autouse=True)
 def engine():
-    import msx
+    import jit_support
 
-    mi.set_variant("llvm_ad_rgb")
-    msx.register(backend="jit")
+    with jit_support.engine_mode():
+        yield
 
 
 def direction(theta, phi=0.0):

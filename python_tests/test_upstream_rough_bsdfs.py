@@ -71,11 +71,11 @@ def as_msx(builtin, params):
 
 @pytest.fixture(scope="module")
 def llvm():
-    mi.set_variant("llvm_ad_rgb")
-    import msx
+    """msx's Dr.Jit engine in llvm_ad_rgb, drjit's default symbolic mode, for the module."""
+    import jit_support
 
-    msx.register()
-    return mi
+    with jit_support.engine_mode():
+        yield mi
 
 
 @pytest.mark.parametrize("who", ["builtin", "msx"])

@@ -20,7 +20,7 @@ from ..plugin.base import make_base_class, make_factory, native_channels, one_li
 from ..plugin.vectorized_config import vectorized_config
 from . import analytic, auto, gradients, heitz, invariance, mis, posfree, posfree_dielectric
 from .microfacet import ConductorFresnel, Microfacet
-from .rng import hash_words
+from .rng import clean_uniform, hash_words
 
 # The random walks of the engine, by surface and model name: each model module provides its own table.
 CONDUCTOR_WALKS = {**posfree.CONDUCTOR_WALKS, **heitz.CONDUCTOR_WALKS, **invariance.CONDUCTOR_WALKS}
@@ -341,7 +341,7 @@ class DielectricModel:
         cosine = s1 < k
         # s1 rescaled within its branch: the cosine lobe's side, or the single sampler's own choice.
         r = dr.select(cosine, s1 / k, (s1 - k) / (1.0 - k))
-        r = dr.clip(dr.select(dr.isfinite(r), r, 0.5), 0.0, 0.99999994)
+        r = clean_uniform(r)
         wo_s, _, w_s, valid_s = self.analytic_single.sample(mf, eta, call.radiance, wi, r, u1, u2)
         # A reflection that ends below the surface (or a refraction above) has weight 0 (G1(ω_o, m) = 0) and
         # is not part of the density single's pdf gives: it is dropped, so the drawn directions have that

@@ -79,11 +79,11 @@ import mitsuba as mi
 from . import mis, walk
 from .microfacet import INV_PI, ConductorFresnel, Microfacet, dot, max_channel, reflect
 from . import heitz
-from .dielectric import eta_seen, radiance_scale
+from .dielectric import eta_seen, radiance_scale, reflect_or_refract_unit
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
 from .model import ConductorWalk, DielectricWalk, DiffuseWalk
-from .posfree_dielectric import l_beta
-from .rng import Stream
+from .rng import Stream, clean_uniform
+from .special import expm1, l_beta, optical_depth
 
 # src/models/invariance/conductor.rs: where roulette starts, its sure-survival level, and the highest
 # order the connection strategy serves.
@@ -101,8 +101,6 @@ DIELECTRIC_RUN_SLOTS = 18
 # compiles to a branch that a packet of lanes skips when none of them has a run that long (most runs are
 # 1–3 directions: the passes over all the slots cost 30 % of the invariance walk's render time, measured).
 RUN_SLOTS_ALWAYS = 4
-
-ONE_MINUS = 0.99999994  # largest float32 below 1
 
 
 # ------------------------------------------------------------------ the exit table (recursion.rs)
@@ -490,9 +488,6 @@ def sample(mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
     slots = run_slots(last)
     start = valid_direction(wi) & (last > 0)
 
-    def clean(u):
-        return dr.clip(dr.select(dr.isfinite(u), u, 0.5), 0.0, ONE_MINUS)
-
     dp0 = MonotoneExit.new(mf.abs_lambda(-wi), slots)
 
     def body(j, w, weight, done, active, counter, u_exit, u1, u2, dp_state):
@@ -518,7 +513,8 @@ def sample(mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
         return j + 1, -d_next, weight, done, active, rng.counter, c, a, b, dp.state()
 
     state = (mi.UInt32(0), mi.Vector3f(wi), mi.Spectrum(1.0), mi.Bool(False), mi.Bool(start), mi.UInt32(0),
-             clean(mi.Float(sample1)), clean(mi.Float(u1)), clean(mi.Float(u2)), dp0.state())
+             clean_uniform(mi.Float(sample1)), clean_uniform(mi.Float(u1)), clean_uniform(mi.Float(u2)),
+             dp0.state())
     state = dr.while_loop(state, lambda *s: s[4], body, label="msx_invariance_conductor_sample")
     return -state[1], state[2], state[3]
 
@@ -688,9 +684,6 @@ def diffuse_sample(mf, albedo, wi, sample1, u1, u2, max_bounces, key):
     l0 = mf.abs_lambda(-wi)
     start = valid_direction(wi) & dr.isfinite(l0) & (last > 0)
 
-    def clean(u):
-        return dr.clip(dr.select(dr.isfinite(u), u, 0.5), 0.0, ONE_MINUS)
-
     table0 = ExitTable.new(l0, capacity)
 
     def body(j, w, weight, done, active, counter, u_exit, u1, u2, table_state):
@@ -713,7 +706,8 @@ def diffuse_sample(mf, albedo, wi, sample1, u1, u2, max_bounces, key):
         return j + 1, -d, weight, done, active, rng.counter, c, a, b, table.state()
 
     state = (mi.UInt32(0), mi.Vector3f(wi), mi.Spectrum(1.0), mi.Bool(False), mi.Bool(start), mi.UInt32(0),
-             clean(mi.Float(sample1)), clean(mi.Float(u1)), clean(mi.Float(u2)), table0.state())
+             clean_uniform(mi.Float(sample1)), clean_uniform(mi.Float(u1)), clean_uniform(mi.Float(u2)),
+             table0.state())
     state = dr.while_loop(state, lambda *s: s[4], body, label="msx_invariance_diffuse_sample")
     return -state[1], state[2], state[3]
 
@@ -852,11 +846,6 @@ def draw_depth(chain, c_min, key, counter, active, traced=False):
     return tau, total, counter, ratio
 
 
-def optical_depth(u):
-    """E = −ln(1 − U), an Exp(1) depth (finite: U is clamped below 1)."""
-    return -dr.log(1.0 - dr.clip(u, 0.0, ONE_MINUS))
-
-
 def transmit_exit(chain, lambda_t, key, counter, active, traced=False):
     """Unbiased estimate of E[(1 − e^{−τ})^{Λ'}] given the hits (Rust ``transmit_exit``): the top piece's
     mass exactly, π(0)·L_0·B(L_0, 1+Λ'), one depth drawn from the deeper pieces for the rest. Returns
@@ -868,7 +857,7 @@ def transmit_exit(chain, lambda_t, key, counter, active, traced=False):
     e = p0 * l_beta(l0, lambda_t)
     deeper = run & (chain.a > 1)
     tau, rest, counter, ratio = draw_depth(chain, 1, key, counter, deeper, traced)
-    above = -heitz.expm1(-tau)  # 1 − e^{−τ}
+    above = -expm1(-tau)  # 1 − e^{−τ}
     # Drawn from π restricted to c ≥ 1 (mass ``rest``): rest·g(τ); traced, r̄est·(π(c)/π̄(c))·…·g(τ).
     weight = dr.detach(rest) * ratio if traced else rest
     e = dr.select(deeper & (rest > 0.0), e + weight * dr.exp(lambda_t * dr.log(above)), e)
@@ -1009,10 +998,8 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None)
         else:
             m, cos_wm, valid = heitz.visible_normal(mfs, w, u1, u2)
             active &= valid
-            f = heitz.fresnel_dielectric(cos_wm, es)
-            o, ok_t = heitz.refract_unit(w, m, cos_wm, es)
-            refr = active & (u_f >= f) & ok_t
-            d = dr.normalize(reflect(w, m))
+            o, d, crossed = reflect_or_refract_unit(w, m, cos_wm, es, u_f)
+            refr = active & crossed
         tau, _, counter, depth_ratio = draw_depth(chain, 0, key, rng.counter, refr, traced)
         if traced:
             thr = dr.select(active, thr * weight * dr.select(refr, depth_ratio, 1.0), thr)
@@ -1066,22 +1053,17 @@ def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
     start = dielectric_valid(wi, eta) & dr.isfinite(l0) & (last > 0)
     chain0 = PieceChain.new(l0, slots)
 
-    def clean(u):
-        return dr.clip(dr.select(dr.isfinite(u), u, 0.5), 0.0, ONE_MINUS)
-
     def body(j, w, done, active, counter, ua, u1, u2, refracted, h_dir, h_t, chain_state):
         chain = PieceChain.from_state(chain_state)
         m, cos_wm, valid = heitz.visible_normal(mf, w, u1, u2)
         active &= valid
-        f = heitz.fresnel_dielectric(cos_wm, e)
-        o, ok_t = heitz.refract_unit(w, m, cos_wm, e)
-        refr = active & (ua >= f) & ok_t
+        o, d, crossed = reflect_or_refract_unit(w, m, cos_wm, e, ua)
+        refr = active & crossed
         tau, _, counter, _ = draw_depth(chain, 0, key, counter, refr)
         refracted = refracted | refr
         h_dir = dr.select(refr, -o, h_dir)
         h_t = dr.select(refr, heitz.flip_height(-tau), h_t)
         active &= ~refr
-        d = dr.normalize(reflect(w, m))
         active &= dr.all(dr.isfinite(d)) & (d[2] != 0.0)
         up = d[2] > 0.0
         lam = mf.lambda_(d)
@@ -1098,9 +1080,9 @@ def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
         a, b = rng.next2()
         return j + 1, -d, done, active, rng.counter, c, a, b, refracted, h_dir, h_t, chain.state()
 
-    state = (mi.UInt32(0), mi.Vector3f(w0), mi.Bool(False), mi.Bool(start), mi.UInt32(0), clean(mi.Float(sample1)),
-             clean(mi.Float(u1)), clean(mi.Float(u2)), mi.Bool(False), mi.Vector3f(0.0, 0.0, 1.0), mi.Float(0.0),
-             chain0.state())
+    state = (mi.UInt32(0), mi.Vector3f(w0), mi.Bool(False), mi.Bool(start), mi.UInt32(0),
+             clean_uniform(mi.Float(sample1)), clean_uniform(mi.Float(u1)), clean_uniform(mi.Float(u2)), mi.Bool(False),
+             mi.Vector3f(0.0, 0.0, 1.0), mi.Float(0.0), chain0.state())
     j, w, done, _, counter, _, _, _, refracted, h_dir, h_t, _ = dr.while_loop(
         state, lambda *s: s[3], body, label="msx_invariance_dielectric_sample")
     wo_run = -dr.select(outside, w, -w)  # the run's exit direction d in the macro frame

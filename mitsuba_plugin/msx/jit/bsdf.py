@@ -255,8 +255,7 @@ class ConductorModel:
             def primal(m, *eta_k):
                 return self.estimate(m, material(eta_k), wi, wo, bounces, key)
 
-        with invariance.unrolled():  # its forward derivative and the run's branch do not mix (invariance.py)
-            return gradients.attach_walk(call, [] if fresnel.mirror else [fresnel.eta, fresnel.k], run, primal)
+        return gradients.attach_walk(call, [] if fresnel.mirror else [fresnel.eta, fresnel.k], run, primal)
 
     def sample_traced(self, call, wi, s1, u1, u2, eval_key):
         """``sample`` while differentiated: ω_o from the proposal, weighed by the walk's estimate there (the
@@ -329,8 +328,7 @@ class DielectricModel:
         def run(m, m_sample, eta):
             return self.walk.eval_pt(m, eta, call.radiance, wi, wo, bounces, key, mf_sample=m_sample)
 
-        with invariance.unrolled():  # its forward derivative and the run's branch do not mix (invariance.py)
-            return gradients.attach_walk(call, [call.eta], run)
+        return gradients.attach_walk(call, [call.eta], run)
 
     def sample_traced(self, call, wi, s1, u1, u2, eval_key):
         """``sample`` while differentiated: ω_o from the MIS density (single scattering mixed with a cosine
@@ -353,9 +351,8 @@ class DielectricModel:
         pdf = mis.dielectric_pdf(mf, eta, wi, wo)
         # The differentiated walk's own estimate (its draws differ from the plain walk's: the position-free
         # walks draw normals and choices otherwise while differentiated), with the parameters detached.
-        with invariance.unrolled():
-            value = self.walk.eval_pt(mf, eta, call.radiance, wi, wo, self.bounces(call, wi), eval_key(wo),
-                                      mf_sample=mf)
+        value = self.walk.eval_pt(mf, eta, call.radiance, wi, wo, self.bounces(call, wi), eval_key(wo),
+                                  mf_sample=mf)
         valid = (cosine | valid_s) & (wo[2] != 0.0) & (pdf > 0.0)
         return wo, pdf, self.tinted(call, wi, wo, dr.select(valid, value / pdf, 0.0)), valid
 

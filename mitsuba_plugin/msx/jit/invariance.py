@@ -69,7 +69,6 @@ upward direction is at least as steep as ω_o. ``sample``: the same walk leaving
 with probability 1 − H_m/H_{m−1}; the weight is the product of the Fresnel terms.
 """
 
-import contextlib
 import copy
 import math
 
@@ -106,26 +105,15 @@ RUN_SLOTS_ALWAYS = 4
 # ------------------------------------------------------------------ the exit table (recursion.rs)
 
 
-# True while a differentiated walk is traced and its derivative propagated (``unrolled``): drjit 1.5's
-# forward mode through the loop fails on the branch of ``over_run`` (it tries to evaluate a symbolic
-# variable), so the passes are then unrolled whole.
-_UNROLLED = [False]
-
-
-@contextlib.contextmanager
-def unrolled():
-    _UNROLLED[0] = True
-    try:
-        yield
-    finally:
-        _UNROLLED[0] = False
-
-
-def over_run(n, a, step, carry, reverse=True):
+def over_run(n, a, step, carry, reverse=True, unrolled=False):
     """``carry = step(i, carry)`` for the slots i of a run held in ``n`` registers, n−1 … 0 (``reverse``) or
     0 … n−1; the slots from ``RUN_SLOTS_ALWAYS`` on inside ``dr.if_stmt(a > RUN_SLOTS_ALWAYS)``, a branch that
     lanes with shorter runs skip. ``step`` must leave the carry unchanged for the slots i ≥ ``a`` (``a``: the
-    slots in use, a UInt32 per lane)."""
+    slots in use, a UInt32 per lane).
+
+    ``unrolled``: every slot without the branch (the same bits), for a walk whose derivative is propagated
+    in forward mode through its loop (``mf_sample`` given): drjit 1.5's forward mode fails on the branch (it
+    tries to evaluate a symbolic variable). The run's owner (``MonotoneExit``, ``PieceChain``) carries it."""
     lo = min(RUN_SLOTS_ALWAYS, n)
     head, tail_slots = list(range(lo)), list(range(lo, n))
     if reverse:
@@ -140,7 +128,7 @@ def over_run(n, a, step, carry, reverse=True):
     if not reverse:
         for i in head:
             carry = step(i, carry)
-    if tail_slots and _UNROLLED[0]:
+    if tail_slots and unrolled:
         carry = tail(*carry)
     elif tail_slots:
         carry = dr.if_stmt(args=tuple(carry), cond=a > lo, true_fn=tail, false_fn=lambda *c: c, label="msx_run_tail")
@@ -158,23 +146,25 @@ class MonotoneExit:
     probability ``hit`` = H_m. Every indexed access is a select over the slots, every pass over the run
     is masked by i < a. Pass :meth:`state` through the walk's loop and rebuild with :meth:`from_state`."""
 
-    def __init__(self, down, g, a, has_up, hit):
+    def __init__(self, down, g, a, has_up, hit, unrolled=False):
         self.down, self.g = list(down), list(g)
         self.a, self.has_up, self.hit = a, has_up, hit
         self.n = len(self.down)
+        # How its passes are traced (``over_run``): a Python bool of the trace, not loop state.
+        self.unrolled = unrolled
 
     @staticmethod
-    def new(l0, n):
+    def new(l0, n, unrolled=False):
         """A path starting with d_0 (downward) of |Λ(d_0)| = ``l0``, room for ``n`` downward directions."""
         return MonotoneExit([mi.Float(l0)] + [mi.Float(1.0) for _ in range(n - 1)], [mi.Float(0.0) for _ in range(n)],
-                            mi.UInt32(1), mi.Bool(False), mi.Float(1.0))
+                            mi.UInt32(1), mi.Bool(False), mi.Float(1.0), unrolled)
 
     def state(self):
         return (self.down, self.g, self.a, self.has_up, self.hit)
 
     @staticmethod
-    def from_state(s):
-        return MonotoneExit(*s)
+    def from_state(s, unrolled=False):
+        return MonotoneExit(*s, unrolled=unrolled)
 
     def push_down(self, l, active):
         """Appends a downward direction of |Λ| = ``l`` where ``active``; False on a non-monotone path or a
@@ -187,7 +177,7 @@ class MonotoneExit:
                 return down
             return down[:i] + (dr.select(ok & (a == i), l, down[i]),) + down[i + 1:]
 
-        self.down = list(over_run(self.n, a + 1, step, tuple(self.down)))
+        self.down = list(over_run(self.n, a + 1, step, tuple(self.down), unrolled=self.unrolled))
         self.a = dr.select(ok, self.a + 1, self.a)
         return ok
 
@@ -207,7 +197,7 @@ class MonotoneExit:
             return (dr.select(run, (li * c + gi) * r_x, c), dr.select(run, (li * c_x + lambda_y * c_y_new) * r_x, c_x),
                     dr.select(run, c_y_new, c_y))
 
-        c, c_x, _ = over_run(self.n, self.a, step, (c0, mi.Float(0.0), c0))
+        c, c_x, _ = over_run(self.n, self.a, step, (c0, mi.Float(0.0), c0), unrolled=self.unrolled)
         return c, c_x
 
     def push_up(self, lam, active):
@@ -224,7 +214,8 @@ class MonotoneExit:
             g_i = lam * c
             return (c, dr.select(run, cont + g_i / li, cont)) + g[:i] + (g_i,) + g[i + 1:]
 
-        out = over_run(self.n, self.a, step, (dr.select(was_up, 0.0, 1.0), mi.Float(0.0)) + tuple(self.g))
+        out = over_run(self.n, self.a, step, (dr.select(was_up, 0.0, 1.0), mi.Float(0.0)) + tuple(self.g),
+                       unrolled=self.unrolled)
         cont, g_new = out[1], out[2:]
         good = (cont > 0.0) & dr.isfinite(cont)
         inv = dr.select(good, 1.0 / cont, 0.0)
@@ -232,7 +223,7 @@ class MonotoneExit:
         def scale(i, g):  # the slots i ≥ a are never read
             return g[:i] + (dr.select(active, g_new[i] * inv, g[i]),) + g[i + 1:]
 
-        self.g = list(over_run(self.n, self.a, scale, tuple(self.g)))
+        self.g = list(over_run(self.n, self.a, scale, tuple(self.g), unrolled=self.unrolled))
         self.hit = dr.select(active, self.hit * dr.select(good, cont, 0.0), self.hit)
         self.has_up = self.has_up | active
         return dr.select(active, cont, 0.0)
@@ -326,7 +317,7 @@ def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None):
         light = LightVertex(mf, fresnel, wo, pdf_scale_o, u1, u2, mf_sample)
         light.lambda_o = lambda_o
     l0 = mf.abs_lambda(-wi)
-    dp0 = MonotoneExit.new(l0, slots)
+    dp0 = MonotoneExit.new(l0, slots, unrolled=mf_sample is not None)
     return walk_from(mf, fresnel, wo, lambda_o, light, CONNECT_MAX_ORDER, mi.Vector3f(wi), 0.25 / (wi[2] * l0),
                      mi.Spectrum(1.0), dp0, start, 0, last, key, rng0.counter, mf_sample=mf_sample)
 
@@ -358,7 +349,7 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
             if not outer_fresnel.mirror:
                 fresnel = ConductorFresnel(rest[0], rest[1])
         rng = Stream(key, counter)
-        dp = MonotoneExit.from_state(dp_state)
+        dp = MonotoneExit.from_state(dp_state, dp0.unrolled)
         order = j + 1
         # NEE: D(h)/(4 A(w)) · F · p_exit(d_0..d_m, ω_o)/H_m, with the balance heuristic against the
         # connection for orders 2..connect_max.
@@ -723,22 +714,24 @@ class PieceChain:
     not materialised), ``a`` (pieces), ``has_up``, ``hit`` (H_m). Pass :meth:`state` through the walk's
     loop and rebuild with :meth:`from_state`."""
 
-    def __init__(self, rates, pi, a, has_up, scale, hit):
+    def __init__(self, rates, pi, a, has_up, scale, hit, unrolled=False):
         self.rates, self.pi = list(rates), list(pi)
         self.a, self.has_up, self.scale, self.hit = a, has_up, scale, hit
         self.n = len(self.rates)
+        # How its passes are traced (``over_run``): a Python bool of the trace, not loop state.
+        self.unrolled = unrolled
 
     @staticmethod
-    def new(l0, n):
+    def new(l0, n, unrolled=False):
         return PieceChain([mi.Float(l0)] + [mi.Float(1.0) for _ in range(n - 1)], [mi.Float(0.0) for _ in range(n)],
-                          mi.UInt32(1), mi.Bool(False), mi.Float(1.0), mi.Float(1.0))
+                          mi.UInt32(1), mi.Bool(False), mi.Float(1.0), mi.Float(1.0), unrolled)
 
     def state(self):
         return (self.rates, self.pi, self.a, self.has_up, self.scale, self.hit)
 
     @staticmethod
-    def from_state(s):
-        return PieceChain(*s)
+    def from_state(s, unrolled=False):
+        return PieceChain(*s, unrolled=unrolled)
 
     def pi_at(self, c, on):
         """π(c) (normalised) of the slot c (a Python int) where ``on``."""
@@ -756,7 +749,7 @@ class PieceChain:
                 return rates
             return rates[:i] + (dr.select(ok & (a == i), l, rates[i]),) + rates[i + 1:]
 
-        self.rates = list(over_run(self.n, a + 1, step, tuple(self.rates)))
+        self.rates = list(over_run(self.n, a + 1, step, tuple(self.rates), unrolled=self.unrolled))
         self.a = dr.select(ok, self.a + 1, self.a)
         return ok
 
@@ -777,7 +770,7 @@ class PieceChain:
             land = carry * dr.select(inf, 1.0, lam / (self.rates[c] + lam))
             return (carry, cont + dr.select(on, land, 0.0)) + pi[:c] + (dr.select(on, land, pi[c]),) + pi[c + 1:]
 
-        out = over_run(self.n, self.a, step, (mi.Float(0.0), mi.Float(0.0)) + tuple(self.pi))
+        out = over_run(self.n, self.a, step, (mi.Float(0.0), mi.Float(0.0)) + tuple(self.pi), unrolled=self.unrolled)
         cont, self.pi = out[1], list(out[2:])
         good = run & (cont > 0.0) & dr.isfinite(cont)
         self.scale = dr.select(good, 1.0 / cont, self.scale)
@@ -798,7 +791,8 @@ class PieceChain:
             prod = dr.select(on, prod * (l / (l + lam)), prod)
             return prod, total + self.pi_at(c, on) * prod
 
-        _, total = over_run(self.n, self.a, step, (mi.Float(1.0), mi.Float(0.0)), reverse=False)
+        _, total = over_run(self.n, self.a, step, (mi.Float(1.0), mi.Float(0.0)), reverse=False,
+                            unrolled=self.unrolled)
         return dr.select(run, total, 0.0)
 
 
@@ -812,7 +806,7 @@ def draw_depth(chain, c_min, key, counter, active, traced=False):
     def add_mass(c, carry):
         return (carry[0] + chain.pi_at(c, active & (chain.a > c)),) if c >= c_min else carry
 
-    total, = over_run(chain.n, chain.a, add_mass, (mi.Float(0.0),), reverse=False)
+    total, = over_run(chain.n, chain.a, add_mass, (mi.Float(0.0),), reverse=False, unrolled=chain.unrolled)
     rng = Stream(key, counter)
     u_pick, _ = rng.next2()
 
@@ -839,7 +833,8 @@ def draw_depth(chain, c_min, key, counter, active, traced=False):
 
     carry = (dr.detach(u_pick * total), mi.Float(0.0), mi.Bool(active), mi.UInt32(rng.counter), mi.Float(1.0),
              mi.Float(0.0))
-    _, tau, _, counter, ratio, pi_picked = over_run(chain.n, chain.a, pick, carry, reverse=False)
+    _, tau, _, counter, ratio, pi_picked = over_run(chain.n, chain.a, pick, carry, reverse=False,
+                                                    unrolled=chain.unrolled)
     if traced:
         drawn = dr.detach(pi_picked)
         ratio = dr.select(drawn > 0.0, ratio * pi_picked / dr.select(drawn > 0.0, drawn, 1.0), ratio)
@@ -880,7 +875,7 @@ def detached_chain(chain):
     """A detached copy of a ``PieceChain`` (its pushes leave ``chain`` as it is)."""
     rates, pi, a, has_up, scale, hit = chain.state()
     return PieceChain([dr.detach(r) for r in rates], [dr.detach(x) for x in pi], a, has_up, dr.detach(scale),
-                      dr.detach(hit))
+                      dr.detach(hit), chain.unrolled)
 
 
 def first_run_edge_terms(mf, chain, w, eta_f, teta_f, outside, wo, lambda_o, key, j, active):
@@ -953,7 +948,7 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None)
     l0 = mf.abs_lambda(-w0)
     start = (dielectric_valid(wi, eta) & dielectric_valid(wo, eta) & dr.isfinite(lambda_o) & dr.isfinite(l0)
              & (last > 0))
-    chain0 = PieceChain.new(l0, slots)
+    chain0 = PieceChain.new(l0, slots, unrolled=traced)
 
     def body(j, w, thr, result, active, counter, refracted, h_dir, h_t, chain_state, *piped):
         mfa, mfs, lo, ea, es = mf, mf, lambda_o, e, e
@@ -963,7 +958,7 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None)
             mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
             ea = eta_seen(eta_a, outside)
             es = dr.detach(ea)
-        chain = PieceChain.from_state(chain_state)
+        chain = PieceChain.from_state(chain_state, chain0.unrolled)
         order = j + 1
         # Next-event estimation: phase function × exact exit probability.
         phase = dr.select(same, heitz.dielectric_phase_reflect(mfa, w, wo_l, ea),

@@ -24,7 +24,9 @@ found by name (docs/engines.md):
 | ``analytic.py`` | ``src/models/analytic/`` | Fast-MSX, energy compensation |
 | ``auto.py`` | ``src/models/auto/`` | ``auto``: ``correlated`` with a per-lane bounce cap |
 | ``gradients.py``, ``glass_traced.py`` | — | gradients of the walks (docs/gradients.md) |
-| ``bsdf.py`` | ``src/bsdf.rs`` + ``plugin/base.py`` | the ``msx_posfree`` class of the vectorized variants |
+| ``bsdf.py`` | ``src/bsdf.rs`` | what the engine runs, its refusals, the per-surface adapters |
+
+The Mitsuba class over them is ``plugin/jit_bsdf.py``; nothing here imports from ``plugin/``.
 
 Everything here is traced: a function runs once per kernel, on arrays of lanes; branches are masks
 (``dr.select``) and walks are ``dr.while_loop``. Nothing reads a value back from the device.

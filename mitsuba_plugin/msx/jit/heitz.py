@@ -40,7 +40,8 @@ import mitsuba as mi
 from . import mis, walk
 from .dielectric import eta_seen, fresnel_dielectric, radiance_scale, scatter_unit, transmit_half_vector
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
-from .microfacet import INV_PI, ConductorFresnel, Microfacet, dot, reflect
+from .gradients import LoopValues
+from .microfacet import INV_PI, ConductorFresnel, dot, reflect
 from .model import ConductorWalk, DielectricWalk, DiffuseWalk
 from .rng import ONE_MINUS_EPS, Stream, clean_uniform
 from .special import expm1, log1p, optical_depth
@@ -200,13 +201,9 @@ def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None):
     traced = mf_sample is not None
 
     def body(order, wr, t, thr, result, active, counter, *piped):
-        mfa, mfs, fr, lo = mf, mf, fresnel, lambda_o
-        if traced:  # drjit rejects implicit differentiable reads of wide variables inside the loop
-            au, av, lo = piped[:3]
-            mfa = Microfacet(mf.dist, au, av)
-            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
-            if not fresnel.mirror:
-                fr = ConductorFresnel(piped[3], piped[4])
+        # Traced, the differentiated values come through the loop's state (gradients.LoopValues).
+        mfa, mfs, lo, material = LoopValues.unpack(traced, mf, lambda_o, (), piped)
+        fr = ConductorFresnel(*material) if material else fresnel
         rng = Stream(key, counter)
         u_h, u_rr = rng.next2()
         tn, p_hit = sample_height_hit(mfs, wr, t, u_h)
@@ -235,9 +232,8 @@ def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None):
     state = (mi.UInt32(1), -mi.Vector3f(wi), mi.Float(0.0), mi.Spectrum(1.0), dr.zeros(mi.Spectrum),
              mi.Bool(start), mi.UInt32(0))
     if traced:
-        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o))
-        if not fresnel.mirror:
-            state += (mi.Spectrum(fresnel.eta), mi.Spectrum(fresnel.k))
+        material = () if fresnel.mirror else (mi.Spectrum(fresnel.eta), mi.Spectrum(fresnel.k))
+        state += LoopValues.state(mf, lambda_o, *material)
     state = dr.while_loop(state, lambda *s: s[5], body, label="msx_heitz_conductor_eval")
     return state[4]
 
@@ -296,11 +292,8 @@ def diffuse_eval(mf, albedo, wi, wo, max_bounces, key, mf_sample=None):
     traced = mf_sample is not None
 
     def body(order, wr, t, thr, result, active, counter, *piped):
-        mfa, mfs, lo, a = mf, mf, lambda_o, albedo
-        if traced:  # the differentiated values come through the state
-            au, av, lo, a = piped
-            mfa = Microfacet(mf.dist, au, av)
-            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
+        # Traced, the differentiated values come through the loop's state (gradients.LoopValues).
+        mfa, mfs, lo, (a,) = LoopValues.unpack(traced, mf, lambda_o, (albedo,), piped)
         rng = Stream(key, counter)
         u_h, u_rr = rng.next2()
         tn, p_hit = sample_height_hit(mfs, wr, t, u_h)
@@ -326,7 +319,7 @@ def diffuse_eval(mf, albedo, wi, wo, max_bounces, key, mf_sample=None):
     state = (mi.UInt32(1), -mi.Vector3f(wi), mi.Float(0.0), mi.Spectrum(1.0), dr.zeros(mi.Spectrum),
              mi.Bool(start), mi.UInt32(0))
     if traced:
-        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o), mi.Spectrum(albedo))
+        state += LoopValues.state(mf, lambda_o, mi.Spectrum(albedo))
     state = dr.while_loop(state, lambda *s: s[5], body, label="msx_heitz_diffuse_eval")
     return state[4]
 
@@ -421,10 +414,9 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
 
     def body(order, wr, t, outside, thr, result, active, counter, *piped):
         mfa, mfs, lo, eta_a = mf, mf, lambda_o, eta
-        if traced:  # the differentiated values come through the state
-            au, av, lo, eta_a, tw = piped
-            mfa = Microfacet(mf.dist, au, av)
-            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
+        if traced:  # the differentiated values come through the state (gradients.LoopValues)
+            lv = LoopValues(mf.dist, piped)
+            mfa, mfs, lo, (eta_a, tw) = lv.mf, lv.mf_sample, lv.lambda_o, lv.rest
         rng = Stream(key, counter)
         u_h, u_rr = rng.next2()
         # Traced, the height is reparameterized: the step's uniform number is held and the attached Λ of the
@@ -459,7 +451,7 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
                 result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
             wr, crossed, _, valid, weight, m = scatter_traced(mfa, mfs, wi_l, mi.Float(1.0), e, ua, u1, u2, u_mix)
             tw = eta_tangent_step(ws, tw, m, e_s, teta, crossed)
-            piped = (au, av, lo, eta_a, tw)
+            piped = lv.piped(eta_a, tw)
             thr = thr * weight
         else:
             m, cos_wm, valid = visible_normal(mfs, wi_l, u1, u2)
@@ -473,8 +465,7 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
     state = (mi.UInt32(order), mi.Vector3f(wr), mi.Float(t), mi.Bool(outside), mi.Float(thr), mi.Float(0.0),
              mi.Bool(active & (order <= last)), mi.UInt32(counter))
     if traced:
-        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o), mi.Float(eta),
-                  mi.Vector3f(0.0) if tw is None else mi.Vector3f(tw))
+        state += LoopValues.state(mf, lambda_o, mi.Float(eta), mi.Vector3f(0.0) if tw is None else mi.Vector3f(tw))
     state = dr.while_loop(state, lambda *s: s[6], body, label="msx_heitz_dielectric_eval")
     return state[5]
 

@@ -76,7 +76,8 @@ import drjit as dr
 import mitsuba as mi
 
 from . import mis, walk
-from .microfacet import INV_PI, ConductorFresnel, Microfacet, dot, max_channel, reflect
+from .gradients import LoopValues
+from .microfacet import INV_PI, ConductorFresnel, dot, max_channel, reflect
 from . import heitz
 from .dielectric import eta_seen, radiance_scale, reflect_or_refract_unit
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
@@ -337,10 +338,8 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
     def body(j, w, pdf_scale, pdf_walk, thr, result, active, counter, dp_state, *piped):
         mf, fresnel, lambda_o, light, mf_s = outer_mf, outer_fresnel, outer_lambda_o, outer_light, outer_mf
         if traced:
-            mf = Microfacet(outer_mf.dist, piped[0], piped[1])
-            mf_s = Microfacet(outer_mf.dist, dr.detach(piped[0]), dr.detach(piped[1]))
-            lambda_o = piped[2]
-            rest = piped[3:]
+            lv = LoopValues(outer_mf.dist, piped)
+            mf, mf_s, lambda_o, rest = lv.mf, lv.mf_sample, lv.lambda_o, lv.rest
             if connects:
                 light = copy.copy(outer_light)
                 light.l_y, light.pdf, light.phase, light.fresnel = rest[:4]
@@ -372,10 +371,8 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
             result = dr.select(conn_on, result + thr * conn, result)
         # Russian roulette on Π F · H_m, after the vertex's estimates.
         u_rr, _ = rng.next2()
-        kept, survived = walk.russian_roulette_keep(thr, u_rr, RR_KEEP)
-        play = j >= RR_START
-        thr = dr.select(play, kept, thr)
-        active &= ~play | survived
+        thr, alive = walk.roulette_from(j >= RR_START, thr, u_rr, RR_KEEP)
+        active &= alive
         # The next direction.
         u1, u2 = rng.next2()
         m, valid = mf_s.sample_visible(w, u1, u2)
@@ -645,10 +642,8 @@ def diffuse_eval(mf, albedo, wi, wo, max_bounces, key):
         result = dr.select(nee & (exit > 0.0), result + thr * albedo * (c * INV_PI * exit), result)
         active &= order < last
         u_rr, _ = rng.next2()
-        kept, survived = walk.russian_roulette(thr, u_rr)
-        play = j >= RR_START
-        thr = dr.select(play, kept, thr)
-        active &= ~play | survived
+        thr, alive = walk.roulette_from(j >= RR_START, thr, u_rr)
+        active &= alive
         u3, u4 = rng.next2()
         d = walk.cosine_about(m, u3, u4)
         l, down, ok = diffuse_direction(mf, d)
@@ -953,9 +948,8 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None)
     def body(j, w, thr, result, active, counter, refracted, h_dir, h_t, chain_state, *piped):
         mfa, mfs, lo, ea, es = mf, mf, lambda_o, e, e
         if traced:  # the differentiated values come through the state
-            au, av, lo, eta_a, h_tw = piped
-            mfa = Microfacet(mf.dist, au, av)
-            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
+            lv = LoopValues(mf.dist, piped)
+            mfa, mfs, lo, (eta_a, h_tw) = lv.mf, lv.mf_sample, lv.lambda_o, lv.rest
             ea = eta_seen(eta_a, outside)
             es = dr.detach(ea)
         chain = PieceChain.from_state(chain_state, chain0.unrolled)
@@ -970,10 +964,8 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None)
         active &= order < last
         rng = Stream(key, counter)
         u_rr, u_f = rng.next2()
-        kept, survived = walk.russian_roulette_keep(thr, u_rr, 1.0, RR_TRACED_FLOOR if traced else 0.0)
-        play = j >= RR_START
-        thr = dr.select(play, kept, thr)
-        active &= ~play | survived
+        thr, alive = walk.roulette_from(j >= RR_START, thr, u_rr, 1.0, RR_TRACED_FLOOR if traced else 0.0)
+        active &= alive
         # Scatter: visible normal, reflect with probability F.
         u1, u2 = rng.next2()
         if traced:
@@ -1014,7 +1006,7 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None)
         pushed = chain.push_down(l, active & ~up & dr.isfinite(l))
         active &= up | pushed
         if traced:
-            piped = (au, av, lo, eta_a, h_tw)
+            piped = lv.piped(eta_a, h_tw)
         return (j + 1, -d, thr, result, active, counter, refracted, h_dir, h_t, chain.state()) + piped
 
     state = (mi.UInt32(0), mi.Vector3f(w0), mi.Float(1.0), mi.Float(0.0), mi.Bool(start), mi.UInt32(0),

@@ -35,7 +35,8 @@ import mitsuba as mi
 from . import walk
 from .dielectric import eta_seen, radiance_scale, reflect_or_refract, transmit_half_vector
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
-from .microfacet import Microfacet, dot
+from .gradients import LoopValues
+from .microfacet import dot
 from .model import DielectricWalk
 from .posfree import CORRELATED, RR_START, UNCORRELATED, roulette_importance
 from .rng import ONE_MINUS_EPS, Stream
@@ -162,10 +163,9 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
 
     def body(j, w, l, side, eta_f, thr, result, active, counter, *piped):
         mfa, mfs, lo, efa, efs = mf, mf, lambda_o, eta_f, eta_f
-        if traced:  # the differentiated values come through the state (drjit rejects implicit wide reads)
-            au, av, lo, eta_a, tw = piped
-            mfa = Microfacet(mf.dist, au, av)
-            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
+        if traced:  # the differentiated values come through the state (gradients.LoopValues)
+            lv = LoopValues(mf.dist, piped)
+            mfa, mfs, lo, (eta_a, tw) = lv.mf, lv.mf_sample, lv.lambda_o, lv.rest
             efa = eta_seen(eta_a, side > 0.0)
             efs = dr.detach(efa)
         rng = Stream(key, counter)
@@ -174,11 +174,9 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
         lst = last(segments, transmit, l, lo)
         v = lst * dr.select(transmit, vertex_transmit(mfa, efa, w, o), vertex_reflect(mfa, efa, w, o))
         u_rr, u_choice = rng.next2()
-        kept, survived = walk.russian_roulette_keep(thr, u_rr, 1.0 / roulette_importance(v, lst, RR_NEE_GAIN),
-                                                    RR_TRACED_FLOOR if traced else 0.0)
-        play = j >= RR_START
-        thr = dr.select(play, kept, thr)
-        active &= ~play | survived
+        thr, alive = walk.roulette_from(j >= RR_START, thr, u_rr, 1.0 / roulette_importance(v, lst, RR_NEE_GAIN),
+                                        RR_TRACED_FLOOR if traced else 0.0)
+        active &= alive
         result = dr.select(active, result + thr * v, result)
         active &= j + 1 < max_bounces
         u1, u2 = rng.next2()
@@ -194,7 +192,7 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
                 result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
             d, refracted, side, valid, weight, m = scatter_traced(mfa, mfs, w, side, efa, u_choice, u1, u2, u_mix)
             tw = eta_tangent_step(ws, tw, m, efs, teta, refracted)
-            piped = (au, av, lo, eta_a, tw)
+            piped = lv.piped(eta_a, tw)
             eta_f = dr.select(refracted, 1.0 / eta_f, eta_f)
             thr = thr * weight
         else:
@@ -208,7 +206,7 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
 
     state = (mi.UInt32(0), w0, l0, side0, eta_f0, mi.Float(1.0), mi.Float(0.0), mi.Bool(start), mi.UInt32(0))
     if traced:
-        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o), mi.Float(eta), mi.Vector3f(0.0))
+        state += LoopValues.state(mf, lambda_o, mi.Float(eta), mi.Vector3f(0.0))
     state = dr.while_loop(state, lambda *s: s[7], body, label="msx_posfree_dielectric_pt")
     return state[6] * radiance_scale(eta, radiance, wi[2] > 0.0, wo[2] > 0.0)
 

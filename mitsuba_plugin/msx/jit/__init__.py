@@ -6,7 +6,7 @@ found by name (docs/engines.md):
 
 | module | Rust twin | what |
 |---|---|---|
-| ``microfacet.py`` | ``src/microfacet/{mod,ggx,fresnel}.rs`` | Λ on the whole sphere, D, visible normals, conductor Fresnel |
+| ``microfacet.py`` | ``src/microfacet/{mod,ggx,fresnel}.rs`` | Λ on the whole sphere, D, visible normals, conductor Fresnel, half vector |
 | ``special.py`` | ``src/microfacet/special.rs`` | float32 erfc/erfcx, norm_inv, expm1/log1p, L·B(L, 1+Λ) |
 | ``beckmann.py`` | ``src/microfacet/beckmann.rs`` | Beckmann Λ and full-sphere visible normals in float32 |
 | ``dielectric.py`` | ``src/microfacet/dielectric.rs`` | the dielectric interface: η seen, Fresnel, refraction, half vector |

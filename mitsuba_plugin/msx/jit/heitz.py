@@ -41,7 +41,7 @@ from . import mis, walk
 from .dielectric import eta_seen, fresnel_dielectric, radiance_scale, scatter_unit, transmit_half_vector
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
 from .gradients import LoopValues
-from .microfacet import INV_PI, ConductorFresnel, dot, reflect
+from .microfacet import INV_PI, ConductorFresnel, dot, half_vector, normalized, reflect
 from .model import ConductorWalk, DielectricWalk, DiffuseWalk
 from .rng import ONE_MINUS_EPS, Stream, clean_uniform
 from .special import expm1, log1p, optical_depth
@@ -109,9 +109,7 @@ def flip_height(t):
 def conductor_phase(mf, wi, wo):
     """The conductor phase function without Fresnel, D_ωi(h)/(4 ωi·h), and ωi·h (Rust
     ``conductor_phase``): (p, c, valid)."""
-    h = wi + wo
-    length = dr.norm(h)
-    h = h / length
+    h, length = half_vector(wi, wo)
     c = dot(wi, h)
     p = mf.d_visible(wi, h) / (4.0 * c)
     valid = (length > 1e-12) & (c > 0.0) & (h[2] > 0.0) & dr.isfinite(p) & (p > 0.0)
@@ -123,9 +121,7 @@ def dielectric_phase_transmit(mf, wi, wo, eta):
     ``dielectric_phase`` with ``same = false``): ``wo`` in the current side's frame points down, ``eta``
     the relative IOR of the far side. η²(1 − F) D_ωi(h) |ωo·h| / (ωi·h + η ωo·h)², h ∝ −(ωi + η ωo)
     oriented upward."""
-    h = transmit_half_vector(wi, wo, eta)
-    length = dr.norm(h)
-    h = h / length
+    h, length = normalized(transmit_half_vector(wi, wo, eta))
     ci = dot(wi, h)
     co = dot(wo, h)
     f = fresnel_dielectric(ci, eta)

@@ -77,7 +77,7 @@ import mitsuba as mi
 
 from . import mis, walk
 from .gradients import LoopValues
-from .microfacet import INV_PI, ConductorFresnel, dot, max_channel, reflect
+from .microfacet import INV_PI, ConductorFresnel, dot, half_vector, max_channel, reflect
 from . import heitz
 from .dielectric import eta_seen, radiance_scale, reflect_or_refract_unit
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
@@ -239,9 +239,7 @@ class MonotoneExit:
 
 def half_vector_d(mf, w, x):
     """(D(h), w·h) for the half vector h of w and x; (0, 0) where w does not see h."""
-    h = w + x
-    length = dr.norm(h)
-    h = h / length
+    h, length = half_vector(w, x)
     c = dot(w, h)
     ok = (length > 0.0) & (c > 0.0)
     return dr.select(ok, mf.d(h), 0.0), dr.select(ok, c, 0.0)

@@ -23,7 +23,7 @@ import mitsuba as mi
 from . import bdpt, mis, walk
 from .model import ConductorWalk, DiffuseWalk
 from .gradients import LoopValues
-from .microfacet import INV_PI, ConductorFresnel, dot, max_channel, reflect
+from .microfacet import INV_PI, ConductorFresnel, dot, half_vector, max_channel, normalized, reflect
 from .rng import Stream
 
 UNCORRELATED = "uncorrelated"
@@ -56,9 +56,7 @@ def roulette_importance(nee, last_factor, gain):
 
 def nee_term(mf, w, wo, last_factor):
     """The conductor's next-event term without the Fresnel factor: (w·h, D(h)·last/(4|w_z|), valid)."""
-    h = w + wo
-    length = dr.norm(h)
-    h = h / length
+    h, length = half_vector(w, wo)
     cos_wh = dot(w, h)
     valid = (length > 0.0) & (cos_wh > 0.0) & (dot(wo, h) > 0.0)
     value = mf.d(h) * last_factor / (4.0 * dr.abs(w[2]))
@@ -315,9 +313,7 @@ class Bidirectional:
         s, t = len(cam) - 1, len(light) - 1
         cv, lv = cam[s], light[t]
         cos_s = dr.abs(cv.d[2])
-        h = -cv.d + lv.e
-        length = dr.norm(h)
-        h = h / length
+        h, length = normalized(-cv.d + lv.e)
         cos_h = -dot(cv.d, h)
         dh = self.mf.d(h)
         valid = ((max_channel(cv.thr) > 0.0) & (max_channel(lv.w) > 0.0) & (cv.l > 0.0) & dr.isfinite(cv.l)

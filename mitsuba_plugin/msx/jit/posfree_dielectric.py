@@ -36,7 +36,7 @@ from . import walk
 from .dielectric import eta_seen, radiance_scale, reflect_or_refract, transmit_half_vector
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
 from .gradients import LoopValues
-from .microfacet import dot
+from .microfacet import dot, half_vector, normalized
 from .model import DielectricWalk
 from .posfree import CORRELATED, RR_START, UNCORRELATED, roulette_importance
 from .rng import ONE_MINUS_EPS, Stream
@@ -70,9 +70,7 @@ def last(segments, refracted, l, lambda_o):
 
 def vertex_reflect(mf, eta_f, w, o):
     """Reflection vertex term F·D(h)/(4|w_z|) towards o (current frame, o.z > 0)."""
-    h = w + o
-    length = dr.norm(h)
-    h = h / length
+    h, length = half_vector(w, o)
     cw = dot(w, h)
     ok = (length > 0.0) & (cw > 0.0) & (dot(o, h) > 0.0)
     f = mi.fresnel(cw, eta_f)[0]
@@ -83,9 +81,7 @@ def vertex_reflect(mf, eta_f, w, o):
 def vertex_transmit(mf, eta_f, w, o):
     """Transmission vertex term (Wang eq. 3, Walter's half vector) towards o (current frame, o.z < 0):
     |w·h||o·h|·η_f²(1−F)·D(h)/(|w_z|(w·h + η_f o·h)²), h = −(w + η_f o) oriented upward."""
-    h = transmit_half_vector(w, o, eta_f)
-    length = dr.norm(h)
-    h = h / length
+    h, length = normalized(transmit_half_vector(w, o, eta_f))
     cw, co = dot(w, h), dot(o, h)
     f = mi.fresnel(cw, eta_f)[0]
     ok = (length > 0.0) & dr.isfinite(length) & (cw > 0.0) & (co < 0.0) & (f < 1.0)

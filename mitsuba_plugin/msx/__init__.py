@@ -123,7 +123,7 @@ def register(backend=None):
             factory, chosen = make_bsdf_class(mi, variant), "batched"
         elif not scalar:
             from .plugin.parameters import channels_of
-            from .jit.bsdf import make_bsdf_factory
+            from .plugin.jit_bsdf import make_bsdf_factory
 
             channels_of(mi, variant)  # polarized variants: a clear error now, not at scene load
             factory, chosen = make_bsdf_factory(variant), "jit"

@@ -6,15 +6,27 @@ found by name (docs/engines.md):
 
 | module | Rust twin | what |
 |---|---|---|
-| ``microfacet.py`` | ``src/microfacet/{mod,ggx,fresnel}.rs`` | Λ on the whole sphere, D, visible normals, Fresnel |
-| ``beckmann.py`` | ``src/microfacet/{beckmann,special}.rs`` | Beckmann Λ and full-sphere visible normals in float32 |
+| ``microfacet.py`` | ``src/microfacet/{mod,ggx,fresnel}.rs`` | Λ on the whole sphere, D, visible normals, conductor Fresnel, half vector |
+| ``special.py`` | ``src/microfacet/special.rs`` | float32 erfc/erfcx, norm_inv, expm1/log1p, L·B(L, 1+Λ) |
+| ``beckmann.py`` | ``src/microfacet/beckmann.rs`` | Beckmann Λ and full-sphere visible normals in float32 |
+| ``dielectric.py`` | ``src/microfacet/dielectric.rs`` | the dielectric interface: η seen, Fresnel, refraction, half vector |
 | ``rng.py`` | ``src/rng.rs`` | each lane's random stream, derived from its inputs and ``seed`` |
-| ``walk.py`` | ``src/walk/mod.rs`` | Russian roulette |
+| ``walk.py`` | ``src/walk/mod.rs`` | Russian roulette, cosine directions |
 | ``tables.py`` | ``src/tables/`` | the core's tables, read through ``msx_table`` and uploaded as textures |
 | ``mis.py`` | ``src/models/mis.rs`` | the walks' MIS densities |
+| ``model.py`` | ``ScatteringModel`` in ``src/models/mod.rs`` | the model interface |
 | ``single.py`` | ``src/models/single/`` | Walter 2007 as Mitsuba computes it |
 | ``posfree.py`` | ``src/models/posfree/`` | Wang 2022 position-free PT |
-| ``bsdf.py`` | ``src/bsdf.rs`` + ``plugin/base.py`` | the ``msx_posfree`` class of the vectorized variants |
+| ``posfree_dielectric.py`` | ``src/models/posfree/dielectric.rs`` | Wang 2022 through a rough dielectric |
+| ``bdpt.py`` | ``src/walk/bdpt.rs`` | the bidirectional estimator |
+| ``heitz.py`` | ``src/walk/height.rs`` | Heitz 2016 random walk with explicit heights |
+| ``invariance.py`` | ``src/models/invariance/`` | Cui 2023 position-free invariance walks |
+| ``analytic.py`` | ``src/models/analytic/`` | Fast-MSX, energy compensation |
+| ``auto.py`` | ``src/models/auto/`` | ``auto``: ``correlated`` with a per-lane bounce cap |
+| ``gradients.py``, ``glass_traced.py`` | — | gradients of the walks (docs/gradients.md) |
+| ``bsdf.py`` | ``src/bsdf.rs`` | what the engine runs, its refusals, the per-surface adapters |
+
+The Mitsuba class over them is ``plugin/jit_bsdf.py``; nothing here imports from ``plugin/``.
 
 Everything here is traced: a function runs once per kernel, on arrays of lanes; branches are masks
 (``dr.select``) and walks are ``dr.while_loop``. Nothing reads a value back from the device.

@@ -1,29 +1,14 @@
-"""Beckmann specifics of the Dr.Jit engine: twin of ``src/microfacet/beckmann.rs`` (with what it needs of
-``src/microfacet/special.rs``): Λ through erfc without the 1 + erf cancellation, and visible-normal
-sampling for stretched (α = 1) incident directions on the whole sphere.
+"""Beckmann specifics of the Dr.Jit engine: twin of ``src/microfacet/beckmann.rs`` (its special functions,
+erfc, erfcx and norm_inv, are in ``special.py``): Λ through erfc without the 1 + erf cancellation, and
+visible-normal sampling for stretched (α = 1) incident directions on the whole sphere.
 
 Same names as the Rust functions (``lambda_up``, ``sample_visible_std``, ``sample_slope_x``,
-``newton_monotone``, ``erfc``, ``erfcx``, ``norm_inv``). Everything is traced float32 Dr.Jit code in
+``newton_monotone``). Everything is traced float32 Dr.Jit code in
 variant-agnostic types (mi.Float, mi.Vector3f): branches are masks, Newton runs a fixed number of unrolled
 iterations, nothing is read back to Python.
 
 What differs from the Rust (float64) code:
 
-* **erfc / erfcx.** The Rust calls libm. Here both come from one Chebyshev series of
-  (1 + 2z)·erfcx(z) in y = (z − 2)/(z + 2), z ≥ 0 (the change of variable of Shepherd & Laframboise,
-  "Chebyshev approximation of (1 + 2x)exp(x²)erfc x in 0 ≤ x < ∞", Math. Comp. 36, 1981; the
-  coefficients below are my own fit, computed with mpmath at 50 digits by Chebyshev interpolation on 80
-  nodes and truncated where the dropped coefficients sum to < 5e-10). Relative accuracy of ``erfcx`` on
-  [0, ∞): a few float32 ulps (the series' own error is < 5e-10).
-* **The deficit d(z) = 1 − √π·z·erfcx(z)** (``erfcx_deficit``), which the Rust never names: Λ and the
-  sampler below the horizon are differences of nearly equal terms (d ≈ 1/(2z²) for large z). Computing
-  them from erfcx would lose 2z² in relative precision, harmless in float64 but not in float32, so d has
-  its own Chebyshev series of (1 + 2z²)·d(z) in the same variable (same fit, 17 terms).
-  Λ = e^{−a²}·d(a)/(2√π a) with a = 1/(α tan θ); e^{−a²} is evaluated with the rounding error of
-  a² = 1/alpha_tan2 compensated by an FMA residual, so Λ is accurate relative to the float32 input.
-  Measured relative errors against float64 (python_tests/test_jit_beckmann.py): erfcx ≤ 4.5 ulps on
-  [−9, 1e8], erfc ≤ 5.3 ulps (where ≥ FLT_MIN), d ≤ 6.0 ulps, Λ ≤ 9.3 ulps (5.6e-7) on alpha_tan2 ∈
-  [1e-6, 1e6] (the few values below FLT_MIN, near a = 9.3, are subnormal or flushed to 0).
 * **Below the horizon** the Rust inverts ln G(x) = −x² + ln b(x) in x. In float32, x² ≈ t² is huge for
   steep directions while the distribution of s = t − x has width ~1/|t|, so Newton runs in v = x − t = −s
   on ln G(x) − ln G(t) = −s(s + 2|t|) + ln(b(x)/b(t)), with b(x) = d(z) + (1 − d(z))·s/z, z = −x
@@ -43,10 +28,6 @@ What differs from the Rust (float64) code:
   (log-spaced into both tails): 40 iterations give at most 7.0 units (float32 noise of ln G as u → 1),
   12 give the same, 10 leave one lane at 8.3, 9 at 23, 8 at 18. The few slow lanes are u within ~1e-6
   of 1 near the horizon, where ln G(hi) − ln G(x) is at the float32 noise and the bracket bisects.
-* **norm_inv** is √2·erfinv(2p − 1) through ``dr.erfinv`` (the Rust: Acklam + Halley). In float32,
-  2p − 1 rounds to ±1 for p < 2^-25, so p is clamped to keep 2p − 1 in [−(1 − 2^-24), 1 − 2^-24]: the
-  Gaussian tails beyond |x| ≈ 5.4 (mass < 1e-7, below the 2^-24 resolution of a float32 sample anyway)
-  are not produced. The clamps of u1 become [1e-12, 1 − 2^-24] (1 − 1e-12 is 1 in float32).
 """
 
 import math
@@ -54,83 +35,19 @@ import math
 import drjit as dr
 import mitsuba as mi
 
+from .rng import ONE_MINUS_EPS
+from .special import erfcx, erfcx_deficit, exp_neg_sq, norm_inv
+
 SQRT_PI = math.sqrt(math.pi)
 INV_SQRT_PI = 1.0 / math.sqrt(math.pi)
 FRAC_1_SQRT_2 = 1.0 / math.sqrt(2.0)
 
-# Largest float32 below 1, and the clamp of the uniform variates (beckmann.rs: 1e-12 .. 1 − 1e-12).
-ONE_MINUS_EPS = 1.0 - 2.0 ** -24
+# The clamp of the uniform variates (beckmann.rs: 1e-12 .. 1 − 1e-12; 1 − 1e-12 is 1 in float32).
 U_MIN = 1e-12
 
 NEWTON_ITERATIONS = 12
 # A lane's Newton iteration has converged when its step is below ~2 float32 ulps of its scale.
 NEWTON_TOL = 2.0 ** -22
-
-# Chebyshev coefficients (see the module docstring), variable y = (z − K)/(z + K) = 1 − 2K/(z + K).
-_CHEB_K = 2.0
-# (1 + 2z)·erfcx(z); the limit at z = ∞ is 2/√π.
-_ERFCX_COEFFS = (
-    1.1760066556, 0.02577967387, -0.10659315068, 0.038808879574, -0.0054148999309,
-    -0.00040815257282, 0.00019843768249, 9.8425327761e-06, -7.7632655612e-06, -7.1740014531e-07,
-    3.1406949527e-07, 6.1884236979e-08, -9.8906199883e-09, -4.5953998273e-09,
-)
-# (1 + 2z²)·(1 − √π z erfcx(z)); the limit at z = ∞ is 1.
-_DEFICIT_COEFFS = (
-    0.88738519632, 0.10143653511, 0.074967864417, -0.096353072257, 0.038487246152,
-    -0.0053770828936, -0.00087191411862, 0.00030838528483, 3.389469614e-05, -1.5449778952e-05,
-    -2.4843462098e-06, 7.0486497299e-07, 2.1209079124e-07, -1.944399084e-08, -1.6102562592e-08,
-    -1.109572989e-09, 9.1461842266e-10,
-)
-
-
-def _chebyshev(coeffs, z):
-    """Σ c_k T_k(y), y = 1 − 2K/(z + K), by Clenshaw's recurrence (z ≥ 0; z = +∞ gives y = 1)."""
-    y = 1.0 - (2.0 * _CHEB_K) / (z + _CHEB_K)
-    y2 = 2.0 * y
-    b1 = mi.Float(0.0)
-    b2 = mi.Float(0.0)
-    for c in reversed(coeffs[1:]):
-        b1, b2 = dr.fma(y2, b1, c - b2), b1
-    return dr.fma(y, b1, coeffs[0] - b2)
-
-
-def exp_neg_sq(x):
-    """e^{−x²} with the rounding error of x² compensated (an FMA gives x² = h + l exactly)."""
-    x = mi.Float(x)
-    h = x * x
-    l = dr.fma(x, x, -h)
-    l = dr.select(dr.isfinite(h), l, 0.0)
-    return dr.exp(-h) * (1.0 - l)
-
-
-def erfcx(x):
-    """Scaled complementary error function e^{x²}·erfc(x) (special.rs). Relative accuracy ~1e-7 on
-    x ≥ 0 (including x → ∞, where it is 1/(x√π)); for x < 0 it is 2e^{x²} − erfcx(−x) (+∞ below ≈ −9.4)."""
-    x = mi.Float(x)
-    z = dr.abs(x)
-    pos = _chebyshev(_ERFCX_COEFFS, z) / (1.0 + 2.0 * z)
-    return dr.select(x >= 0.0, pos, 2.0 / exp_neg_sq(x) - pos)
-
-
-def erfc(x):
-    """Complementary error function with float32 relative accuracy for large positive x (special.rs)."""
-    x = mi.Float(x)
-    tail = erfcx(dr.abs(x)) * exp_neg_sq(x)
-    return dr.select(x >= 0.0, tail, 2.0 - tail)
-
-
-def erfcx_deficit(z):
-    """d(z) = 1 − √π·z·erfcx(z) for z ≥ 0, relatively accurate (d ≈ 1/(2z²) for large z); 0 at z = ∞."""
-    z = mi.Float(z)
-    return _chebyshev(_DEFICIT_COEFFS, z) / (1.0 + 2.0 * z * z)
-
-
-def norm_inv(p):
-    """Inverse of the standard normal CDF, √2·erfinv(2p − 1), with 2p − 1 clamped into
-    [−(1 − 2^-24), 1 − 2^-24] so that it stays finite (|x| ≤ 5.42) for every p ∈ [0, 1]."""
-    q = dr.clip(2.0 * mi.Float(p) - 1.0, -ONE_MINUS_EPS, ONE_MINUS_EPS)
-    return math.sqrt(2.0) * dr.erfinv(q)
-
 
 def lambda_up(alpha_tan2):
     """Beckmann Λ ≥ 0 for an upward direction with (α tan θ)² = ``alpha_tan2`` (beckmann.rs):

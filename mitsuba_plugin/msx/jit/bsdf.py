@@ -1,26 +1,23 @@
-"""The ``msx_posfree`` class of the Dr.Jit engine, for every vectorized variant (``llvm_*``, ``cuda_*``).
+"""What the Dr.Jit engine runs, and how one BSDF call reaches a model: twin of ``src/bsdf.rs``.
 
-Twin of ``src/bsdf.rs``: it maps the configuration to one model implementation at construction, checks
-each call's inputs (a usable material), applies Mitsuba's ``specular_reflectance`` afterwards, and derives
-each lane's random stream from the lane's inputs and ``seed``. Parameters, flags, ``traverse`` and the
-surface factory are those of the other routes (``plugin/base.py``); the parameters are validated by the
-same code and the core, so a bad parameter gives the same one-line message as in ``scalar_rgb``.
+The table of what runs (``ENGINE_MODELS``, ``bdpt_models``, ``DIFFERENTIABLE_MODELS``; each model module
+provides its own entries, checked at import against the core's table of names, ``msx.names``), the refusals
+of what does not (one line each), and the per-surface adapters (``ConductorModel``, ``DielectricModel``,
+``DiffuseModel``) that turn one call (``Call``) into a model's value, density or sample, with Mitsuba's tints
+applied. The Mitsuba class that builds on them is ``plugin/jit_bsdf.py``: data flows from ``plugin/`` to
+``jit/``, never back.
 
-The methods are traced: Mitsuba calls them once per kernel with symbolic arrays, and the models' walks
-become loops inside the integrator's kernel. Nothing here changes drjit's flags.
+Everything here is traced: Mitsuba calls the class's methods once per kernel with symbolic arrays, and the
+models' walks become loops inside the integrator's kernel. Nothing here changes drjit's flags.
 """
-
-import math
 
 import drjit as dr
 import mitsuba as mi
 
-from ..plugin.parameters import MODEL_INFO, PLUGIN, MsxParameterError, warn
-from ..plugin.base import make_base_class, make_factory, native_channels, one_line
-from ..plugin.vectorized_config import vectorized_config
+from ..names import MODEL_INFO, PLUGIN
 from . import analytic, auto, gradients, heitz, invariance, mis, posfree, posfree_dielectric
-from .microfacet import ConductorFresnel, Microfacet
-from .rng import hash_words
+from .microfacet import ConductorFresnel
+from .rng import clean_uniform
 
 # The random walks of the engine, by surface and model name: each model module provides its own table.
 CONDUCTOR_WALKS = {**posfree.CONDUCTOR_WALKS, **heitz.CONDUCTOR_WALKS, **invariance.CONDUCTOR_WALKS}
@@ -31,7 +28,7 @@ DIFFUSE_WALKS = {**posfree.DIFFUSE_WALKS, **heitz.DIFFUSE_WALKS, **invariance.DI
 
 
 def _check_names(surface, models):
-    """The engine's names are the core's (its table of names, src/config.rs via ``plugin.parameters.MODEL_INFO``): a
+    """The engine's names are the core's (its table of names, src/config.rs via ``msx.names.MODEL_INFO``): a
     model the engine runs on a surface is one the core implements there."""
     for name in models:
         info = MODEL_INFO.get(name)
@@ -189,10 +186,10 @@ def direction_gradient_problem(cfg):
                if closed else "a scalar variant"))
 
 
-def refuse_moving_directions(problem, *directions):
-    """Raises ``problem`` (``direction_gradient_problem``) when a direction is attached to the AD graph."""
-    if problem is not None and any(dr.grad_enabled(d) for d in directions):
-        raise MsxParameterError(problem)
+def moving_directions(problem, *directions):
+    """Whether a configuration with a ``direction_gradient_problem`` received a direction attached to the AD
+    graph (the class then refuses with the problem's line)."""
+    return problem is not None and any(dr.grad_enabled(d) for d in directions)
 
 
 # The smallest normal float32. A walk's estimate can be subnormal (a product of many small factors: 415 of
@@ -281,8 +278,7 @@ class ConductorModel:
             def primal(m, *eta_k):
                 return self.estimate(m, material(eta_k), wi, wo, bounces, key)
 
-        with invariance.unrolled():  # its forward derivative and the run's branch do not mix (invariance.py)
-            return gradients.attach_walk(call, [] if fresnel.mirror else [fresnel.eta, fresnel.k], run, primal)
+        return gradients.attach_walk(call, [] if fresnel.mirror else [fresnel.eta, fresnel.k], run, primal)
 
     def sample_traced(self, call, wi, s1, u1, u2, eval_key):
         """``sample`` while differentiated: ω_o from the proposal, weighed by the walk's estimate there (the
@@ -355,8 +351,7 @@ class DielectricModel:
         def run(m, m_sample, eta):
             return self.walk.eval_pt(m, eta, call.radiance, wi, wo, bounces, key, mf_sample=m_sample)
 
-        with invariance.unrolled():  # its forward derivative and the run's branch do not mix (invariance.py)
-            return gradients.attach_walk(call, [call.eta], run)
+        return gradients.attach_walk(call, [call.eta], run)
 
     def sample_traced(self, call, wi, s1, u1, u2, eval_key):
         """``sample`` while differentiated: ω_o from the MIS density (single scattering mixed with a cosine
@@ -367,7 +362,7 @@ class DielectricModel:
         cosine = s1 < k
         # s1 rescaled within its branch: the cosine lobe's side, or the single sampler's own choice.
         r = dr.select(cosine, s1 / k, (s1 - k) / (1.0 - k))
-        r = dr.clip(dr.select(dr.isfinite(r), r, 0.5), 0.0, 0.99999994)
+        r = clean_uniform(r)
         wo_s, _, w_s, valid_s = self.analytic_single.sample(mf, eta, call.radiance, wi, r, u1, u2)
         # A reflection that ends below the surface (or a refraction above) has weight 0 (G1(ω_o, m) = 0) and
         # is not part of the density single's pdf gives: it is dropped, so the drawn directions have that
@@ -379,9 +374,8 @@ class DielectricModel:
         pdf = mis.dielectric_pdf(mf, eta, wi, wo)
         # The differentiated walk's own estimate (its draws differ from the plain walk's: the position-free
         # walks draw normals and choices otherwise while differentiated), with the parameters detached.
-        with invariance.unrolled():
-            value = self.walk.eval_pt(mf, eta, call.radiance, wi, wo, self.bounces(call, wi), eval_key(wo),
-                                      mf_sample=mf)
+        value = self.walk.eval_pt(mf, eta, call.radiance, wi, wo, self.bounces(call, wi), eval_key(wo),
+                                  mf_sample=mf)
         valid = (cosine | valid_s) & (wo[2] != 0.0) & (pdf > 0.0)
         return wo, pdf, self.tinted(call, wi, wo, dr.select(valid, value / pdf, 0.0)), valid
 
@@ -440,209 +434,3 @@ class DiffuseModel:
 
 
 MODELS_BY_SURFACE = {"conductor": ConductorModel, "dielectric": DielectricModel, "diffuse": DiffuseModel}
-
-
-def make_bsdf_factory(variant):
-    """The factory of ``msx_posfree`` instances for the current vectorized variant."""
-    nch = native_channels(mi, variant)
-    BSDFFlags = mi.BSDFFlags
-
-    def build(kind):
-        dielectric = kind == "dielectric"
-        if dielectric:
-            R_TYPE, T_TYPE = int(BSDFFlags.GlossyReflection), int(BSDFFlags.GlossyTransmission)
-        elif kind == "diffuse":
-            R_TYPE = T_TYPE = int(BSDFFlags.DiffuseReflection)
-        else:
-            R_TYPE = T_TYPE = int(BSDFFlags.GlossyReflection)
-
-        class MsxPosfree(make_base_class(mi, kind, nch)):
-            """Multiple-scattering microfacet BSDF (the Dr.Jit engine)."""
-
-            def __init__(self, props):
-                super().__init__(props)
-                problem = engine_support(self._cfg)
-                if problem is not None:
-                    raise MsxParameterError(problem)
-                if dielectric:
-                    # The relative IOR as a parameter, as roughdielectric's ``eta`` (traverse below).
-                    self._ior = mi.Float(self._cfg.ior)
-                self._model = MODELS_BY_SURFACE[kind](self._cfg)
-                self._gradient_problem = gradient_problem(self._cfg)
-                self._eta_problem = eta_gradient_problem(self._cfg) if dielectric else None
-                self._direction_problem = direction_gradient_problem(self._cfg)
-                self._differentiable_walk = differentiable_walk(self._cfg)
-                self._refresh()
-
-            def _config(self, props):
-                cfg = vectorized_config(mi, props)
-                warn(mi, cfg.sample_visible_note(engine=True))
-                return cfg
-
-            def traverse(self, cb):
-                super().traverse(cb)
-                if dielectric:
-                    cb.put("eta", self._ior, mi.ParamFlags.Differentiable | mi.ParamFlags.Discontinuous)
-
-            def _refresh(self):
-                self._set_flags()
-                if dielectric:
-                    self._refresh_ior()
-                # A differentiable walk samples its proposal while any parameter carries gradients (set
-                # here, by the parameter update, so that prb's primal and adjoint passes sample alike).
-                self._traced = self._differentiable_walk is not None and (any(
-                    dr.grad_enabled(params[k]) for params in map(mi.traverse, self._textures) for k in params.keys())
-                    or (dielectric and dr.grad_enabled(self._ior)))
-                # The perfect mirror (Mitsuba's material='none' with its default η = 0, k = 1) has F = 1; a
-                # constant material's average Fresnel term (compensation) is computed once, here.
-                self._mirror, self._fresnel_average = False, None
-                if kind == "conductor" and not (self._eta.is_spatially_varying() or self._k.is_spatially_varying()):
-                    si = dr.zeros(mi.SurfaceInteraction3f)
-                    eta, k = self._eta.eval(si), self._k.eval(si)
-                    self._mirror = bool(dr.all(dr.ravel(eta) == 0.0)) and bool(dr.all(dr.ravel(k) == 1.0))
-                    # Not when η or k is differentiated: an average computed here would tie the kernel to a
-                    # derivative taken outside the render (Mitsuba's render isolates its own); the call then
-                    # computes it, differentiably.
-                    traced = dr.grad_enabled(eta) or dr.grad_enabled(k)
-                    # Nor in spectral variants: there η and k depend on the wavelengths each lane samples
-                    # (a zero interaction evaluates them at λ = 0), so the average is a per-lane value.
-                    if self._cfg.model == "compensated" and not self._mirror and not traced and not mi.is_spectral:
-                        clip = (lambda v: dr.clip(v, 0.0, MATERIAL_VALUE_MAX))
-                        self._fresnel_average = analytic.fresnel_average(ConductorFresnel(clip(eta), clip(k)))
-                        dr.eval(self._fresnel_average)
-
-            def _refresh_ior(self):
-                """A new ``eta``: ``auto``'s rules depend on it (one per side), so the model is rebuilt. A value
-                the calls refuse (not finite, index-matched) keeps the old model: every call is unusable then."""
-                ior = float(dr.ravel(dr.detach(self._ior))[0]) if dr.width(self._ior) > 0 else float("nan")
-                if ior == self._cfg.ior or not (math.isfinite(ior) and abs(ior - 1.0) > INDEX_MATCHED):
-                    return
-                self._cfg.ior = min(max(ior, 1.0 / MATERIAL_VALUE_MAX), MATERIAL_VALUE_MAX)
-                self._model = MODELS_BY_SURFACE[kind](self._cfg)
-
-            # ----------------------------------------------------- the call
-
-            def _spectrum(self, tex, si, active):
-                """A spectral texture at the hit, clamped into [0, MATERIAL_VALUE_MAX], and whether it is finite."""
-                v = tex.eval(si, active)
-                return dr.clip(v, 0.0, MATERIAL_VALUE_MAX), dr.all(dr.isfinite(v))
-
-            def _call(self, ctx, si, active):
-                """The call at the hit, its values cleaned as ``Material::usable`` does."""
-                au = self._alpha_u.eval_1(si, active)
-                av = au if self._cfg.isotropic else self._alpha_v.eval_1(si, active)
-                usable = dr.isfinite(au) & dr.isfinite(av)
-                call = Call(Microfacet(self._cfg.distribution, au, av), usable)
-                if not self._cfg.sample_visible:
-                    call.mf.sample_all_normals = True  # read by the closed forms' sampling (jit/single.py)
-                call.alphas, call.traced = ((au,) if self._cfg.isotropic else (au, av)), self._traced
-                if kind == "conductor":
-                    call.tint_r, ok = self._spectrum(self._specular_reflectance, si, active)
-                    usable &= ok
-                    if self._mirror:
-                        call.fresnel = ConductorFresnel(None, None, mirror=True)
-                    else:
-                        (eta, ok_e), (k, ok_k) = self._spectrum(self._eta, si, active), self._spectrum(self._k, si, active)
-                        usable &= ok_e & ok_k
-                        call.fresnel = ConductorFresnel(eta, k, average=self._fresnel_average)
-                elif dielectric:
-                    call.tint_r, ok_r = self._spectrum(self._specular_reflectance, si, active)
-                    call.tint_t, ok_t = self._spectrum(self._specular_transmittance, si, active)
-                    ior = self._ior
-                    usable &= ok_r & ok_t & dr.isfinite(ior) & (dr.abs(ior - 1.0) > INDEX_MATCHED)
-                    call.eta = dr.clip(ior, 1.0 / MATERIAL_VALUE_MAX, MATERIAL_VALUE_MAX)
-                    call.radiance = ctx.mode == mi.TransportMode.Radiance
-                else:
-                    call.albedo, ok = self._spectrum(self._reflectance, si, active)
-                    usable &= ok
-                call.usable = usable
-                if self._gradient_problem is not None:
-                    values = (au, av, call.fresnel and call.fresnel.eta, call.fresnel and call.fresnel.k, call.tint_r,
-                              call.tint_t, call.albedo, call.eta)
-                    if any(v is not None and dr.grad_enabled(v) for v in values):
-                        raise MsxParameterError(self._gradient_problem)
-                if self._eta_problem is not None and dr.grad_enabled(call.eta):
-                    raise MsxParameterError(self._eta_problem)
-                return call
-
-            def _eval_key(self, si, wo):
-                p, uv, wi = si.p, si.uv, si.wi
-                if self._traced:
-                    # prb re-evaluates a sampled ω_o after a round trip through world space, a few ulps off:
-                    # the key must not see that, or eval's estimate is not the one the sample weighed.
-                    wo = dr.round(wo * WO_KEY_GRID) / WO_KEY_GRID
-                return hash_words(self._cfg.seed, (p[0], p[1], p[2], uv[0], uv[1],
-                                                   wi[0], wi[1], wi[2], wo[0], wo[1], wo[2]))
-
-            def _lane_mask(self, ctx, si, wo, active):
-                """The lanes whose lobe the context enables, or None when it enables none."""
-                r_on, t_on = self._lobes(ctx)
-                if not (r_on or t_on):
-                    return None
-                if not dielectric or (r_on and t_on):
-                    return mi.Bool(active)
-                reflect = si.wi[2] * wo[2] > 0.0
-                return active & (reflect if r_on else ~reflect)
-
-            def _evaluate(self, ctx, si, wo, active, want_value, want_pdf):
-                mask = self._lane_mask(ctx, si, wo, active)
-                if mask is None:
-                    return dr.zeros(mi.Spectrum), dr.zeros(mi.Float)
-                refuse_moving_directions(self._direction_problem, si.wi, wo)
-                call = self._call(ctx, si, mask)
-                mask &= call.usable & dr.all(dr.isfinite(si.wi)) & dr.all(dr.isfinite(wo))
-                value, pdf = self._model.eval_pdf(call, si.wi, wo, self._eval_key(si, wo), want_value, want_pdf)
-                if want_value:
-                    value = dr.select(mask & dr.all(dr.isfinite(value)), flush_subnormal(value), 0.0)
-                if want_pdf:
-                    pdf = dr.select(mask & dr.isfinite(pdf), pdf, 0.0)
-                return value, pdf
-
-            def eval(self, ctx, si, wo, active=True):
-                return self._evaluate(ctx, si, wo, active, True, False)[0]
-
-            def pdf(self, ctx, si, wo, active=True):
-                return self._evaluate(ctx, si, wo, active, False, True)[1]
-
-            def eval_pdf(self, ctx, si, wo, active=True):
-                return self._evaluate(ctx, si, wo, active, True, True)
-
-            def sample(self, ctx, si, sample1, sample2, active=True):
-                r_on, t_on = self._lobes(ctx)
-                if not (r_on or t_on):
-                    return dr.zeros(mi.BSDFSample3f), dr.zeros(mi.Spectrum)
-                refuse_moving_directions(self._direction_problem, si.wi)
-                call = self._call(ctx, si, active)
-                wi = si.wi
-                key = hash_words(self._cfg.seed, (sample1, sample2[0], sample2[1], wi[0], wi[2]))
-                if call.traced:
-                    wo, pdf, weight, valid = self._model.sample_traced(call, wi, sample1, sample2[0], sample2[1],
-                                                                       lambda wo: self._eval_key(si, wo))
-                else:
-                    wo, pdf, weight, valid = self._model.sample(call, wi, sample1, sample2[0], sample2[1], key)
-                ok = active & call.usable & valid & dr.all(dr.isfinite(wi)) & dr.isfinite(pdf) & (pdf > 0.0)
-                ok &= dr.all(dr.isfinite(weight))
-                weight = dr.select(dr.abs(weight * pdf) >= FLT_MIN, weight, 0.0)  # as eval's flush_subnormal
-                bs = dr.zeros(mi.BSDFSample3f)
-                transmit = wo[2] * wi[2] < 0.0
-                if dielectric:
-                    ok &= dr.select(transmit, t_on, r_on)
-                    eta_t = dr.select(wi[2] > 0.0, call.eta, 1.0 / call.eta)
-                    bs.eta = dr.select(ok & transmit, eta_t, 1.0)
-                    bs.sampled_type = dr.select(ok & transmit, mi.UInt32(T_TYPE), mi.UInt32(R_TYPE))
-                    bs.sampled_component = dr.select(ok & transmit, mi.UInt32(1), mi.UInt32(0))
-                else:
-                    bs.eta = mi.Float(1.0)
-                    bs.sampled_type = mi.UInt32(R_TYPE)
-                    bs.sampled_component = mi.UInt32(0)
-                bs.wo = dr.select(ok, wo, mi.Vector3f(0.0))
-                bs.pdf = dr.select(ok, pdf, 0.0)
-                return bs, dr.select(ok, weight, 0.0)
-
-            def to_string(self):
-                return one_line(self._cfg, variant, "Dr.Jit engine")
-
-        MsxPosfree.__name__ = MsxPosfree.__qualname__ = "MsxPosfree"
-        return MsxPosfree
-
-    return make_factory(build)

@@ -14,6 +14,7 @@ import math
 import drjit as dr
 import mitsuba as mi
 
+from .dielectric import transmit_half_vector
 from .microfacet import BECKMANN, dot, reflect
 
 # Share of the refraction probability kept when a differentiated walk draws its choice (below).
@@ -144,8 +145,7 @@ def step_density(mf, eta_f, w, d, refracted):
     or refraction (1 − F)·D_w(h)·η_f²|d·h|/(w·h + η_f d·h)² (Walter's Jacobian), with Mitsuba's Fresnel term.
     The walks' edge terms weigh the next direction on an edge by it (the model's F, not the draw's q_t)."""
     h_r = dr.normalize(w + d)
-    h_t = -(w + eta_f * d)
-    h_t = dr.normalize(dr.select(h_t[2] < 0.0, -h_t, h_t))
+    h_t = dr.normalize(transmit_half_vector(w, d, eta_f))
     h = dr.select(refracted, h_t, h_r)
     cw, cd = dot(w, h), dot(d, h)
     f = mi.fresnel(cw, eta_f)[0]
@@ -185,8 +185,7 @@ def edge_point(mf, w, tw, o, eta_f, teta_f, refracted, u):
     density = step_density(mf, eta_f, w, d, refr)
     value, above = edge_vertex(mf, eta_b, w_next, o, transmit)
     if refracted:
-        m = -(w + eta_f * d)
-        m = dr.normalize(dr.select(m[2] < 0.0, -m, m))
+        m = dr.normalize(transmit_half_vector(w, d, eta_f))
     else:
         m = dr.normalize(w + d)
     u_z = eta_tangent_step(w, tw, m, eta_f, teta_f, refr)[2]

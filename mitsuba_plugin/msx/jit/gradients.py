@@ -29,6 +29,38 @@ def detached(mf):
     return Microfacet(mf.dist, dr.detach(mf.alpha_u), dr.detach(mf.alpha_v))
 
 
+class LoopValues:
+    """What a differentiated walk's ``dr.while_loop`` carries of its call, as the last entries of the loop
+    state (drjit 1.5 rejects differentiable reads of wide values from outside a loop inside a symbolic call):
+    α_u, α_v, Λ(ω_o) and the walk's own further values (its material, a tangent), ``rest``.
+    ``LoopValues.state(mf, lambda_o, *rest)`` is what the loop starts with; ``LoopValues(dist, piped)`` in the
+    loop's body gives the statistics with the parameters attached (``mf``: the walk's values) and detached
+    (``mf_sample``: the walk's draws), ``lambda_o`` and ``rest``; ``piped(*rest)`` the entries again, with a
+    new ``rest``."""
+
+    def __init__(self, dist, piped):
+        self.alpha_u, self.alpha_v, self.lambda_o = piped[:3]
+        self.rest = tuple(piped[3:])
+        self.mf = Microfacet(dist, self.alpha_u, self.alpha_v)
+        self.mf_sample = Microfacet(dist, dr.detach(self.alpha_u), dr.detach(self.alpha_v))
+
+    @staticmethod
+    def state(mf, lambda_o, *rest):
+        return (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o)) + rest
+
+    @staticmethod
+    def unpack(traced, mf, lambda_o, rest, piped):
+        """(statistics attached, detached, Λ(ω_o), rest) in a walk's loop body: the loop's entries ``piped``
+        while ``traced``, else the call's own ``mf`` (both), ``lambda_o`` and ``rest``."""
+        if not traced:
+            return mf, mf, lambda_o, rest
+        lv = LoopValues(mf.dist, piped)
+        return lv.mf, lv.mf_sample, lv.lambda_o, lv.rest
+
+    def piped(self, *rest):
+        return (self.alpha_u, self.alpha_v, self.lambda_o) + rest
+
+
 def attach(estimate, params, primal=None):
     """``estimate(*values)`` (a Spectrum) with the derivative with respect to each of ``params`` (Floats or
     Spectra; a Spectrum parameter acts on its own channel only, as η and k do) that has gradients enabled,

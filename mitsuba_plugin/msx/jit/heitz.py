@@ -22,14 +22,14 @@ relative IOR η (outside) or 1/η (inside); a refraction switches the frame and 
 flipped microsurface's, t ↦ ln(1 − e^t) (``flip_height``). The walk yields the Importance-mode BSDF;
 Radiance mode multiplies a result whose ω_o lies on the other side than ω_i by 1/η_r² once at the end
 (``dielectric.radiance_scale``: the refractions' factors telescope). Fresnel and refraction are the
-unit-vector forms the core's height-based walks use (``fresnel::dielectric``, ``refract_unit``).
+unit-vector forms the core's height-based walks use (``dielectric.fresnel_dielectric``, ``refract_unit``).
 
 As in the core (``valid_incidence``), conductor and Lambertian facets need ω_i (and, for eval, ω_o)
 strictly above the macro surface (``below=False``; the MIS density is 0 there); a dielectric takes both
 sides (z ≠ 0) and a finite η > 0.
 
-Everything is float32 on arrays of lanes; ``expm1``/``log1p`` (not in drjit) are written below with
-Kahan's correction so that the hit probability of a near-vertical ray keeps its relative precision.
+Everything is float32 on arrays of lanes; ``expm1``/``log1p`` (``special.py``) keep the hit probability of
+a near-vertical ray to its relative precision.
 """
 
 import math
@@ -38,35 +38,15 @@ import drjit as dr
 import mitsuba as mi
 
 from . import mis, walk
-from .dielectric import eta_seen, radiance_scale
+from .dielectric import eta_seen, fresnel_dielectric, radiance_scale, scatter_unit, transmit_half_vector
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
-from .microfacet import INV_PI, ConductorFresnel, Microfacet, dot, reflect
+from .gradients import LoopValues
+from .microfacet import INV_PI, ConductorFresnel, dot, half_vector, normalized, reflect
 from .model import ConductorWalk, DielectricWalk, DiffuseWalk
-from .rng import Stream
+from .rng import ONE_MINUS_EPS, Stream, clean_uniform
+from .special import expm1, log1p, optical_depth
 
-# The largest float32 below 1: uniform numbers are clamped to [0, ONE_MINUS] (the core clamps to 1 − ε).
-ONE_MINUS = 0.99999994
 LN_2 = 0.6931471805599453
-
-
-def expm1(x):
-    """e^x − 1 for x ≤ 0 without cancellation near 0 (Kahan: (u − 1)·x / ln u with u = e^x)."""
-    u = dr.exp(x)
-    um1 = u - 1.0
-    v = um1 * x / dr.log(u)
-    return dr.select(u == 1.0, x, dr.select(um1 == -1.0, -1.0, v))
-
-
-def log1p(x):
-    """ln(1 + x) for x > −1 without cancellation near 0 (Kahan: ln u · x / (u − 1) with u = 1 + x)."""
-    u = 1.0 + x
-    return dr.select(u == 1.0, x, dr.log(u) * x / (u - 1.0))
-
-
-def optical_depth(u):
-    """E = −ln(1 − U), an Exp(1) depth (finite: U is clamped below 1)."""
-    u = dr.clip(u, 0.0, ONE_MINUS)
-    return -dr.log(1.0 - u)
 
 
 # ------------------------------------------------------------------ height machinery
@@ -93,7 +73,7 @@ def sample_height_hit(mf, w, t, u):
     lam = mf.lambda_(w)
     # Upward: Exp(1) truncated to [0, −Λt), E = −ln(1 − U·P_hit).
     p_hit = -expm1(lam * t)
-    u = dr.clip(u, 0.0, ONE_MINUS)
+    u = dr.clip(u, 0.0, ONE_MINUS_EPS)
     t_up = t - log1p(-u * p_hit) / lam
     leaves = ~(lam > 0.0) | (t >= 0.0)
     horizontal = lam == dr.inf
@@ -129,36 +109,11 @@ def flip_height(t):
 def conductor_phase(mf, wi, wo):
     """The conductor phase function without Fresnel, D_ωi(h)/(4 ωi·h), and ωi·h (Rust
     ``conductor_phase``): (p, c, valid)."""
-    h = wi + wo
-    length = dr.norm(h)
-    h = h / length
+    h, length = half_vector(wi, wo)
     c = dot(wi, h)
     p = mf.d_visible(wi, h) / (4.0 * c)
     valid = (length > 1e-12) & (c > 0.0) & (h[2] > 0.0) & dr.isfinite(p) & (p > 0.0)
     return dr.select(valid, p, 0.0), c, valid
-
-
-def fresnel_dielectric(cos_i, eta):
-    """Unpolarised dielectric reflectance at |cos θ_i| = ``cos_i`` with relative IOR ``eta`` = η_t/η_i,
-    1 under total internal reflection (the unit-vector form ``fresnel::dielectric``)."""
-    ci = dr.minimum(dr.abs(cos_i), 1.0)
-    s2t = (1.0 - ci * ci) / (eta * eta)
-    ct = dr.sqrt(dr.maximum(1.0 - s2t, 0.0))
-    rs = (ci - eta * ct) / (ci + eta * ct)
-    rp = (eta * ci - ct) / (eta * ci + ct)
-    return dr.select(s2t >= 1.0, 1.0, 0.5 * (rs * rs + rp * rp))
-
-
-def refract_unit(w, m, cos_i, eta):
-    """Refraction of ``w`` (w·m = ``cos_i`` > 0) through the facet m, relative IOR ``eta``: (the unit
-    direction on the far side in the same frame, valid); invalid under total internal reflection (Rust
-    ``refract_unit``)."""
-    sin2_t = dr.maximum(1.0 - cos_i * cos_i, 0.0) / (eta * eta)
-    cos_t = dr.sqrt(dr.maximum(1.0 - sin2_t, 0.0))
-    o = m * (cos_i / eta - cos_t) - w / eta
-    length = dr.norm(o)
-    valid = (sin2_t < 1.0) & (length > 0.0) & dr.isfinite(length)
-    return o / length, valid
 
 
 def dielectric_phase_transmit(mf, wi, wo, eta):
@@ -166,10 +121,7 @@ def dielectric_phase_transmit(mf, wi, wo, eta):
     ``dielectric_phase`` with ``same = false``): ``wo`` in the current side's frame points down, ``eta``
     the relative IOR of the far side. η²(1 − F) D_ωi(h) |ωo·h| / (ωi·h + η ωo·h)², h ∝ −(ωi + η ωo)
     oriented upward."""
-    h = -(wi + wo * eta)
-    length = dr.norm(h)
-    h = h / length
-    h = dr.select(h[2] < 0.0, -h, h)
+    h, length = normalized(transmit_half_vector(wi, wo, eta))
     ci = dot(wi, h)
     co = dot(wo, h)
     f = fresnel_dielectric(ci, eta)
@@ -184,16 +136,6 @@ def dielectric_phase_reflect(mf, wi, wo, eta):
     ``dielectric_phase`` with ``same = true``)."""
     p, c, ok = conductor_phase(mf, wi, wo)
     return dr.select(ok, p * fresnel_dielectric(dr.select(ok, c, 1.0), eta), 0.0)
-
-
-def dielectric_scatter(wi, m, cos_wm, eta, u):
-    """Reflect or refract at the facet m (Rust ``scatter`` of a dielectric): reflected when u < F or
-    under total internal reflection, refracted otherwise; a refracted ray is returned in the new side's
-    frame (the point reflection), where it travels upward. Returns (direction, crossed)."""
-    f = fresnel_dielectric(cos_wm, eta)
-    o, ok_t = refract_unit(wi, m, cos_wm, eta)
-    crossed = (u >= f) & ok_t
-    return dr.select(crossed, -o, dr.normalize(reflect(wi, m))), crossed
 
 
 def visible_normal(mf, wi, u1, u2):
@@ -212,11 +154,6 @@ def valid_incidence(w):
 def valid_incidence_dielectric(w, eta):
     """A dielectric's direction must be finite and off the macro surface, its IOR finite and > 0."""
     return dr.all(dr.isfinite(w)) & (w[2] != 0.0) & dr.isfinite(eta) & (eta > 0.0)
-
-
-def clean_uniform(u):
-    """A caller's uniform number, NaN/Inf → 0.5, clamped to [0, 1) (the core's ``clamp_u``)."""
-    return dr.clip(dr.select(dr.isfinite(u), u, 0.5), 0.0, ONE_MINUS)
 
 
 # ------------------------------------------------------------------ the walks
@@ -260,13 +197,9 @@ def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None):
     traced = mf_sample is not None
 
     def body(order, wr, t, thr, result, active, counter, *piped):
-        mfa, mfs, fr, lo = mf, mf, fresnel, lambda_o
-        if traced:  # drjit rejects implicit differentiable reads of wide variables inside the loop
-            au, av, lo = piped[:3]
-            mfa = Microfacet(mf.dist, au, av)
-            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
-            if not fresnel.mirror:
-                fr = ConductorFresnel(piped[3], piped[4])
+        # Traced, the differentiated values come through the loop's state (gradients.LoopValues).
+        mfa, mfs, lo, material = LoopValues.unpack(traced, mf, lambda_o, (), piped)
+        fr = ConductorFresnel(*material) if material else fresnel
         rng = Stream(key, counter)
         u_h, u_rr = rng.next2()
         tn, p_hit = sample_height_hit(mfs, wr, t, u_h)
@@ -295,9 +228,8 @@ def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None):
     state = (mi.UInt32(1), -mi.Vector3f(wi), mi.Float(0.0), mi.Spectrum(1.0), dr.zeros(mi.Spectrum),
              mi.Bool(start), mi.UInt32(0))
     if traced:
-        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o))
-        if not fresnel.mirror:
-            state += (mi.Spectrum(fresnel.eta), mi.Spectrum(fresnel.k))
+        material = () if fresnel.mirror else (mi.Spectrum(fresnel.eta), mi.Spectrum(fresnel.k))
+        state += LoopValues.state(mf, lambda_o, *material)
     state = dr.while_loop(state, lambda *s: s[5], body, label="msx_heitz_conductor_eval")
     return state[4]
 
@@ -313,8 +245,8 @@ def sample(mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
     # The first height: the entering ray −ω_i points down and always hits.
     w0 = -mi.Vector3f(wi)
     t0, hit0 = sample_height(mf, w0, mi.Float(0.0), dr.select(dr.isfinite(sample1), sample1, 0.5))
-    u1 = dr.clip(dr.select(dr.isfinite(u1), u1, 0.5), 0.0, ONE_MINUS)
-    u2 = dr.clip(dr.select(dr.isfinite(u2), u2, 0.5), 0.0, ONE_MINUS)
+    u1 = clean_uniform(u1)
+    u2 = clean_uniform(u2)
 
     def body(order, wr, t, thr, done, active, counter, u1, u2):
         rng = Stream(key, counter)
@@ -356,11 +288,8 @@ def diffuse_eval(mf, albedo, wi, wo, max_bounces, key, mf_sample=None):
     traced = mf_sample is not None
 
     def body(order, wr, t, thr, result, active, counter, *piped):
-        mfa, mfs, lo, a = mf, mf, lambda_o, albedo
-        if traced:  # the differentiated values come through the state
-            au, av, lo, a = piped
-            mfa = Microfacet(mf.dist, au, av)
-            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
+        # Traced, the differentiated values come through the loop's state (gradients.LoopValues).
+        mfa, mfs, lo, (a,) = LoopValues.unpack(traced, mf, lambda_o, (albedo,), piped)
         rng = Stream(key, counter)
         u_h, u_rr = rng.next2()
         tn, p_hit = sample_height_hit(mfs, wr, t, u_h)
@@ -386,7 +315,7 @@ def diffuse_eval(mf, albedo, wi, wo, max_bounces, key, mf_sample=None):
     state = (mi.UInt32(1), -mi.Vector3f(wi), mi.Float(0.0), mi.Spectrum(1.0), dr.zeros(mi.Spectrum),
              mi.Bool(start), mi.UInt32(0))
     if traced:
-        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o), mi.Spectrum(albedo))
+        state += LoopValues.state(mf, lambda_o, mi.Spectrum(albedo))
     state = dr.while_loop(state, lambda *s: s[5], body, label="msx_heitz_diffuse_eval")
     return state[4]
 
@@ -481,10 +410,9 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
 
     def body(order, wr, t, outside, thr, result, active, counter, *piped):
         mfa, mfs, lo, eta_a = mf, mf, lambda_o, eta
-        if traced:  # the differentiated values come through the state
-            au, av, lo, eta_a, tw = piped
-            mfa = Microfacet(mf.dist, au, av)
-            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
+        if traced:  # the differentiated values come through the state (gradients.LoopValues)
+            lv = LoopValues(mf.dist, piped)
+            mfa, mfs, lo, (eta_a, tw) = lv.mf, lv.mf_sample, lv.lambda_o, lv.rest
         rng = Stream(key, counter)
         u_h, u_rr = rng.next2()
         # Traced, the height is reparameterized: the step's uniform number is held and the attached Λ of the
@@ -519,11 +447,11 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
                 result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
             wr, crossed, _, valid, weight, m = scatter_traced(mfa, mfs, wi_l, mi.Float(1.0), e, ua, u1, u2, u_mix)
             tw = eta_tangent_step(ws, tw, m, e_s, teta, crossed)
-            piped = (au, av, lo, eta_a, tw)
+            piped = lv.piped(eta_a, tw)
             thr = thr * weight
         else:
             m, cos_wm, valid = visible_normal(mfs, wi_l, u1, u2)
-            wr, crossed = dielectric_scatter(wi_l, m, cos_wm, e_s, ua)
+            wr, crossed = scatter_unit(wi_l, m, cos_wm, e_s, ua)
         outside = outside ^ crossed
         t = dr.select(crossed, flip_height(t), t)
         thr, survived = walk.russian_roulette_keep(thr, u_rr, 1.0, RR_TRACED_FLOOR if traced else 0.0)
@@ -533,8 +461,7 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
     state = (mi.UInt32(order), mi.Vector3f(wr), mi.Float(t), mi.Bool(outside), mi.Float(thr), mi.Float(0.0),
              mi.Bool(active & (order <= last)), mi.UInt32(counter))
     if traced:
-        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o), mi.Float(eta),
-                  mi.Vector3f(0.0) if tw is None else mi.Vector3f(tw))
+        state += LoopValues.state(mf, lambda_o, mi.Float(eta), mi.Vector3f(0.0) if tw is None else mi.Vector3f(tw))
     state = dr.while_loop(state, lambda *s: s[6], body, label="msx_heitz_dielectric_eval")
     return state[5]
 
@@ -568,7 +495,7 @@ def dielectric_sample_from(mf, eta, wr, t, outside, order, thr, active, max_boun
         order = order + 1
         wi_l = -wr
         m, cos_wm, valid = visible_normal(mf, wi_l, u1, u2)
-        wr, crossed = dielectric_scatter(wi_l, m, cos_wm, eta_seen(eta, outside), ua)
+        wr, crossed = scatter_unit(wi_l, m, cos_wm, eta_seen(eta, outside), ua)
         outside = outside ^ crossed
         t = dr.select(crossed, flip_height(t), t)
         u_rr, u_h = rng.next2()

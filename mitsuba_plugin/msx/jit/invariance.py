@@ -69,7 +69,6 @@ upward direction is at least as steep as ω_o. ``sample``: the same walk leaving
 with probability 1 − H_m/H_{m−1}; the weight is the product of the Fresnel terms.
 """
 
-import contextlib
 import copy
 import math
 
@@ -77,13 +76,14 @@ import drjit as dr
 import mitsuba as mi
 
 from . import mis, walk
-from .microfacet import INV_PI, ConductorFresnel, Microfacet, dot, max_channel, reflect
+from .gradients import LoopValues
+from .microfacet import INV_PI, ConductorFresnel, dot, half_vector, max_channel, reflect
 from . import heitz
-from .dielectric import eta_seen, radiance_scale
+from .dielectric import eta_seen, radiance_scale, reflect_or_refract_unit
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
 from .model import ConductorWalk, DielectricWalk, DiffuseWalk
-from .posfree_dielectric import l_beta
-from .rng import Stream
+from .rng import Stream, clean_uniform
+from .special import expm1, l_beta, optical_depth
 
 # src/models/invariance/conductor.rs: where roulette starts, its sure-survival level, and the highest
 # order the connection strategy serves.
@@ -102,32 +102,19 @@ DIELECTRIC_RUN_SLOTS = 18
 # 1–3 directions: the passes over all the slots cost 30 % of the invariance walk's render time, measured).
 RUN_SLOTS_ALWAYS = 4
 
-ONE_MINUS = 0.99999994  # largest float32 below 1
-
 
 # ------------------------------------------------------------------ the exit table (recursion.rs)
 
 
-# True while a differentiated walk is traced and its derivative propagated (``unrolled``): drjit 1.5's
-# forward mode through the loop fails on the branch of ``over_run`` (it tries to evaluate a symbolic
-# variable), so the passes are then unrolled whole.
-_UNROLLED = [False]
-
-
-@contextlib.contextmanager
-def unrolled():
-    _UNROLLED[0] = True
-    try:
-        yield
-    finally:
-        _UNROLLED[0] = False
-
-
-def over_run(n, a, step, carry, reverse=True):
+def over_run(n, a, step, carry, reverse=True, unrolled=False):
     """``carry = step(i, carry)`` for the slots i of a run held in ``n`` registers, n−1 … 0 (``reverse``) or
     0 … n−1; the slots from ``RUN_SLOTS_ALWAYS`` on inside ``dr.if_stmt(a > RUN_SLOTS_ALWAYS)``, a branch that
     lanes with shorter runs skip. ``step`` must leave the carry unchanged for the slots i ≥ ``a`` (``a``: the
-    slots in use, a UInt32 per lane)."""
+    slots in use, a UInt32 per lane).
+
+    ``unrolled``: every slot without the branch (the same bits), for a walk whose derivative is propagated
+    in forward mode through its loop (``mf_sample`` given): drjit 1.5's forward mode fails on the branch (it
+    tries to evaluate a symbolic variable). The run's owner (``MonotoneExit``, ``PieceChain``) carries it."""
     lo = min(RUN_SLOTS_ALWAYS, n)
     head, tail_slots = list(range(lo)), list(range(lo, n))
     if reverse:
@@ -142,7 +129,7 @@ def over_run(n, a, step, carry, reverse=True):
     if not reverse:
         for i in head:
             carry = step(i, carry)
-    if tail_slots and _UNROLLED[0]:
+    if tail_slots and unrolled:
         carry = tail(*carry)
     elif tail_slots:
         carry = dr.if_stmt(args=tuple(carry), cond=a > lo, true_fn=tail, false_fn=lambda *c: c, label="msx_run_tail")
@@ -160,23 +147,25 @@ class MonotoneExit:
     probability ``hit`` = H_m. Every indexed access is a select over the slots, every pass over the run
     is masked by i < a. Pass :meth:`state` through the walk's loop and rebuild with :meth:`from_state`."""
 
-    def __init__(self, down, g, a, has_up, hit):
+    def __init__(self, down, g, a, has_up, hit, unrolled=False):
         self.down, self.g = list(down), list(g)
         self.a, self.has_up, self.hit = a, has_up, hit
         self.n = len(self.down)
+        # How its passes are traced (``over_run``): a Python bool of the trace, not loop state.
+        self.unrolled = unrolled
 
     @staticmethod
-    def new(l0, n):
+    def new(l0, n, unrolled=False):
         """A path starting with d_0 (downward) of |Λ(d_0)| = ``l0``, room for ``n`` downward directions."""
         return MonotoneExit([mi.Float(l0)] + [mi.Float(1.0) for _ in range(n - 1)], [mi.Float(0.0) for _ in range(n)],
-                            mi.UInt32(1), mi.Bool(False), mi.Float(1.0))
+                            mi.UInt32(1), mi.Bool(False), mi.Float(1.0), unrolled)
 
     def state(self):
         return (self.down, self.g, self.a, self.has_up, self.hit)
 
     @staticmethod
-    def from_state(s):
-        return MonotoneExit(*s)
+    def from_state(s, unrolled=False):
+        return MonotoneExit(*s, unrolled=unrolled)
 
     def push_down(self, l, active):
         """Appends a downward direction of |Λ| = ``l`` where ``active``; False on a non-monotone path or a
@@ -189,7 +178,7 @@ class MonotoneExit:
                 return down
             return down[:i] + (dr.select(ok & (a == i), l, down[i]),) + down[i + 1:]
 
-        self.down = list(over_run(self.n, a + 1, step, tuple(self.down)))
+        self.down = list(over_run(self.n, a + 1, step, tuple(self.down), unrolled=self.unrolled))
         self.a = dr.select(ok, self.a + 1, self.a)
         return ok
 
@@ -209,7 +198,7 @@ class MonotoneExit:
             return (dr.select(run, (li * c + gi) * r_x, c), dr.select(run, (li * c_x + lambda_y * c_y_new) * r_x, c_x),
                     dr.select(run, c_y_new, c_y))
 
-        c, c_x, _ = over_run(self.n, self.a, step, (c0, mi.Float(0.0), c0))
+        c, c_x, _ = over_run(self.n, self.a, step, (c0, mi.Float(0.0), c0), unrolled=self.unrolled)
         return c, c_x
 
     def push_up(self, lam, active):
@@ -226,7 +215,8 @@ class MonotoneExit:
             g_i = lam * c
             return (c, dr.select(run, cont + g_i / li, cont)) + g[:i] + (g_i,) + g[i + 1:]
 
-        out = over_run(self.n, self.a, step, (dr.select(was_up, 0.0, 1.0), mi.Float(0.0)) + tuple(self.g))
+        out = over_run(self.n, self.a, step, (dr.select(was_up, 0.0, 1.0), mi.Float(0.0)) + tuple(self.g),
+                       unrolled=self.unrolled)
         cont, g_new = out[1], out[2:]
         good = (cont > 0.0) & dr.isfinite(cont)
         inv = dr.select(good, 1.0 / cont, 0.0)
@@ -234,7 +224,7 @@ class MonotoneExit:
         def scale(i, g):  # the slots i ≥ a are never read
             return g[:i] + (dr.select(active, g_new[i] * inv, g[i]),) + g[i + 1:]
 
-        self.g = list(over_run(self.n, self.a, scale, tuple(self.g)))
+        self.g = list(over_run(self.n, self.a, scale, tuple(self.g), unrolled=self.unrolled))
         self.hit = dr.select(active, self.hit * dr.select(good, cont, 0.0), self.hit)
         self.has_up = self.has_up | active
         return dr.select(active, cont, 0.0)
@@ -249,9 +239,7 @@ class MonotoneExit:
 
 def half_vector_d(mf, w, x):
     """(D(h), w·h) for the half vector h of w and x; (0, 0) where w does not see h."""
-    h = w + x
-    length = dr.norm(h)
-    h = h / length
+    h, length = half_vector(w, x)
     c = dot(w, h)
     ok = (length > 0.0) & (c > 0.0)
     return dr.select(ok, mf.d(h), 0.0), dr.select(ok, c, 0.0)
@@ -328,7 +316,7 @@ def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None):
         light = LightVertex(mf, fresnel, wo, pdf_scale_o, u1, u2, mf_sample)
         light.lambda_o = lambda_o
     l0 = mf.abs_lambda(-wi)
-    dp0 = MonotoneExit.new(l0, slots)
+    dp0 = MonotoneExit.new(l0, slots, unrolled=mf_sample is not None)
     return walk_from(mf, fresnel, wo, lambda_o, light, CONNECT_MAX_ORDER, mi.Vector3f(wi), 0.25 / (wi[2] * l0),
                      mi.Spectrum(1.0), dp0, start, 0, last, key, rng0.counter, mf_sample=mf_sample)
 
@@ -348,10 +336,8 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
     def body(j, w, pdf_scale, pdf_walk, thr, result, active, counter, dp_state, *piped):
         mf, fresnel, lambda_o, light, mf_s = outer_mf, outer_fresnel, outer_lambda_o, outer_light, outer_mf
         if traced:
-            mf = Microfacet(outer_mf.dist, piped[0], piped[1])
-            mf_s = Microfacet(outer_mf.dist, dr.detach(piped[0]), dr.detach(piped[1]))
-            lambda_o = piped[2]
-            rest = piped[3:]
+            lv = LoopValues(outer_mf.dist, piped)
+            mf, mf_s, lambda_o, rest = lv.mf, lv.mf_sample, lv.lambda_o, lv.rest
             if connects:
                 light = copy.copy(outer_light)
                 light.l_y, light.pdf, light.phase, light.fresnel = rest[:4]
@@ -360,7 +346,7 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
             if not outer_fresnel.mirror:
                 fresnel = ConductorFresnel(rest[0], rest[1])
         rng = Stream(key, counter)
-        dp = MonotoneExit.from_state(dp_state)
+        dp = MonotoneExit.from_state(dp_state, dp0.unrolled)
         order = j + 1
         # NEE: D(h)/(4 A(w)) · F · p_exit(d_0..d_m, ω_o)/H_m, with the balance heuristic against the
         # connection for orders 2..connect_max.
@@ -383,10 +369,8 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
             result = dr.select(conn_on, result + thr * conn, result)
         # Russian roulette on Π F · H_m, after the vertex's estimates.
         u_rr, _ = rng.next2()
-        kept, survived = walk.russian_roulette_keep(thr, u_rr, RR_KEEP)
-        play = j >= RR_START
-        thr = dr.select(play, kept, thr)
-        active &= ~play | survived
+        thr, alive = walk.roulette_from(j >= RR_START, thr, u_rr, RR_KEEP)
+        active &= alive
         # The next direction.
         u1, u2 = rng.next2()
         m, valid = mf_s.sample_visible(w, u1, u2)
@@ -490,9 +474,6 @@ def sample(mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
     slots = run_slots(last)
     start = valid_direction(wi) & (last > 0)
 
-    def clean(u):
-        return dr.clip(dr.select(dr.isfinite(u), u, 0.5), 0.0, ONE_MINUS)
-
     dp0 = MonotoneExit.new(mf.abs_lambda(-wi), slots)
 
     def body(j, w, weight, done, active, counter, u_exit, u1, u2, dp_state):
@@ -518,7 +499,8 @@ def sample(mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
         return j + 1, -d_next, weight, done, active, rng.counter, c, a, b, dp.state()
 
     state = (mi.UInt32(0), mi.Vector3f(wi), mi.Spectrum(1.0), mi.Bool(False), mi.Bool(start), mi.UInt32(0),
-             clean(mi.Float(sample1)), clean(mi.Float(u1)), clean(mi.Float(u2)), dp0.state())
+             clean_uniform(mi.Float(sample1)), clean_uniform(mi.Float(u1)), clean_uniform(mi.Float(u2)),
+             dp0.state())
     state = dr.while_loop(state, lambda *s: s[4], body, label="msx_invariance_conductor_sample")
     return -state[1], state[2], state[3]
 
@@ -658,10 +640,8 @@ def diffuse_eval(mf, albedo, wi, wo, max_bounces, key):
         result = dr.select(nee & (exit > 0.0), result + thr * albedo * (c * INV_PI * exit), result)
         active &= order < last
         u_rr, _ = rng.next2()
-        kept, survived = walk.russian_roulette(thr, u_rr)
-        play = j >= RR_START
-        thr = dr.select(play, kept, thr)
-        active &= ~play | survived
+        thr, alive = walk.roulette_from(j >= RR_START, thr, u_rr)
+        active &= alive
         u3, u4 = rng.next2()
         d = walk.cosine_about(m, u3, u4)
         l, down, ok = diffuse_direction(mf, d)
@@ -688,9 +668,6 @@ def diffuse_sample(mf, albedo, wi, sample1, u1, u2, max_bounces, key):
     l0 = mf.abs_lambda(-wi)
     start = valid_direction(wi) & dr.isfinite(l0) & (last > 0)
 
-    def clean(u):
-        return dr.clip(dr.select(dr.isfinite(u), u, 0.5), 0.0, ONE_MINUS)
-
     table0 = ExitTable.new(l0, capacity)
 
     def body(j, w, weight, done, active, counter, u_exit, u1, u2, table_state):
@@ -713,7 +690,8 @@ def diffuse_sample(mf, albedo, wi, sample1, u1, u2, max_bounces, key):
         return j + 1, -d, weight, done, active, rng.counter, c, a, b, table.state()
 
     state = (mi.UInt32(0), mi.Vector3f(wi), mi.Spectrum(1.0), mi.Bool(False), mi.Bool(start), mi.UInt32(0),
-             clean(mi.Float(sample1)), clean(mi.Float(u1)), clean(mi.Float(u2)), table0.state())
+             clean_uniform(mi.Float(sample1)), clean_uniform(mi.Float(u1)), clean_uniform(mi.Float(u2)),
+             table0.state())
     state = dr.while_loop(state, lambda *s: s[4], body, label="msx_invariance_diffuse_sample")
     return -state[1], state[2], state[3]
 
@@ -729,22 +707,24 @@ class PieceChain:
     not materialised), ``a`` (pieces), ``has_up``, ``hit`` (H_m). Pass :meth:`state` through the walk's
     loop and rebuild with :meth:`from_state`."""
 
-    def __init__(self, rates, pi, a, has_up, scale, hit):
+    def __init__(self, rates, pi, a, has_up, scale, hit, unrolled=False):
         self.rates, self.pi = list(rates), list(pi)
         self.a, self.has_up, self.scale, self.hit = a, has_up, scale, hit
         self.n = len(self.rates)
+        # How its passes are traced (``over_run``): a Python bool of the trace, not loop state.
+        self.unrolled = unrolled
 
     @staticmethod
-    def new(l0, n):
+    def new(l0, n, unrolled=False):
         return PieceChain([mi.Float(l0)] + [mi.Float(1.0) for _ in range(n - 1)], [mi.Float(0.0) for _ in range(n)],
-                          mi.UInt32(1), mi.Bool(False), mi.Float(1.0), mi.Float(1.0))
+                          mi.UInt32(1), mi.Bool(False), mi.Float(1.0), mi.Float(1.0), unrolled)
 
     def state(self):
         return (self.rates, self.pi, self.a, self.has_up, self.scale, self.hit)
 
     @staticmethod
-    def from_state(s):
-        return PieceChain(*s)
+    def from_state(s, unrolled=False):
+        return PieceChain(*s, unrolled=unrolled)
 
     def pi_at(self, c, on):
         """π(c) (normalised) of the slot c (a Python int) where ``on``."""
@@ -762,7 +742,7 @@ class PieceChain:
                 return rates
             return rates[:i] + (dr.select(ok & (a == i), l, rates[i]),) + rates[i + 1:]
 
-        self.rates = list(over_run(self.n, a + 1, step, tuple(self.rates)))
+        self.rates = list(over_run(self.n, a + 1, step, tuple(self.rates), unrolled=self.unrolled))
         self.a = dr.select(ok, self.a + 1, self.a)
         return ok
 
@@ -783,7 +763,7 @@ class PieceChain:
             land = carry * dr.select(inf, 1.0, lam / (self.rates[c] + lam))
             return (carry, cont + dr.select(on, land, 0.0)) + pi[:c] + (dr.select(on, land, pi[c]),) + pi[c + 1:]
 
-        out = over_run(self.n, self.a, step, (mi.Float(0.0), mi.Float(0.0)) + tuple(self.pi))
+        out = over_run(self.n, self.a, step, (mi.Float(0.0), mi.Float(0.0)) + tuple(self.pi), unrolled=self.unrolled)
         cont, self.pi = out[1], list(out[2:])
         good = run & (cont > 0.0) & dr.isfinite(cont)
         self.scale = dr.select(good, 1.0 / cont, self.scale)
@@ -804,7 +784,8 @@ class PieceChain:
             prod = dr.select(on, prod * (l / (l + lam)), prod)
             return prod, total + self.pi_at(c, on) * prod
 
-        _, total = over_run(self.n, self.a, step, (mi.Float(1.0), mi.Float(0.0)), reverse=False)
+        _, total = over_run(self.n, self.a, step, (mi.Float(1.0), mi.Float(0.0)), reverse=False,
+                            unrolled=self.unrolled)
         return dr.select(run, total, 0.0)
 
 
@@ -818,7 +799,7 @@ def draw_depth(chain, c_min, key, counter, active, traced=False):
     def add_mass(c, carry):
         return (carry[0] + chain.pi_at(c, active & (chain.a > c)),) if c >= c_min else carry
 
-    total, = over_run(chain.n, chain.a, add_mass, (mi.Float(0.0),), reverse=False)
+    total, = over_run(chain.n, chain.a, add_mass, (mi.Float(0.0),), reverse=False, unrolled=chain.unrolled)
     rng = Stream(key, counter)
     u_pick, _ = rng.next2()
 
@@ -845,16 +826,12 @@ def draw_depth(chain, c_min, key, counter, active, traced=False):
 
     carry = (dr.detach(u_pick * total), mi.Float(0.0), mi.Bool(active), mi.UInt32(rng.counter), mi.Float(1.0),
              mi.Float(0.0))
-    _, tau, _, counter, ratio, pi_picked = over_run(chain.n, chain.a, pick, carry, reverse=False)
+    _, tau, _, counter, ratio, pi_picked = over_run(chain.n, chain.a, pick, carry, reverse=False,
+                                                    unrolled=chain.unrolled)
     if traced:
         drawn = dr.detach(pi_picked)
         ratio = dr.select(drawn > 0.0, ratio * pi_picked / dr.select(drawn > 0.0, drawn, 1.0), ratio)
     return tau, total, counter, ratio
-
-
-def optical_depth(u):
-    """E = −ln(1 − U), an Exp(1) depth (finite: U is clamped below 1)."""
-    return -dr.log(1.0 - dr.clip(u, 0.0, ONE_MINUS))
 
 
 def transmit_exit(chain, lambda_t, key, counter, active, traced=False):
@@ -868,7 +845,7 @@ def transmit_exit(chain, lambda_t, key, counter, active, traced=False):
     e = p0 * l_beta(l0, lambda_t)
     deeper = run & (chain.a > 1)
     tau, rest, counter, ratio = draw_depth(chain, 1, key, counter, deeper, traced)
-    above = -heitz.expm1(-tau)  # 1 − e^{−τ}
+    above = -expm1(-tau)  # 1 − e^{−τ}
     # Drawn from π restricted to c ≥ 1 (mass ``rest``): rest·g(τ); traced, r̄est·(π(c)/π̄(c))·…·g(τ).
     weight = dr.detach(rest) * ratio if traced else rest
     e = dr.select(deeper & (rest > 0.0), e + weight * dr.exp(lambda_t * dr.log(above)), e)
@@ -891,7 +868,7 @@ def detached_chain(chain):
     """A detached copy of a ``PieceChain`` (its pushes leave ``chain`` as it is)."""
     rates, pi, a, has_up, scale, hit = chain.state()
     return PieceChain([dr.detach(r) for r in rates], [dr.detach(x) for x in pi], a, has_up, dr.detach(scale),
-                      dr.detach(hit))
+                      dr.detach(hit), chain.unrolled)
 
 
 def first_run_edge_terms(mf, chain, w, eta_f, teta_f, outside, wo, lambda_o, key, j, active):
@@ -964,17 +941,16 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None)
     l0 = mf.abs_lambda(-w0)
     start = (dielectric_valid(wi, eta) & dielectric_valid(wo, eta) & dr.isfinite(lambda_o) & dr.isfinite(l0)
              & (last > 0))
-    chain0 = PieceChain.new(l0, slots)
+    chain0 = PieceChain.new(l0, slots, unrolled=traced)
 
     def body(j, w, thr, result, active, counter, refracted, h_dir, h_t, chain_state, *piped):
         mfa, mfs, lo, ea, es = mf, mf, lambda_o, e, e
         if traced:  # the differentiated values come through the state
-            au, av, lo, eta_a, h_tw = piped
-            mfa = Microfacet(mf.dist, au, av)
-            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
+            lv = LoopValues(mf.dist, piped)
+            mfa, mfs, lo, (eta_a, h_tw) = lv.mf, lv.mf_sample, lv.lambda_o, lv.rest
             ea = eta_seen(eta_a, outside)
             es = dr.detach(ea)
-        chain = PieceChain.from_state(chain_state)
+        chain = PieceChain.from_state(chain_state, chain0.unrolled)
         order = j + 1
         # Next-event estimation: phase function × exact exit probability.
         phase = dr.select(same, heitz.dielectric_phase_reflect(mfa, w, wo_l, ea),
@@ -986,10 +962,8 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None)
         active &= order < last
         rng = Stream(key, counter)
         u_rr, u_f = rng.next2()
-        kept, survived = walk.russian_roulette_keep(thr, u_rr, 1.0, RR_TRACED_FLOOR if traced else 0.0)
-        play = j >= RR_START
-        thr = dr.select(play, kept, thr)
-        active &= ~play | survived
+        thr, alive = walk.roulette_from(j >= RR_START, thr, u_rr, 1.0, RR_TRACED_FLOOR if traced else 0.0)
+        active &= alive
         # Scatter: visible normal, reflect with probability F.
         u1, u2 = rng.next2()
         if traced:
@@ -1009,10 +983,8 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None)
         else:
             m, cos_wm, valid = heitz.visible_normal(mfs, w, u1, u2)
             active &= valid
-            f = heitz.fresnel_dielectric(cos_wm, es)
-            o, ok_t = heitz.refract_unit(w, m, cos_wm, es)
-            refr = active & (u_f >= f) & ok_t
-            d = dr.normalize(reflect(w, m))
+            o, d, crossed = reflect_or_refract_unit(w, m, cos_wm, es, u_f)
+            refr = active & crossed
         tau, _, counter, depth_ratio = draw_depth(chain, 0, key, rng.counter, refr, traced)
         if traced:
             thr = dr.select(active, thr * weight * dr.select(refr, depth_ratio, 1.0), thr)
@@ -1032,7 +1004,7 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None)
         pushed = chain.push_down(l, active & ~up & dr.isfinite(l))
         active &= up | pushed
         if traced:
-            piped = (au, av, lo, eta_a, h_tw)
+            piped = lv.piped(eta_a, h_tw)
         return (j + 1, -d, thr, result, active, counter, refracted, h_dir, h_t, chain.state()) + piped
 
     state = (mi.UInt32(0), mi.Vector3f(w0), mi.Float(1.0), mi.Float(0.0), mi.Bool(start), mi.UInt32(0),
@@ -1066,22 +1038,17 @@ def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
     start = dielectric_valid(wi, eta) & dr.isfinite(l0) & (last > 0)
     chain0 = PieceChain.new(l0, slots)
 
-    def clean(u):
-        return dr.clip(dr.select(dr.isfinite(u), u, 0.5), 0.0, ONE_MINUS)
-
     def body(j, w, done, active, counter, ua, u1, u2, refracted, h_dir, h_t, chain_state):
         chain = PieceChain.from_state(chain_state)
         m, cos_wm, valid = heitz.visible_normal(mf, w, u1, u2)
         active &= valid
-        f = heitz.fresnel_dielectric(cos_wm, e)
-        o, ok_t = heitz.refract_unit(w, m, cos_wm, e)
-        refr = active & (ua >= f) & ok_t
+        o, d, crossed = reflect_or_refract_unit(w, m, cos_wm, e, ua)
+        refr = active & crossed
         tau, _, counter, _ = draw_depth(chain, 0, key, counter, refr)
         refracted = refracted | refr
         h_dir = dr.select(refr, -o, h_dir)
         h_t = dr.select(refr, heitz.flip_height(-tau), h_t)
         active &= ~refr
-        d = dr.normalize(reflect(w, m))
         active &= dr.all(dr.isfinite(d)) & (d[2] != 0.0)
         up = d[2] > 0.0
         lam = mf.lambda_(d)
@@ -1098,9 +1065,9 @@ def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
         a, b = rng.next2()
         return j + 1, -d, done, active, rng.counter, c, a, b, refracted, h_dir, h_t, chain.state()
 
-    state = (mi.UInt32(0), mi.Vector3f(w0), mi.Bool(False), mi.Bool(start), mi.UInt32(0), clean(mi.Float(sample1)),
-             clean(mi.Float(u1)), clean(mi.Float(u2)), mi.Bool(False), mi.Vector3f(0.0, 0.0, 1.0), mi.Float(0.0),
-             chain0.state())
+    state = (mi.UInt32(0), mi.Vector3f(w0), mi.Bool(False), mi.Bool(start), mi.UInt32(0),
+             clean_uniform(mi.Float(sample1)), clean_uniform(mi.Float(u1)), clean_uniform(mi.Float(u2)), mi.Bool(False),
+             mi.Vector3f(0.0, 0.0, 1.0), mi.Float(0.0), chain0.state())
     j, w, done, _, counter, _, _, _, refracted, h_dir, h_t, _ = dr.while_loop(
         state, lambda *s: s[3], body, label="msx_invariance_dielectric_sample")
     wo_run = -dr.select(outside, w, -w)  # the run's exit direction d in the macro frame

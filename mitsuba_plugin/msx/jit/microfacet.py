@@ -36,6 +36,19 @@ def reflect(w, m):
     return 2.0 * dot(w, m) * m - w
 
 
+def normalized(v):
+    """(v/|v|, |v|): the division the walks' half vectors are rounded with (``dr.normalize`` multiplies by a
+    reciprocal square root, other bits)."""
+    length = dr.norm(v)
+    return v / length, length
+
+
+def half_vector(w, o):
+    """The half vector of a reflection from w to o and |w + o| (``normalized``); Walter's half vector of a
+    refraction is ``dielectric.transmit_half_vector``."""
+    return normalized(w + o)
+
+
 def ggx_lambda_up(alpha_tan2):
     """GGX Λ for an upward direction with (α tan θ)² = ``alpha_tan2``, without cancellation (ggx.rs)."""
     v = alpha_tan2 / (2.0 * (1.0 + dr.sqrt(1.0 + alpha_tan2)))
@@ -118,9 +131,7 @@ class Microfacet:
 
     def reflect_pdf(self, w, wo):
         """Density of reflecting ω into ``wo`` with m ~ D_ω: D_ω(h) / (4 ω·h)."""
-        h = w + wo
-        length = dr.norm(h)
-        h = h / length
+        h, length = half_vector(w, wo)
         c = dot(w, h)
         ok = (length > 0.0) & (c > 0.0)
         return dr.select(ok, self.d_visible(w, h) / (4.0 * c), 0.0)

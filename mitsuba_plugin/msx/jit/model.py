@@ -48,7 +48,16 @@ class DielectricAnalytic:
         self.eval, self.pdf, self.sample = eval, pdf, sample
 
 
-class DielectricWalk:
+class _Walk:
+    """What every walk on a non-conductor surface provides: ``eval_pt`` and ``sample_walk`` (signatures below)
+    and ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md)."""
+
+    def __init__(self, eval_pt, sample_walk, differentiable=False):
+        self.eval_pt, self.sample_walk = eval_pt, sample_walk
+        self.differentiable = differentiable
+
+
+class DielectricWalk(_Walk):
     """A dielectric random-walk model (``eta`` the relative IOR η_int/η_ext, a Python float or mi.Float;
     ``radiance`` a Python bool, Mitsuba's transport mode; values are one channel, mi.Float):
 
@@ -62,24 +71,16 @@ class DielectricWalk:
     """
 
     def __init__(self, eval_pt, sample_walk, differentiable=False, eta_differentiable=False):
-        self.eval_pt, self.sample_walk = eval_pt, sample_walk
-        self.differentiable = differentiable
+        super().__init__(eval_pt, sample_walk, differentiable)
         self.eta_differentiable = eta_differentiable
 
 
-class DiffuseWalk:
+class DiffuseWalk(_Walk):
     """A walk on a microsurface of Lambertian facets (``albedo`` mi.Spectrum):
 
     - ``eval_pt(mf, albedo, wi, wo, max_bounces, key)`` → one estimate of f·cos θ_o (mi.Spectrum);
     - ``sample_walk(mf, albedo, wi, sample1, u1, u2, max_bounces, key)`` → (ω_o, weight, valid).
 
     Its MIS density is a cosine lobe.
-    - ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md);
-    - ``eta_differentiable``: its derivative in ``eta`` is unbiased too (docs/gradients.md, "The IOR of the
-      glass walks"); otherwise a call with ``eta`` differentiated refuses.
+    - ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md).
     """
-
-    def __init__(self, eval_pt, sample_walk, differentiable=False, eta_differentiable=False):
-        self.eval_pt, self.sample_walk = eval_pt, sample_walk
-        self.differentiable = differentiable
-        self.eta_differentiable = eta_differentiable

@@ -22,7 +22,8 @@ import mitsuba as mi
 
 from . import bdpt, mis, walk
 from .model import ConductorWalk, DiffuseWalk
-from .microfacet import INV_PI, ConductorFresnel, Microfacet, dot, max_channel, reflect
+from .gradients import LoopValues
+from .microfacet import INV_PI, ConductorFresnel, dot, half_vector, max_channel, normalized, reflect
 from .rng import Stream
 
 UNCORRELATED = "uncorrelated"
@@ -55,9 +56,7 @@ def roulette_importance(nee, last_factor, gain):
 
 def nee_term(mf, w, wo, last_factor):
     """The conductor's next-event term without the Fresnel factor: (w·h, D(h)·last/(4|w_z|), valid)."""
-    h = w + wo
-    length = dr.norm(h)
-    h = h / length
+    h, length = half_vector(w, wo)
     cos_wh = dot(w, h)
     valid = (length > 0.0) & (cos_wh > 0.0) & (dot(wo, h) > 0.0)
     value = mf.d(h) * last_factor / (4.0 * dr.abs(w[2]))
@@ -96,24 +95,18 @@ def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex
     traced = mf_sample is not None
 
     def body(j, w, l, thr, result, active, counter, *piped):
-        mfa, fr, lo, mfs = mf, fresnel, lambda_o, (mf if not traced else mf_sample)
-        if traced:  # the differentiated values come through the state (drjit rejects implicit wide reads)
-            au, av, lo = piped[:3]
-            mfa = Microfacet(mf.dist, au, av)
-            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
-            if not fresnel.mirror:
-                fr = ConductorFresnel(piped[3], piped[4])
+        # Traced, the differentiated values come through the loop's state (gradients.LoopValues).
+        mfa, mfs, lo, material = LoopValues.unpack(traced, mf, lambda_o, (), piped)
+        fr = ConductorFresnel(*material) if material else fresnel
         rng = Stream(key, counter)
         active &= (l > 0.0) & dr.isfinite(l) & (max_channel(thr) > 0.0)
         last_factor = last(segments, l, lo)
         cos_wh, nee, nee_ok = nee_term(mfa, w, wo, last_factor)
         u_rr, _ = rng.next2()
         importance = roulette_importance(nee, last_factor, RR_NEE_GAIN)
-        kept_thr, survived = walk.russian_roulette_keep(
-            thr, u_rr, 1.0 / (importance if not traced else dr.detach(importance)))
-        play = j >= rr_start
-        thr = dr.select(play, kept_thr, thr)
-        active &= ~play | survived
+        thr, alive = walk.roulette_from(j >= rr_start, thr, u_rr,
+                                        1.0 / (importance if not traced else dr.detach(importance)))
+        active &= alive
         result = dr.select(active & nee_ok, result + thr * fr.eval(cos_wh) * nee, result)
         active &= j + 1 < max_bounces
 
@@ -146,9 +139,8 @@ def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex
     state = (mi.UInt32(first_vertex), mi.Vector3f(w), mi.Float(l), mi.Spectrum(thr),
              dr.zeros(mi.Spectrum, width), mi.Bool(active), mi.UInt32(counter))
     if traced:
-        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o))
-        if not fresnel.mirror:
-            state += (mi.Spectrum(fresnel.eta), mi.Spectrum(fresnel.k))
+        material = () if fresnel.mirror else (mi.Spectrum(fresnel.eta), mi.Spectrum(fresnel.k))
+        state += LoopValues.state(mf, lambda_o, *material)
     state = dr.while_loop(state, lambda *s: s[5], body, label=label)
     return state[4]
 
@@ -333,9 +325,7 @@ class Bidirectional:
         s, t = len(cam) - 1, len(light) - 1
         cv, lv = cam[s], light[t]
         cos_s = dr.abs(cv.d[2])
-        h = -cv.d + lv.e
-        length = dr.norm(h)
-        h = h / length
+        h, length = normalized(-cv.d + lv.e)
         cos_h = -dot(cv.d, h)
         dh = self.mf.d(h)
         valid = ((max_channel(cv.thr) > 0.0) & (max_channel(lv.w) > 0.0) & (cv.l > 0.0) & dr.isfinite(cv.l)
@@ -406,11 +396,8 @@ def diffuse_eval_pt(segments, mf, albedo, wi, wo, max_bounces, key, mf_sample=No
     traced = mf_sample is not None
 
     def body(j, w, l, thr, result, active, counter, *piped):
-        mfa, mfs, lo, a = mf, mf, lambda_o, albedo
-        if traced:  # the differentiated values come through the state (drjit rejects implicit wide reads)
-            au, av, lo, a = piped
-            mfa = Microfacet(mf.dist, au, av)
-            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
+        # Traced, the differentiated values come through the loop's state (gradients.LoopValues).
+        mfa, mfs, lo, (a,) = LoopValues.unpack(traced, mf, lambda_o, (albedo,), piped)
         rng = Stream(key, counter)
         active &= (l > 0.0) & dr.isfinite(l) & (max_channel(thr) > 0.0)
         u1, u2 = rng.next2()
@@ -428,16 +415,14 @@ def diffuse_eval_pt(segments, mf, albedo, wi, wo, max_bounces, key, mf_sample=No
         up = d_next[2] > 0.0
         lam = mfa.abs_lambda(d_next)
         thr = dr.select(up, thr * continue_up(segments, l, lam), thr)
-        play = j + 1 >= RR_START
-        kept, survived = walk.russian_roulette(thr, rng.next())
-        thr = dr.select(play, kept, thr)
-        active &= ~play | survived
+        thr, alive = walk.roulette_from(j + 1 >= RR_START, thr, rng.next())
+        active &= alive
         return (j + 1, -d_next, lam, thr, result, active, rng.counter) + piped
 
     state = (mi.UInt32(0), mi.Vector3f(wi), 1.0 + mf.lambda_(wi), dr.full(mi.Spectrum, 1.0, width),
              dr.zeros(mi.Spectrum, width), mi.Bool(start), mi.UInt32(0))
     if traced:
-        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o), mi.Spectrum(albedo))
+        state += LoopValues.state(mf, lambda_o, mi.Spectrum(albedo))
     return dr.while_loop(state, lambda *s: s[5], body, label="msx_posfree_diffuse_pt")[4]
 
 

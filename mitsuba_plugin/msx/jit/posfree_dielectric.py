@@ -17,11 +17,7 @@ segment factors are (dielectric.rs has the table and its derivation):
 | last, reflection to ω_o             | 1/(L(1+Λ_o))   | 1/(L+Λ_o)       |
 | last, transmission to ω_o           | 1/(L(1+Λ_o))   | B(L, 1+Λ_o)     |
 
-L·B(L, 1+Λ) = Γ(L+1)Γ(Λ+1)/Γ(L+Λ+1): the core takes it from ln Γ in float64; in float32 the three ln Γ
-cancel (for Λ → 0 the result is O(Λ) against terms O(L ln L)), so ``ln_l_beta`` is written as a sum of
-terms that are each O(min(L, Λ)) (shifted Stirling differences and log1p sums), and for L + Λ ≤ ½, where
-the value is second order, −(π²/6)·LΛ + …, as the Taylor series of ln Γ(1 + x) with the LΛ factored out:
-relative error below 1e-6 everywhere (python_tests/test_jit_dielectric.py checks it against mpmath).
+L·B(L, 1+Λ) = Γ(L+1)Γ(Λ+1)/Γ(L+Λ+1) is ``special.l_beta`` (float32 without the cancellation of three ln Γ).
 
 Radiance mode carries Mitsuba's 1/η_r² of the macro pair once at the end (``radiance_scale``): the
 refractions' (η_i/η_t)² telescope to it.
@@ -37,131 +33,18 @@ import drjit as dr
 import mitsuba as mi
 
 from . import walk
-from .dielectric import eta_seen, radiance_scale, reflect_or_refract
+from .dielectric import eta_seen, radiance_scale, reflect_or_refract, transmit_half_vector
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
-from .microfacet import Microfacet, dot
+from .gradients import LoopValues
+from .microfacet import dot, half_vector, normalized
 from .model import DielectricWalk
 from .posfree import CORRELATED, RR_START, UNCORRELATED, roulette_importance
-from .rng import Stream
+from .rng import ONE_MINUS_EPS, Stream
+from .special import expm1_ratio, l_beta, ln_l_beta
 
 # dielectric.rs: the gain of the next-event value in the roulette's importance (measured there for
 # dielectrics; larger than the conductors' 30).
 RR_NEE_GAIN = 100.0
-
-# The largest float32 below 1 (the core clamps a reused uniform number to 1 − ε/2 in float64).
-ONE_MINUS_EPS = 1.0 - 2.0 ** -24
-
-# Shift of the arguments before Stirling's series in ``ln_l_beta``, and the series' coefficients
-# B_2k/(2k(2k−1)) of 1/z^(2k−1), k = 1..5: truncated after 1/z⁹, its error is below 691/(360360 z¹¹) < 5e-10
-# for z ≥ 4.
-_STIRLING_SHIFT = 3
-_STIRLING = (1.0 / 12.0, -1.0 / 360.0, 1.0 / 1260.0, -1.0 / 1680.0, 1.0 / 1188.0)
-
-
-# ------------------------------------------------------------------ float32 special functions
-
-
-def log1p(x):
-    """ln(1 + x) for x > −1 without cancellation (Goldberg's correction of ln(1 + x) by x/((1 + x) − 1))."""
-    u = 1.0 + x
-    return dr.select(u == 1.0, x, dr.log(u) * (x / (u - 1.0)))
-
-
-def expm1(x):
-    """eˣ − 1 without cancellation (Kahan: (eˣ − 1)·x/ln eˣ)."""
-    u = dr.exp(x)
-    um1 = u - 1.0
-    return dr.select(u == 1.0, x, dr.select(um1 == -1.0, -1.0, um1 * (x / dr.log(u))))
-
-
-def _stirling_tail_diff(x, b):
-    """s(x + b) − s(x) of ln Γ(z) = (z − ½) ln z − z + ½ ln 2π + s(z), s(z) = Σ_k c_k/z^(2k−1) (x ≥ 4), as
-    b times a sum of positive terms (no cancellation as b → 0): with r = 1/x, t = 1/(x + b),
-    t^m − r^m = (t − r)·S_m, S_m = Σ_{i<m} t^i r^(m−1−i) (S_1 = 1, S_{m+1} = t·S_m + r^m), t − r = −b·r·t."""
-    r = 1.0 / x
-    t = 1.0 / (x + b)
-    acc = _STIRLING[0] * 1.0
-    s_m, r_m = mi.Float(1.0), r  # S_1, r^1
-    for k in range(1, len(_STIRLING)):
-        for _ in range(2):  # S_m → S_{m+2}
-            s_m = t * s_m + r_m
-            r_m = r_m * r
-        acc = acc + _STIRLING[k] * s_m
-    return -b * r * t * acc
-
-
-# ζ(k), k = 2, 3, …: the Taylor coefficients of ln Γ(1 + x) = −γx + Σ_{k≥2} (−1)^k ζ(k) x^k / k.
-_ZETA = (1.6449340668482264, 1.2020569031595942, 1.0823232337111381, 1.03692775514337, 1.0173430619844492,
-         1.008349277381923, 1.0040773561979444, 1.0020083928260821, 1.000994575127818, 1.0004941886041194,
-         1.000246086553308, 1.0001227133475785, 1.0000612481350588, 1.000030588236307, 1.0000152822594086,
-         1.0000076371976379, 1.000003817293265, 1.0000019082127165, 1.0000009539620338, 1.0000004769329869,
-         1.0000002384505027, 1.000000119219926, 1.000000059608189)
-# a + b below which ``ln_l_beta`` takes the series (its truncation after the last ζ is < s^22 ≈ 2e-7 of the
-# value at s = 1/2).
-_SERIES_MAX = 0.5
-
-
-def _ln_l_beta_series(a, b):
-    """ln Γ(a+1) + ln Γ(b+1) − ln Γ(a+b+1) for a + b ≤ ½ from the Taylor series of ln Γ(1 + x): the −γ
-    terms cancel exactly and the rest is −ab·Σ_{k≥2} (−1)^k ζ(k)/k·q_k with q_k = (s^k − a^k − b^k)/(ab),
-    s = a + b, by the recurrences e_k = a^k + b^k = s·e_{k−1} − p·e_{k−2} and q_k = s·q_{k−1} + e_{k−2}
-    (p = ab; every q_k a sum of positive terms)."""
-    s, p = a + b, a * b
-    e_prev, e = mi.Float(2.0), s  # e_0, e_1
-    q = mi.Float(0.0)  # q_1
-    total = mi.Float(0.0)
-    for i, z in enumerate(_ZETA):
-        k = i + 2
-        q = s * q + e_prev  # q_k (uses e_{k−2})
-        e_prev, e = e, s * e - p * e_prev  # e_{k−1}, e_k
-        term = (z / k) * q
-        total += term if k % 2 == 0 else -term
-    return -p * total
-
-
-def ln_l_beta(l, lam):
-    """ln(L·B(L, 1+Λ)) = ln Γ(L+1) + ln Γ(Λ+1) − ln Γ(L+Λ+1) (≤ 0 for L, Λ ≥ 0); 0 when L or Λ is 0,
-    −∞ when one is infinite (dielectric.rs ``ln_l_beta``).
-
-    The value is symmetric in (L, Λ); let b = min, a = max. For a + b ≤ ½, ``_ln_l_beta_series`` (the
-    value is −(π²/6)·ab + …, second order). Otherwise, with n = ``_STIRLING_SHIFT``, shifting every
-    argument by n (Γ(x+1) = Γ(x+1+n)/∏_{k=1..n}(x+k)) and writing the differences of ln Γ of Stirling's
-    series as D(x, b) = ln Γ(x+b) − ln Γ(x) = (x − ½) log1p(b/x) + b ln(x+b) − b + s(x+b) − s(x) gives
-
-        D(n+1, b) − D(a+n+1, b) + Σ_{k=1..n} log1p(−ab/((a+k)(k+b)))
-
-    (the sum is Σ [log1p(b/(a+k)) − log1p(b/k)]), whose terms are each O(b) (the −b and the b ln terms
-    combine into −b·log1p(a/(n+1+b))): float32 keeps its relative precision as b → 0, where the core's
-    three ln Γ would cancel."""
-    l, lam = mi.Float(l), mi.Float(lam)
-    a, b = dr.maximum(l, lam), dr.minimum(l, lam)
-    n = float(_STIRLING_SHIFT)
-    x0, x1 = n + 1.0, a + n + 1.0
-    v = ((n + 0.5) * log1p(b / x0) - (a + n + 0.5) * log1p(b / x1) - b * log1p(a / (x0 + b))
-         + _stirling_tail_diff(x0, b) - _stirling_tail_diff(x1, b))
-    for k in range(1, _STIRLING_SHIFT + 1):
-        # log1p(b/(a+k)) − log1p(b/k) = log1p(−ab/((a+k)(k+b))), the argument in (−1, 0].
-        v += log1p(-(a / (a + k)) * (b / (b + k)))
-    v = dr.select(a + b <= _SERIES_MAX, _ln_l_beta_series(a, b), v)
-    v = dr.minimum(v, 0.0)
-    v = dr.select(dr.isfinite(l) & dr.isfinite(lam), v, -dr.inf)
-    return dr.select((lam == 0.0) | (l == 0.0), 0.0, v)
-
-
-def l_beta(l, lam):
-    """L·B(L, 1+Λ) = Γ(L+1)Γ(Λ+1)/Γ(L+Λ+1) ∈ [0, 1] (dielectric.rs ``l_beta``)."""
-    return dr.exp(ln_l_beta(l, lam))
-
-
-def beta(a, b):
-    """The Beta function B(a, b) for a, b > 0 (dielectric.rs ``beta``, which the PT does not use): B(a, b) =
-    exp(ln_l_beta(a, b − 1))/a for b ≥ 1, and B(a, b) = B(a, b + 1)·(a + b)/b below."""
-    a, b = mi.Float(a), mi.Float(b)
-    small = b < 1.0
-    bb = dr.select(small, b + 1.0, b)
-    v = dr.exp(ln_l_beta(a, bb - 1.0)) / a
-    return dr.select(small, v * (a + b) / b, v)
-
 
 # ------------------------------------------------------------------ segment and vertex terms
 
@@ -171,7 +54,7 @@ def continue_up(segments, refracted, l, lam):
     if segments == UNCORRELATED:
         c = lam / (1.0 + lam)
     else:
-        c = dr.select(refracted, -expm1(ln_l_beta(l, lam)), lam / (l + lam))
+        c = dr.select(refracted, -expm1_ratio(ln_l_beta(l, lam)), lam / (l + lam))
     c = dr.select(dr.isfinite(c), dr.clip(c, 0.0, 1.0), dr.select(refracted, 0.0, 1.0))
     return dr.select(dr.isinf(lam), 1.0, c)
 
@@ -187,9 +70,7 @@ def last(segments, refracted, l, lambda_o):
 
 def vertex_reflect(mf, eta_f, w, o):
     """Reflection vertex term F·D(h)/(4|w_z|) towards o (current frame, o.z > 0)."""
-    h = w + o
-    length = dr.norm(h)
-    h = h / length
+    h, length = half_vector(w, o)
     cw = dot(w, h)
     ok = (length > 0.0) & (cw > 0.0) & (dot(o, h) > 0.0)
     f = mi.fresnel(cw, eta_f)[0]
@@ -200,10 +81,7 @@ def vertex_reflect(mf, eta_f, w, o):
 def vertex_transmit(mf, eta_f, w, o):
     """Transmission vertex term (Wang eq. 3, Walter's half vector) towards o (current frame, o.z < 0):
     |w·h||o·h|·η_f²(1−F)·D(h)/(|w_z|(w·h + η_f o·h)²), h = −(w + η_f o) oriented upward."""
-    h = -(w + eta_f * o)
-    length = dr.norm(h)
-    h = h / length
-    h = dr.select(h[2] < 0.0, -h, h)
+    h, length = normalized(transmit_half_vector(w, o, eta_f))
     cw, co = dot(w, h), dot(o, h)
     f = mi.fresnel(cw, eta_f)[0]
     ok = (length > 0.0) & dr.isfinite(length) & (cw > 0.0) & (co < 0.0) & (f < 1.0)
@@ -281,10 +159,9 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
 
     def body(j, w, l, side, eta_f, thr, result, active, counter, *piped):
         mfa, mfs, lo, efa, efs = mf, mf, lambda_o, eta_f, eta_f
-        if traced:  # the differentiated values come through the state (drjit rejects implicit wide reads)
-            au, av, lo, eta_a, tw = piped
-            mfa = Microfacet(mf.dist, au, av)
-            mfs = Microfacet(mf.dist, dr.detach(au), dr.detach(av))
+        if traced:  # the differentiated values come through the state (gradients.LoopValues)
+            lv = LoopValues(mf.dist, piped)
+            mfa, mfs, lo, (eta_a, tw) = lv.mf, lv.mf_sample, lv.lambda_o, lv.rest
             efa = eta_seen(eta_a, side > 0.0)
             efs = dr.detach(efa)
         rng = Stream(key, counter)
@@ -293,11 +170,9 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
         lst = last(segments, transmit, l, lo)
         v = lst * dr.select(transmit, vertex_transmit(mfa, efa, w, o), vertex_reflect(mfa, efa, w, o))
         u_rr, u_choice = rng.next2()
-        kept, survived = walk.russian_roulette_keep(thr, u_rr, 1.0 / roulette_importance(v, lst, RR_NEE_GAIN),
-                                                    RR_TRACED_FLOOR if traced else 0.0)
-        play = j >= RR_START
-        thr = dr.select(play, kept, thr)
-        active &= ~play | survived
+        thr, alive = walk.roulette_from(j >= RR_START, thr, u_rr, 1.0 / roulette_importance(v, lst, RR_NEE_GAIN),
+                                        RR_TRACED_FLOOR if traced else 0.0)
+        active &= alive
         result = dr.select(active, result + thr * v, result)
         active &= j + 1 < max_bounces
         u1, u2 = rng.next2()
@@ -313,7 +188,7 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
                 result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
             d, refracted, side, valid, weight, m = scatter_traced(mfa, mfs, w, side, efa, u_choice, u1, u2, u_mix)
             tw = eta_tangent_step(ws, tw, m, efs, teta, refracted)
-            piped = (au, av, lo, eta_a, tw)
+            piped = lv.piped(eta_a, tw)
             eta_f = dr.select(refracted, 1.0 / eta_f, eta_f)
             thr = thr * weight
         else:
@@ -327,7 +202,7 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
 
     state = (mi.UInt32(0), w0, l0, side0, eta_f0, mi.Float(1.0), mi.Float(0.0), mi.Bool(start), mi.UInt32(0))
     if traced:
-        state += (mf.alpha_u, mf.alpha_v, mi.Float(lambda_o), mi.Float(eta), mi.Vector3f(0.0))
+        state += LoopValues.state(mf, lambda_o, mi.Float(eta), mi.Vector3f(0.0))
     state = dr.while_loop(state, lambda *s: s[7], body, label="msx_posfree_dielectric_pt")
     return state[6] * radiance_scale(eta, radiance, wi[2] > 0.0, wo[2] > 0.0)
 

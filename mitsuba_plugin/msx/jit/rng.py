@@ -20,6 +20,16 @@ import mitsuba as mi
 
 _GOLDEN = 0x9E3779B9
 
+# The largest float32 below 1, 1 − 2⁻²⁴: the top of a uniform number made safe for a sampler (the core's
+# ``unit_interval`` clamps to the largest float64 below 1).
+ONE_MINUS_EPS = 1.0 - 2.0 ** -24
+
+
+def clean_uniform(u):
+    """A caller's uniform number made safe for a sampler: NaN/Inf → 0.5, clamped into [0, 1) (the core's
+    ``unit_interval`` with the walks' replacement)."""
+    return dr.clip(dr.select(dr.isfinite(u), u, 0.5), 0.0, ONE_MINUS_EPS)
+
 
 def mix32(x):
     """A bijective 32-bit mixer (xor-shift-multiply; the "lowbias32" constants)."""

@@ -19,9 +19,12 @@ def russian_roulette_keep(throughput, u, keep, floor=0.0):
     return dr.select(survived, throughput / q, 0.0), survived
 
 
-def russian_roulette(throughput, u):
-    """Russian roulette on the largest channel of a throughput ≤ 1 per channel (``russian_roulette``)."""
-    return russian_roulette_keep(throughput, u, 1.0)
+def roulette_from(play, throughput, u, keep=1.0, floor=0.0):
+    """A walk's roulette at a vertex: ``russian_roulette_keep`` on the lanes where ``play`` (the vertex is at
+    or past the walk's first roulette vertex), the throughput as it is elsewhere. Returns (throughput,
+    alive); ``alive`` is False where the path ended."""
+    kept, survived = russian_roulette_keep(throughput, u, keep, floor)
+    return dr.select(play, kept, throughput), ~play | survived
 
 
 def cosine_about(n, u1, u2):

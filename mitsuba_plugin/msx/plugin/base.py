@@ -2,7 +2,7 @@
 
 The scalar variants call the core once per BSDF call (``scalar.py``); the
 batched route of the vectorized variants makes one batched call per method over a wavefront
-(``vectorized.py``); the Dr.Jit engine (``jit/bsdf.py``) builds on the same base class. Everything that does not depend on how a call reaches
+(``vectorized.py``); the Dr.Jit engine's class (``jit_bsdf.py``) builds on the same base class. Everything that does not depend on how a call reaches
 the core lives here: the channel count, the native handle, the instance's
 textures, the surface's lobes, flags and components, ``traverse``,
 ``parameters_changed`` and the factory that picks the class of the

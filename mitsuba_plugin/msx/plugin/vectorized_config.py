@@ -1,6 +1,6 @@
 """Vectorized variants, both routes: the parameters of ``msx_posfree`` in ``llvm_*`` and ``cuda_*``: ``parameters.Config``
 reads constant textures as Python floats (as in scalar variants); these wrappers let it do so on Dr.Jit
-arrays of width 1, then hand back the textures themselves. Shared by the Dr.Jit engine (``jit/bsdf.py``)
+arrays of width 1, then hand back the textures themselves. Shared by the Dr.Jit engine's class (``jit_bsdf.py``)
 and the batched route (``vectorized.py``)."""
 
 from .parameters import Config

@@ -55,3 +55,28 @@ def engine_mode():
     msx.register(backend="jit")
     with drjit_default_mode():
         yield
+
+
+def engine_cases(walks_only=False, per_order=False, bdpt=True):
+    """(surface, model, estimator) of every configuration the engine's table says runs in a scene (``ENGINE_MODELS``
+    and ``bdpt_models``; a walk that needs local arrays is refused in a scene, so it is left out): the test
+    modules driven by the table take their cases here. ``walks_only``: the random walks (``auto`` included);
+    ``per_order``: the walks whose value the core's table splits by scattering order (``auto`` left out)."""
+    from msx.jit import bsdf as jit_bsdf
+    from msx.names import MODEL_INFO
+
+    out = []
+    for surface, models in jit_bsdf.ENGINE_MODELS.items():
+        walks = jit_bsdf.WALKS_BY_SURFACE.get(surface, {})
+        for m in models:
+            walk = walks.get(jit_bsdf.walk_name_of(m))
+            if getattr(walk, "needs_local_arrays", False):
+                continue
+            if (walks_only or per_order) and walk is None:
+                continue
+            if per_order and not (m in walks and MODEL_INFO[m].random_walk and MODEL_INFO[m].per_order):
+                continue
+            out.append((surface, m, "pt"))
+        if bdpt and not per_order:
+            out += [(surface, m, "bdpt") for m in jit_bsdf.bdpt_models(surface)]
+    return out

@@ -112,14 +112,9 @@ def test_closed_form_derivative_through_directions(table, surface, model, transm
 
 def walk_cases():
     mi.set_variant("llvm_ad_rgb")
-    from msx.jit import bsdf as jit_bsdf
+    import jit_support
 
-    out = []
-    for surface, models in jit_bsdf.ENGINE_MODELS.items():
-        walks = jit_bsdf.WALKS_BY_SURFACE.get(surface, {})
-        out += [(surface, m) for m in models if jit_bsdf.walk_name_of(m) in walks
-                and not getattr(walks[jit_bsdf.walk_name_of(m)], "needs_local_arrays", False)]  # refused at load
-    return out
+    return [(s, m) for s, m, e in jit_support.engine_cases(walks_only=True, bdpt=False)]
 
 
 @pytest.mark.parametrize("surface,model", walk_cases())

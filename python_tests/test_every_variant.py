@@ -46,17 +46,9 @@ def engine_cases():
     import mitsuba as mi
 
     mi.set_variant("llvm_ad_rgb")
-    from msx.jit import bsdf as jit_bsdf
+    import jit_support
 
-    cases = []
-    for surface, models in jit_bsdf.ENGINE_MODELS.items():
-        walks = jit_bsdf.WALKS_BY_SURFACE.get(surface, {})
-        for model in models:
-            if getattr(walks.get(model), "needs_local_arrays", False):
-                continue  # refused in a scene (dr.alloc_local in a symbolic call; jit/bsdf.py says why)
-            cases.append((surface, model, "pt"))
-        cases += [(surface, model, "bdpt") for model in jit_bsdf.bdpt_models(surface)]
-    return cases
+    return jit_support.engine_cases()
 
 
 _RENDER = textwrap.dedent("""

@@ -45,20 +45,9 @@ MATERIAL = {"conductor": ({"material": "none"}, {"eta": 0.0, "k": 1.0}),
 
 def cases():
     mi.set_variant("llvm_ad_rgb")
-    from msx.jit import bsdf as jit_bsdf
-    from msx.plugin.parameters import MODEL_INFO
+    import jit_support
 
-    out = []
-    for surface, models in jit_bsdf.ENGINE_MODELS.items():
-        walks = jit_bsdf.WALKS_BY_SURFACE.get(surface, {})
-        for m in models:
-            info = MODEL_INFO[m]
-            if m not in walks or not (info.random_walk and info.per_order):
-                continue  # closed forms, auto (a capped correlated), a walk without orders
-            if getattr(walks[m], "needs_local_arrays", False):
-                continue
-            out += [(surface, m, pair) for pair in PAIRS[surface]]
-    return out
+    return [(s, m, pair) for s, m, _ in jit_support.engine_cases(per_order=True) for pair in PAIRS[s]]
 
 
 CASES = cases()

@@ -218,3 +218,14 @@ def time_to_reach(target, bias2, c):
         return float("nan")
     room = target - max(bias2, 0.0)
     return c / room if room > 0 else float("inf")
+
+
+def write_csv(path, rows, columns):
+    """Writes ``rows`` (dicts) as a CSV with ``columns`` in that order (keys outside them are left out)."""
+    import csv
+
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow(r)

@@ -11,7 +11,6 @@ look); the full run is the report's.
 
 from __future__ import annotations
 
-import csv
 import math
 import os
 import platform
@@ -116,7 +115,7 @@ def run(args):
                       for s in atlas_mod.SURFACES]
     fast = [r for r in atlas_rows if r["model"] == "fastmsx"]
     extras_png = charts.extras(out / "stability_extras.png", pexit, fast, st.atlas_alphas, st.atlas_thetas)
-    _write_csv(out / "atlas.csv", atlas_rows, ["model", "estimator", "surface", "alpha", "theta_i", "furnace_error",
+    common.write_csv(out / "atlas.csv", atlas_rows, ["model", "estimator", "surface", "alpha", "theta_i", "furnace_error",
                                                "furnace_se", "rel_std", "nonfinite", "max_weight", "ns_per_call",
                                                "energy"])
 
@@ -130,7 +129,7 @@ def run(args):
 
     energy_rows = energy_mod.compute(st, energy_mod.copper_rgb(mi), progress=prog.update)
     energy_png = charts.energy(out / "energy.png", energy_rows, energy_mod.THETAS)
-    _write_csv(out / "energy.csv", energy_rows, ["surface", "material", "model", "theta_i", "alpha", "part", "value", "se"])
+    common.write_csv(out / "energy.csv", energy_rows, ["surface", "material", "model", "theta_i", "alpha", "part", "value", "se"])
 
     micro = None
     if not st.quick:
@@ -141,11 +140,11 @@ def run(args):
         micro = microgeometry.compare(out / "microgeometry", link_prefix="microgeometry/")
 
     prog.stage("report")
-    _write_csv(out / "results.csv", results, ["scene", "model", "estimator", "spp", "seconds", "rel_mse",
+    common.write_csv(out / "results.csv", results, ["scene", "model", "estimator", "spp", "seconds", "rel_mse",
                                               "rel_mse_se", "rel_rms_pct", "bias2", "bias2_se", "mean_error_pct",
                                               "mean_error_se_pct", "variance", "unbiased", "route"])
     # Per row and target: the time to it and whether it is measured, extrapolated (×factor) or not reachable.
-    _write_csv(out / "times.csv", times_rows, TIMES_COLUMNS)
+    common.write_csv(out / "times.csv", times_rows, TIMES_COLUMNS)
     from . import report
 
     checks = _physics_checks(scene_reports)
@@ -532,9 +531,3 @@ def _physics_checks(scene_reports):
     return checks
 
 
-def _write_csv(path, rows, columns):
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
-        w.writeheader()
-        for r in rows:
-            w.writerow(r)

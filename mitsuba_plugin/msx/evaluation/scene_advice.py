@@ -13,7 +13,6 @@ standard error, "looks right" within 2 % mean radiance and 5 % RMS by 3 standard
 
 from __future__ import annotations
 
-import csv
 import hashlib
 import html
 import json
@@ -620,12 +619,12 @@ def _write_outputs(stage, out, scene, results, st, variant, seconds, written, no
         evt = charts.error_vs_time(stage / f"{key}_error_vs_time.png", f"{m.key}: error against time",
                                    r["stats"])
         pngs[m.key] = dict(models=grid, diff=diff, evt=evt)
-    _csv(stage / "results.csv", [dict(s, material=r["material"].key) for r in results if not r.get("problem")
+    common.write_csv(stage / "results.csv", [dict(s, material=r["material"].key) for r in results if not r.get("problem")
                                  for s in r["stats"]],
          ["material", "model", "estimator", "spp", "seconds", "rel_mse", "rel_mse_se", "rel_rms_pct", "bias2",
           "bias2_se", "mean_error_pct", "mean_error_se_pct", "variance", "unbiased"])
-    _csv(stage / "materials.csv", [_material_row(r) for r in results], MATERIAL_COLUMNS)
-    _csv(stage / "candidates.csv", [dict(e, material=r["material"].key, rank=e["group"] + 1)
+    common.write_csv(stage / "materials.csv", [_material_row(r) for r in results], MATERIAL_COLUMNS)
+    common.write_csv(stage / "candidates.csv", [dict(e, material=r["material"].key, rank=e["group"] + 1)
                                     for r in results if not r.get("problem") for e in r["entries"]],
          CANDIDATE_COLUMNS)
     page = _page(scene, results, pngs, st, variant, seconds, written, notes)
@@ -656,14 +655,6 @@ def _material_row(r):
                recommended=r["recommended"] or "",
                candidates="; ".join(f"{e['label']}={e['verdict']}" for e in r["entries"]))
     return row
-
-
-def _csv(path, rows, columns):
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
-        w.writeheader()
-        for r in rows:
-            w.writerow(r)
 
 
 def _file_key(key):

@@ -235,7 +235,8 @@ def cmd_render(args):
         write_image(out, img, args.variant)
     except (OSError, RuntimeError) as e:
         raise RenderError(f"-o {out}: cannot write the image ({one_line(e)})") from None
-    print(f"wrote {out.with_suffix('.exr')} and {out.with_suffix('.png')} ({wall:.1f} s)")
+    where = out.resolve()  # the full path: without -o the image goes to the current directory
+    print(f"wrote {where.with_suffix('.exr')} and {where.with_suffix('.png')} ({wall:.1f} s)")
 
 
 def cmd_compare(args):

@@ -9,7 +9,7 @@ import math
 import os
 from pathlib import Path
 
-from . import uncertainty
+from . import scene_advice, uncertainty
 from .atlas import FAIL
 from .common import row_label
 from .common import pct as _pct
@@ -228,6 +228,85 @@ def _finite(x):
     return x is not None and math.isfinite(x)
 
 
+# The a priori cost order of the papers' models (ties of measured time go to the first: benches/README.md);
+# scene_advice.CANDIDATES is the same order for the candidates of `msx compare SCENE.xml`.
+COST_ORDER = ["builtin", "single", "compensated", "fastmsx", "uncorrelated", "auto", "correlated", "invariance",
+              "heitz"]
+DEFAULT_MODEL = "correlated"  # msx_posfree's default `model` (README, core.py)
+
+
+def _row_states(rep):
+    """Per row of a sweep scene's table (by label): its verdict ('right' / 'undecided' / 'off', _verdict) and
+    whether it matches the Smith model: its ranking entry tied with the Smith model's entry (the bias² ranking)
+    and its mean radiance within noise of the reference (the unbiased rows are the Smith model)."""
+    z = uncertainty.Z
+    tier_of = {m: k for k, tier in enumerate(rep["ranking"]) for e in tier for m in e["members"]}
+    smith = {k for k, tier in enumerate(rep["ranking"]) if any(e["unbiased"] for e in tier)}
+    out = {}
+    for t in rep["table"]:
+        verdict = _verdict(t["bias2"], t["bias2_se"], t["mean_error"], t["mean_error_se"])
+        matches = t["unbiased"] or (tier_of.get(t["label"]) in smith and abs(t["mean_error"]) <= z * t["mean_error_se"])
+        out[t["label"]] = dict(verdict=verdict, matches=matches)
+    return out
+
+
+def _choices(rep):
+    """(accurate, fast) rows of a sweep scene's table, with the rules of `msx compare SCENE.xml`
+    (scene_advice.choose, docs/evaluation.md): fast = the cheapest row that looks right; accurate = the
+    cheapest that looks right and matches the Smith model, else the unbiased walk. Cost: render time per
+    sample ÷ the built-in's; times from renders shorter than scene_advice.NOISY_RENDER tie with every other."""
+    states = _row_states(rep)
+    cand = [dict(t, model=t["row"][0], cost=t["time_ratio"], noisy_time=t.get("noisy_time", False))
+            for t in rep["table"]]
+    fast = scene_advice.choose([c for c in cand if states[c["label"]]["verdict"] == "right"], COST_ORDER)
+    accurate = scene_advice.choose([c for c in cand if states[c["label"]]["matches"] and
+                                    (states[c["label"]]["verdict"] == "right" or c["unbiased"])], COST_ORDER)
+    return accurate, fast
+
+
+VERDICT_WORDS = {"right": "<span class=ok>looks right</span>", "off": "<span class=bad>visibly off</span>",
+                 "undecided": "<span class=warn>cannot tell at this run's noise</span>"}
+
+
+def _model_cell(t):
+    if t is None:
+        return "<span class=warn>cannot tell at this run's noise</span>"
+    name = "single (= built-in)" if t["row"][0] == "builtin" else t["label"]
+    flag = " <b>(the default)</b>" if t["row"][0] == DEFAULT_MODEL else ""
+    return f"<b>{html.escape(name)}</b>{flag} <span class=note>×{t['time_ratio']:.2f}</span>"
+
+
+def _summary_table(ctx):
+    """The page's first table: per material class and sweep scene, the accurate and the fast model."""
+    out = ["<table><tr><th class=l>material class</th><th class=l>scene</th><th class=l>accurate model</th>"
+           f"<th class=l>fast model</th><th class=l>the default, {DEFAULT_MODEL}</th></tr>"]
+    for title, kind, _ in CLASSES:
+        for rep in [r for r in ctx["scenes"] if r["scene"].surface == kind]:
+            accurate, fast = _choices(rep)
+            states = _row_states(rep)
+            dflt = [t for t in rep["table"] if t["row"] == (DEFAULT_MODEL, "pt")]
+            dcell = "not in this sweep"
+            if dflt:
+                st = states[dflt[0]["label"]]
+                dcell = (("matches the Smith model, " if st["matches"] else "") + VERDICT_WORDS[st["verdict"]]
+                         + f" <span class=note>×{dflt[0]['time_ratio']:.2f}</span>")
+            out.append(f"<tr><td class=l>{html.escape(title)}</td><td class=l><a href='#{rep['scene'].name}'>"
+                       f"{html.escape(rep['scene'].title)}</a></td><td class=l>{_model_cell(accurate)}</td>"
+                       f"<td class=l>{_model_cell(fast)}</td><td class=l>{dcell}</td></tr>")
+    if any(r["name"] == "fig08_diffuse" for r in ctx.get("side", [])):
+        out.append("<tr><td class=l>Rough diffuse</td><td class=l>Wang 2022 Fig. 8 (side by side only)</td>"
+                   "<td class=l colspan=3>no converged reference in this evaluation: see <i>Rough diffuse</i> "
+                   "below</td></tr>")
+    out.append("</table>")
+    out.append(f"<p class=note><b>Accurate model</b>: the cheapest that looks right and matches the Smith model "
+               "(definitions below), else the unbiased walk. <b>Fast model</b>: the cheapest that looks right; "
+               "“cannot tell” when none does at this run's noise. Cheapest: render time per sample ÷ the built-in's "
+               f"(×); within {scene_advice.TIME_TIE:.0%} of each other, the simpler model "
+               f"({', '.join(COST_ORDER)}) — the rules of <code>msx compare SCENE.xml</code>. <b>(the default)</b>: "
+               f"<code>{DEFAULT_MODEL}</code>, msx_posfree's default model; its own column says how it fares.</p>")
+    return "\n".join(out)
+
+
 CLASSES = [("Rough conductors (metals)", "conductor", ["conductor"]),
            ("Glass: reflection and transmission", "dielectric", ["dielectric_outside", "dielectric_inside"])]
 
@@ -243,6 +322,7 @@ def _advice(ctx):
            f"{uncertainty.Z:g} standard errors on the pessimistic side. <b>Matches the Smith model</b>: bias² "
            "tied with the reference's own model (the ranking rule below). Times: render time per sample "
            "relative to Mitsuba's built-in single-scattering BSDF on the same scene and route.</p>"]
+    out.append(_summary_table(ctx))
     for title, kind, surfaces in CLASSES:
         reps = [r for r in ctx["scenes"] if r["scene"].surface == kind]
         out.append(f"<h3>{title}</h3><ul>")

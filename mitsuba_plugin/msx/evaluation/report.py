@@ -112,6 +112,22 @@ def _verdict(b2, b2_se, mean, mean_se):
     return "undecided"
 
 
+# One label per ranking entry (docs/evaluation.md, "The advice"), in this order: "matches" needs both the
+# verdict "right" and the ranking's tie with the Smith model's entry (with mean radiance within noise); an entry
+# tied with the Smith model whose verdict is "undecided" is only "cannot tell" (the tie is then no evidence).
+LABELS = [("matches", "<b>Matches the Smith model</b> (looks right, bias² tied with the reference's model and mean "
+                      "radiance within noise)"),
+          ("right", f"<b>Looks right</b> (converged render within {LOOK_MEAN:g} % of the reference in mean radiance "
+                    f"and {LOOK_RMS:g} % RMS)"),
+          ("undecided", "<b>Cannot tell at this run's noise</b> (the bounds straddle the thresholds)"),
+          ("off", "<b>Visibly off</b>")]
+
+
+def _one_label(verdict, tied_smith):
+    """The one label of an entry: 'matches' when it looks right and matches the Smith model, else its verdict."""
+    return "matches" if verdict == "right" and tied_smith else verdict
+
+
 def _looks_right(t):
     return _verdict(t["bias2"], t["bias2_se"], t["mean_error"], t["mean_error_se"]) == "right"
 
@@ -166,38 +182,40 @@ def _auto_saving(atlas, surface):
     return out
 
 
-def _scene_advice(rep):
-    """Sentences for one sweep scene, every one from this run's numbers: per entry of the ranking (rows that
-    are one model here), whether it matches the Smith model, whether it looks right, and what it costs."""
+def _entries(rep):
+    """The entries of a sweep scene's ranking (rows that are one model here), each with its verdict (from the
+    entry's bias² and its best-measured member's mean radiance) and its one label (LABELS)."""
     by = {t["label"]: t for t in rep["table"]}
-    groups = rep["ranking"]
     z = uncertainty.Z
     entries = []
-    for tier in groups:
+    for tier in rep["ranking"]:
         for e in tier:
             best = by[min(e["members"], key=lambda m: by[m]["bias2_se"])]
             cost = ", ".join(f"{m} ×{by[m]['time_ratio']:.2f}" for m in e["members"])
             entries.append(dict(e, mean=best["mean_error"], mean_se=best["mean_error_se"], cost=cost,
                                 tied_smith=any(x["unbiased"] for x in tier),
                                 verdict=_verdict(e["bias2"], e["se"], best["mean_error"], best["mean_error_se"])))
+    for e in entries:
+        e["label_key"] = _one_label(e["verdict"], not e["unbiased"] and e["tied_smith"] and
+                                    abs(e["mean"]) <= z * e["mean_se"])
+    return entries
+
+
+def _scene_advice(rep):
+    """Sentences for one sweep scene, every one from this run's numbers: per entry of the ranking (rows that
+    are one model here), its one label (matches the Smith model, looks right, cannot tell, visibly off) and
+    what it costs."""
+    entries = _entries(rep)
     approx = [e for e in entries if not e["unbiased"]]
     lines = []
-    match = [e for e in approx if e["tied_smith"] and abs(e["mean"]) <= z * e["mean_se"]]
-    if match:
-        lines.append("<b>Matches the Smith model</b> (bias² tied with the reference's model and mean radiance "
-                     "within noise): " + ", ".join(f"{e['label']} ({_pct(e['mean'], e['mean_se'])})" for e in match)
-                     + ".")
-    elif approx:
+    if approx and not any(e["label_key"] == "matches" for e in approx):
         best = min(approx, key=lambda e: e["bias2"])
-        lines.append(f"<b>Matches the Smith model</b>: no approximation does within noise; the closest is "
-                     f"<b>{best['label']}</b> (converged RMS error {_rms_bias(best['bias2'], best['se'])}, mean radiance "
-                     f"{_pct(best['mean'], best['mean_se'])}); for the Smith model itself use its unbiased estimators "
-                     "(heitz, invariance).")
-    for verdict, head in (("right", f"<b>Looks right</b> (converged render within {LOOK_MEAN:g} % of the reference in "
-                                    f"mean radiance and {LOOK_RMS:g} % RMS)"),
-                          ("undecided", "<b>Cannot tell at this run's noise</b> (the bounds straddle the thresholds)"),
-                          ("off", "<b>Visibly off</b>")):
-        sel = [e for e in entries if e["verdict"] == verdict]
+        lines.append(f"<b>Matches the Smith model</b>: no approximation does at this run's noise; the closest in "
+                     f"bias² is <b>{best['label']}</b> (converged RMS error {_rms_bias(best['bias2'], best['se'])}, "
+                     f"mean radiance {_pct(best['mean'], best['mean_se'])}); for the Smith model itself use its "
+                     "unbiased estimators (heitz, invariance).")
+    for key, head in LABELS:
+        sel = [e for e in entries if e["label_key"] == key]
         if sel:
             lines.append(head + ": " + "; ".join(
                 f"{html.escape(e['label'])} (mean radiance {_pct(e['mean'], e['mean_se'])}, "
@@ -236,18 +254,9 @@ DEFAULT_MODEL = "correlated"  # msx_posfree's default `model` (README, core.py)
 
 
 def _row_states(rep):
-    """Per row of a sweep scene's table (by label): its verdict ('right' / 'undecided' / 'off', _verdict) and
-    whether it matches the Smith model: its ranking entry tied with the Smith model's entry (the bias² ranking)
-    and its mean radiance within noise of the reference (the unbiased rows are the Smith model)."""
-    z = uncertainty.Z
-    tier_of = {m: k for k, tier in enumerate(rep["ranking"]) for e in tier for m in e["members"]}
-    smith = {k for k, tier in enumerate(rep["ranking"]) if any(e["unbiased"] for e in tier)}
-    out = {}
-    for t in rep["table"]:
-        verdict = _verdict(t["bias2"], t["bias2_se"], t["mean_error"], t["mean_error_se"])
-        matches = t["unbiased"] or (tier_of.get(t["label"]) in smith and abs(t["mean_error"]) <= z * t["mean_error_se"])
-        out[t["label"]] = dict(verdict=verdict, matches=matches)
-    return out
+    """Per row of a sweep scene's table (by label): the one label of its ranking entry (_entries: rows that
+    are one model here share it) and whether it is an unbiased row."""
+    return {m: dict(label=e["label_key"], unbiased=e["unbiased"]) for e in _entries(rep) for m in e["members"]}
 
 
 def _choices(rep):
@@ -258,14 +267,14 @@ def _choices(rep):
     states = _row_states(rep)
     cand = [dict(t, model=t["row"][0], cost=t["time_ratio"], noisy_time=t.get("noisy_time", False))
             for t in rep["table"]]
-    fast = scene_advice.choose([c for c in cand if states[c["label"]]["verdict"] == "right"], COST_ORDER)
-    accurate = scene_advice.choose([c for c in cand if states[c["label"]]["matches"] and
-                                    (states[c["label"]]["verdict"] == "right" or c["unbiased"])], COST_ORDER)
+    fast = scene_advice.choose([c for c in cand if states[c["label"]]["label"] in ("matches", "right")], COST_ORDER)
+    accurate = scene_advice.choose([c for c in cand if states[c["label"]]["label"] == "matches" or c["unbiased"]],
+                                   COST_ORDER)
     return accurate, fast
 
 
-VERDICT_WORDS = {"right": "<span class=ok>looks right</span>", "off": "<span class=bad>visibly off</span>",
-                 "undecided": "<span class=warn>cannot tell at this run's noise</span>"}
+VERDICT_WORDS = {"matches": "<span class=ok>matches the Smith model</span>", "right": "<span class=ok>looks right</span>",
+                 "off": "<span class=bad>visibly off</span>", "undecided": "<span class=warn>cannot tell at this run's noise</span>"}
 
 
 def _model_cell(t):
@@ -288,7 +297,7 @@ def _summary_table(ctx):
             dcell = "not in this sweep"
             if dflt:
                 st = states[dflt[0]["label"]]
-                dcell = (("matches the Smith model, " if st["matches"] else "") + VERDICT_WORDS[st["verdict"]]
+                dcell = (VERDICT_WORDS[st["label"]]
                          + f" <span class=note>×{dflt[0]['time_ratio']:.2f}</span>")
             out.append(f"<tr><td class=l>{html.escape(title)}</td><td class=l><a href='#{rep['scene'].name}'>"
                        f"{html.escape(rep['scene'].title)}</a></td><td class=l>{_model_cell(accurate)}</td>"
@@ -319,8 +328,10 @@ def _advice(ctx):
            f"<b>Looks right</b>: the converged render differs from the Smith reference by at most {LOOK_MEAN:g} % in "
            f"mean radiance over the object (about the smallest brightness step people see between two patches "
            f"side by side, 1–2 %) and {LOOK_RMS:g} % RMS per pixel, each bound taken "
-           f"{uncertainty.Z:g} standard errors on the pessimistic side. <b>Matches the Smith model</b>: bias² "
-           "tied with the reference's own model (the ranking rule below). Times: render time per sample "
+           f"{uncertainty.Z:g} standard errors on the pessimistic side. <b>Matches the Smith model</b>: looks "
+           "right, and its bias² is tied with the reference's own model (the ranking rule below) with mean radiance "
+           "within noise. Each model gets one label: matches the Smith model, else looks right, cannot tell at this "
+           "run's noise, or visibly off. Times: render time per sample "
            "relative to Mitsuba's built-in single-scattering BSDF on the same scene and route.</p>"]
     out.append(_summary_table(ctx))
     for title, kind, surfaces in CLASSES:

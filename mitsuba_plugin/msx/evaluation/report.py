@@ -89,6 +89,15 @@ def _time_cell(tf, status=None):
         f"{_sec(t)} <span class=warn>(extrapolated ×{f:.1f})</span>"
 
 
+def _ratio(t):
+    """A row's render time per sample ÷ the built-in's, flagged as noise when its render or the built-in's took
+    less than scene_advice.NOISY_RENDER (t['noisy_time'], set by the driver: the rule of msx compare SCENE.xml)."""
+    txt = f"×{t['time_ratio']:.2f}"
+    if t.get("noisy_time"):
+        txt += " <span class=warn>(noise: renders of a few ms)</span>"
+    return txt
+
+
 def _mean_word(t):
     return uncertainty.sign_word(t["mean_error"], t["mean_error_se"])
 
@@ -191,7 +200,7 @@ def _entries(rep):
     for tier in rep["ranking"]:
         for e in tier:
             best = by[min(e["members"], key=lambda m: by[m]["bias2_se"])]
-            cost = ", ".join(f"{m} ×{by[m]['time_ratio']:.2f}" for m in e["members"])
+            cost = ", ".join(f"{m} {_ratio(by[m])}" for m in e["members"])
             entries.append(dict(e, mean=best["mean_error"], mean_se=best["mean_error_se"], cost=cost,
                                 tied_smith=any(x["unbiased"] for x in tier),
                                 verdict=_verdict(e["bias2"], e["se"], best["mean_error"], best["mean_error_se"])))
@@ -282,7 +291,7 @@ def _model_cell(t):
         return "<span class=warn>cannot tell at this run's noise</span>"
     name = "single (= built-in)" if t["row"][0] == "builtin" else t["label"]
     flag = " <b>(the default)</b>" if t["row"][0] == DEFAULT_MODEL else ""
-    return f"<b>{html.escape(name)}</b>{flag} <span class=note>×{t['time_ratio']:.2f}</span>"
+    return f"<b>{html.escape(name)}</b>{flag} <span class=note>{_ratio(t)}</span>"
 
 
 def _summary_table(ctx):
@@ -298,7 +307,7 @@ def _summary_table(ctx):
             if dflt:
                 st = states[dflt[0]["label"]]
                 dcell = (VERDICT_WORDS[st["label"]]
-                         + f" <span class=note>×{dflt[0]['time_ratio']:.2f}</span>")
+                         + f" <span class=note>{_ratio(dflt[0])}</span>")
             out.append(f"<tr><td class=l>{html.escape(title)}</td><td class=l><a href='#{rep['scene'].name}'>"
                        f"{html.escape(rep['scene'].title)}</a></td><td class=l>{_model_cell(accurate)}</td>"
                        f"<td class=l>{_model_cell(fast)}</td><td class=l>{dcell}</td></tr>")
@@ -310,7 +319,8 @@ def _summary_table(ctx):
     out.append(f"<p class=note><b>Accurate model</b>: the cheapest that looks right and matches the Smith model "
                "(definitions below), else the unbiased walk. <b>Fast model</b>: the cheapest that looks right; "
                "“cannot tell” when none does at this run's noise. Cheapest: render time per sample ÷ the built-in's "
-               f"(×); within {scene_advice.TIME_TIE:.0%} of each other, the simpler model "
+               f"(×); within {scene_advice.TIME_TIE:.0%} of each other, or from renders shorter than "
+               f"{scene_advice.NOISY_RENDER * 1000:.0f} ms (their ratios are noise: flagged so), the simpler model "
                f"({', '.join(COST_ORDER)}) — the rules of <code>msx compare SCENE.xml</code>. <b>(the default)</b>: "
                f"<code>{DEFAULT_MODEL}</code>, msx_posfree's default model; its own column says how it fares.</p>")
     return "\n".join(out)
@@ -438,14 +448,18 @@ def _scene_section(rep):
     for t in rep["table"]:
         out.append(f"<tr><td class=l>{t['label']}{' (unbiased)' if t['unbiased'] else ''}</td>"
                    f"<td>{t['top']['rel_rms_pct']:.1f} %</td><td>{_pct(t['mean_error'], t['mean_error_se'], 2)}</td>"
-                   f"<td class=l>{_mean_word(t)}</td><td>{_bias(t)}</td><td>{t['time_ratio']:.2f}</td>" +
+                   f"<td class=l>{_mean_word(t)}</td><td>{_bias(t)}</td><td>{_ratio(t)}</td>" +
                    "".join(f"<td>{_time_cell(t['times'][x], t.get('status', {}).get(x))}</td>" for x in targets) +
                    f"<td>{t.get('spp_max', '—')}</td><td>{t['slope']:.2f}</td><td>{_e(t['top']['rel_mse'])}</td></tr>")
     out.append("</table>")
     lo = min(t["seconds_range"][0] for t in rep["table"])
     hi = max(t["seconds_range"][1] for t in rep["table"])
     cap = rep.get("cap")
-    out.append(f"<p class=note>Renders of this sweep took {_sec(lo)} to {_sec(hi)} each. The sweep is adaptive: "
+    out.append(f"<p class=note>Renders of this sweep took {_sec(lo)} to {_sec(hi)} each. A time ratio whose render "
+               f"(the row's or the built-in's, at the top fixed spp) took less than "
+               f"{scene_advice.NOISY_RENDER * 1000:.0f} ms is flagged as noise: at a few ms the launch and scheduling "
+               "jitter of one render is of the size of the difference between models (single and the built-in, "
+               "identical by construction, then differ by tens of %). The sweep is adaptive: "
                f"after the fixed spps {rep.get('fixed_spps', '')} a row's spp doubles "
                f"(up to {cap} spp here) while a target it has not reached is predicted within that cap. Times to a "
                "target come from the fit error(t) = bias² + c/t of each row's sweep: <b>measured</b> when the "

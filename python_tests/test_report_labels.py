@@ -42,3 +42,31 @@ def test_noisy_times_tie_and_go_to_the_simpler_model():
     accurate, fast = report._choices(rep)
     assert fast["label"] == "auto" and accurate["label"] == "correlated"
     assert "noise" in report._ratio(rep["table"][0]) and "noise" not in report._ratio(_rep()["table"][0])
+
+
+def _labels(lo, hi):
+    """The tick labels drawn on a log x axis from lo to hi after charts.log_ticks, with their boxes."""
+    from msx.evaluation import charts
+
+    fig, ax = charts.plt.subplots(figsize=(4, 3))  # matplotlib's default labels collide here
+    ax.plot([lo, hi], [1, 2])
+    ax.set_xscale("log")
+    ax.set_xlim(lo, hi)
+    charts.log_ticks(ax.xaxis)
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    out = [(t.get_text(), t.get_window_extent(r)) for t in ax.get_xticklabels(minor=False) + ax.get_xticklabels(minor=True)
+           if t.get_text() and t.get_visible() and lo <= t.get_position()[0] <= hi]
+    charts.plt.close(fig)
+    return out
+
+
+def test_log_tick_labels_do_not_collide():
+    """Issue 30 item 7: the error-against-time chart's log ticks ran into each other ("3×10⁻³4×10⁻³")."""
+    for lo, hi in [(2.5e-3, 2.8e-2), (2.9e-3, 9e-3), (1e-3, 0.3), (1.5e-2, 0.6)]:
+        labels = _labels(lo, hi)
+        assert labels, (lo, hi)
+        boxes = sorted((b for _, b in labels), key=lambda b: b.x0)
+        assert all(a.x1 < b.x0 for a, b in zip(boxes, boxes[1:])), [t for t, _ in labels]
+        minor = [t for t, _ in labels if "times" in t]
+        assert all(t.split("{")[1][0] in "25" for t in minor), minor

@@ -11,7 +11,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-import matplotlib.ticker  # noqa: E402,F401
+import matplotlib.ticker  # noqa: E402
 from matplotlib.colors import LogNorm, TwoSlopeNorm  # noqa: E402
 
 from .common import row_label  # noqa: E402
@@ -29,6 +29,31 @@ def tonemap(img, exposure=1.0):
     """Linear RGB to sRGB-encoded [0, 1] (clipped), for display."""
     x = np.clip(img * exposure, 0.0, 1.0)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+
+
+def _mantissa_exponent(x):
+    e = math.floor(math.log10(x) + 1e-9)
+    return round(x / 10.0 ** e, 6), e
+
+
+def log_ticks(axis):
+    """Labels of a log axis that never collide: decades (10ⁿ) as major labels; minor ticks labelled only when
+    fewer than two decades are in view, and then only 2·10ⁿ and 5·10ⁿ (matplotlib's default labels a subset of
+    2…9·10ⁿ there, whose labels run into each other: "3×10⁻³4×10⁻³")."""
+    lo, hi = sorted(axis.get_view_interval())
+    if not (lo > 0 and math.isfinite(hi)):
+        return
+    decades = math.floor(math.log10(hi) + 1e-9) - math.ceil(math.log10(lo) - 1e-9) + 1  # 10ⁿ in view
+    axis.set_major_locator(matplotlib.ticker.LogLocator(base=10.0))
+    axis.set_major_formatter(matplotlib.ticker.LogFormatterSciNotation())
+    axis.set_minor_locator(matplotlib.ticker.LogLocator(base=10.0, subs=np.arange(2, 10), numticks=100))
+
+    def minor(x, pos=None):
+        m, e = _mantissa_exponent(x)
+        return f"$\\mathdefault{{{m:g}\\times10^{{{e}}}}}$" if m in (2.0, 5.0) else ""
+
+    axis.set_minor_formatter(matplotlib.ticker.FuncFormatter(minor) if decades < 2
+                             else matplotlib.ticker.NullFormatter())
 
 
 def error_vs_time(path, title, stats):
@@ -78,6 +103,9 @@ def error_vs_time(path, title, stats):
     bx.set_ylabel("relative squared error (relative MSE units)")
     bx.legend(fontsize=7)
     bx.grid(True, axis="y", which="both", lw=0.3, alpha=0.5)
+    for a in (ax.xaxis, ax.yaxis, bx.yaxis):
+        a.axes.autoscale_view()
+        log_ticks(a)
     fig.tight_layout()
     fig.savefig(path, dpi=110, bbox_inches="tight", pad_inches=0.15)
     plt.close(fig)

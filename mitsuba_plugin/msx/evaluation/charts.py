@@ -183,13 +183,14 @@ def stability(path, rows, surface, alphas, thetas, failing=None):
         cells = [r for r in rows if r["surface"] == surface and (r["model"], r["estimator"]) == key]
         for mj, (metric, name, norm) in enumerate(METRICS):
             grid = np.full((len(alphas), len(thetas)), np.nan)
-            bad, over = [], []
+            bad, over, zero = [], [], []
             for c in cells:
                 if failing is not None and failing(c, metric):
                     over.append((ti[c["theta_i"]], ai[c["alpha"]]))
                 v = c[metric]
                 if metric == "rel_std" and v == 0:
-                    v = np.nan  # deterministic model: no noise
+                    v = np.nan  # no noise: every repeated call returned the same value (left white, written 0)
+                    zero.append((ti[c["theta_i"]], ai[c["alpha"]]))
                 grid[ai[c["alpha"]], ti[c["theta_i"]]] = max(v, norm.vmin) if np.isfinite(v) else np.nan
                 if c["nonfinite"] > 0:
                     bad.append((ti[c["theta_i"]], ai[c["alpha"]]))
@@ -199,6 +200,12 @@ def stability(path, rows, surface, alphas, thetas, failing=None):
                 ax.plot(x, y, "o", ms=2.5, mfc="white", mec="none")
             for x, y in bad:
                 ax.text(x, y, "×", color="red", ha="center", va="center", fontsize=9)
+            if zero and len(zero) == len(cells):
+                ax.text(0.5, 0.5, "0 everywhere: deterministic\n(the same value at every call)", transform=ax.transAxes,
+                        ha="center", va="center", fontsize=7, color="0.35")
+            else:
+                for x, y in zero:
+                    ax.text(x, y, "0", color="0.45", ha="center", va="center", fontsize=6)
             ax.set_xticks(range(len(thetas)), [f"{t:g}" for t in thetas], fontsize=6)
             ax.set_yticks(range(len(alphas)), [f"{a:.2g}" for a in alphas], fontsize=6)
             if mi_ == 0:
@@ -209,8 +216,10 @@ def stability(path, rows, surface, alphas, thetas, failing=None):
                 ax.set_xlabel("θ_i (degrees)", fontsize=7)
             fig.colorbar(im, ax=ax, fraction=0.05, pad=0.02).ax.tick_params(labelsize=6)
     fig.suptitle(f"Stability atlas: {surface.replace('_', ' ')} (× = raw non-finite or negative values; "
-                 "white dot = beyond the threshold of the table \"where each method fails\")", fontsize=10)
-    fig.tight_layout(rect=(0, 0, 1, 0.97))
+                 "white dot = beyond the threshold of the table \"where each method fails\";\nwhite cell marked 0 = "
+                 "no noise: at the median direction pair the repeated calls returned the same value; white cell "
+                 "unmarked = no finite value)", fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.96))
     fig.savefig(path, dpi=100, bbox_inches="tight", pad_inches=0.15)
     plt.close(fig)
     return path

@@ -650,13 +650,22 @@ def page(ctx):
                  "η = 1.5 dielectric in importance mode, E integrated from <code>eval</code> with a proposal independent "
                  "of the core), the noise of one <code>eval</code> call at fixed directions, raw non-finite or negative "
                  "values counted by the C ABI before it cleans them (×), the largest single contribution to the "
-                 "furnace estimate relative to its mean (firefly risk) and the time per call. White dots: cells "
-                 "beyond the threshold of the table below. <code>single</code> and <code>fastmsx</code> do not "
+                 "furnace estimate relative to its mean (firefly risk) and the time per call. One image per surface "
+                 "(conductor; dielectric from outside; from inside), one row of panels per model, one column per "
+                 "metric, each cell one (α, θ_i). <b>White dots</b>: cells beyond the threshold of the table below. "
+                 "<b>White cells</b> have no colour because they have no value on the log scale: marked <b>0</b> in "
+                 "the noise column, the median noise of one call is exactly 0 — at most of the fixed direction pairs "
+                 "the repeated calls returned the same value (analytic models such as <code>single</code>, "
+                 "<code>compensated</code> and <code>fastmsx</code> everywhere, where the panel says "
+                 "“deterministic”; the walks at some cells, mostly at small α, where a path rarely scatters twice); unmarked, the "
+                 "metric is not finite or not measured there (e.g. the largest contribution ÷ mean of a zero furnace estimate). "
+                 "<code>single</code> and <code>fastmsx</code> do not "
                  "conserve energy by design: their furnace error is charted (Fast-MSX's signed error separately), "
                  "not counted as a failure.</p>")
     parts.append("<h3>Where each method fails</h3>" + _fail_table(ctx["fails"]))
     for p in ctx["stability"]:
-        parts.append(_img(p, Path(p).stem))
+        surface = Path(p).stem.removeprefix("stability_")
+        parts.append(f"<h3>Atlas: {html.escape(surface.replace('_', ' '))}</h3>" + _img(p, Path(p).stem))
     parts.append(_img(ctx["extras"], "p_exit cancellation and Fast-MSX energy"))
     parts.append("<h2>Lobes</h2><p class='note'>f·cos θ_o in the plane of incidence per scattering order (analytic "
                  "models: their whole value as order 1), with the energy each model reflects (E_r) and transmits "

@@ -91,6 +91,8 @@ def test_page_for_users(two_runs):
     assert html[h2:].startswith("<h2 id=advice>Which model should I use?")
     assert "Speed target" not in html and "target ≤" not in html
     assert "tied within noise" in html and html.count("Ranking: <b>") == len(SCENES)
+    # Issue 30 item 7: the first table, and the atlas' white cells explained.
+    assert "<th class=l>accurate model</th>" in html and "White cells" in html
     links = local_links(html)
     assert "results.csv" in links and any(link.endswith(".png") for link in links)
     missing = [link for link in links if not (out / link.split("#")[0]).exists()]

@@ -11,7 +11,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-import matplotlib.ticker  # noqa: E402,F401
+import matplotlib.ticker  # noqa: E402
 from matplotlib.colors import LogNorm, TwoSlopeNorm  # noqa: E402
 
 from .common import row_label  # noqa: E402
@@ -29,6 +29,31 @@ def tonemap(img, exposure=1.0):
     """Linear RGB to sRGB-encoded [0, 1] (clipped), for display."""
     x = np.clip(img * exposure, 0.0, 1.0)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+
+
+def _mantissa_exponent(x):
+    e = math.floor(math.log10(x) + 1e-9)
+    return round(x / 10.0 ** e, 6), e
+
+
+def log_ticks(axis):
+    """Labels of a log axis that never collide: decades (10ⁿ) as major labels; minor ticks labelled only when
+    fewer than two decades are in view, and then only 2·10ⁿ and 5·10ⁿ (matplotlib's default labels a subset of
+    2…9·10ⁿ there, whose labels run into each other: "3×10⁻³4×10⁻³")."""
+    lo, hi = sorted(axis.get_view_interval())
+    if not (lo > 0 and math.isfinite(hi)):
+        return
+    decades = math.floor(math.log10(hi) + 1e-9) - math.ceil(math.log10(lo) - 1e-9) + 1  # 10ⁿ in view
+    axis.set_major_locator(matplotlib.ticker.LogLocator(base=10.0))
+    axis.set_major_formatter(matplotlib.ticker.LogFormatterSciNotation())
+    axis.set_minor_locator(matplotlib.ticker.LogLocator(base=10.0, subs=np.arange(2, 10), numticks=100))
+
+    def minor(x, pos=None):
+        m, e = _mantissa_exponent(x)
+        return f"$\\mathdefault{{{m:g}\\times10^{{{e}}}}}$" if m in (2.0, 5.0) else ""
+
+    axis.set_minor_formatter(matplotlib.ticker.FuncFormatter(minor) if decades < 2
+                             else matplotlib.ticker.NullFormatter())
 
 
 def error_vs_time(path, title, stats):
@@ -78,6 +103,9 @@ def error_vs_time(path, title, stats):
     bx.set_ylabel("relative squared error (relative MSE units)")
     bx.legend(fontsize=7)
     bx.grid(True, axis="y", which="both", lw=0.3, alpha=0.5)
+    for a in (ax.xaxis, ax.yaxis, bx.yaxis):
+        a.axes.autoscale_view()
+        log_ticks(a)
     fig.tight_layout()
     fig.savefig(path, dpi=110, bbox_inches="tight", pad_inches=0.15)
     plt.close(fig)
@@ -155,13 +183,14 @@ def stability(path, rows, surface, alphas, thetas, failing=None):
         cells = [r for r in rows if r["surface"] == surface and (r["model"], r["estimator"]) == key]
         for mj, (metric, name, norm) in enumerate(METRICS):
             grid = np.full((len(alphas), len(thetas)), np.nan)
-            bad, over = [], []
+            bad, over, zero = [], [], []
             for c in cells:
                 if failing is not None and failing(c, metric):
                     over.append((ti[c["theta_i"]], ai[c["alpha"]]))
                 v = c[metric]
                 if metric == "rel_std" and v == 0:
-                    v = np.nan  # deterministic model: no noise
+                    v = np.nan  # no noise: every repeated call returned the same value (left white, written 0)
+                    zero.append((ti[c["theta_i"]], ai[c["alpha"]]))
                 grid[ai[c["alpha"]], ti[c["theta_i"]]] = max(v, norm.vmin) if np.isfinite(v) else np.nan
                 if c["nonfinite"] > 0:
                     bad.append((ti[c["theta_i"]], ai[c["alpha"]]))
@@ -171,6 +200,12 @@ def stability(path, rows, surface, alphas, thetas, failing=None):
                 ax.plot(x, y, "o", ms=2.5, mfc="white", mec="none")
             for x, y in bad:
                 ax.text(x, y, "×", color="red", ha="center", va="center", fontsize=9)
+            if zero and len(zero) == len(cells):
+                ax.text(0.5, 0.5, "0 everywhere: deterministic\n(the same value at every call)", transform=ax.transAxes,
+                        ha="center", va="center", fontsize=7, color="0.35")
+            else:
+                for x, y in zero:
+                    ax.text(x, y, "0", color="0.45", ha="center", va="center", fontsize=6)
             ax.set_xticks(range(len(thetas)), [f"{t:g}" for t in thetas], fontsize=6)
             ax.set_yticks(range(len(alphas)), [f"{a:.2g}" for a in alphas], fontsize=6)
             if mi_ == 0:
@@ -181,8 +216,10 @@ def stability(path, rows, surface, alphas, thetas, failing=None):
                 ax.set_xlabel("θ_i (degrees)", fontsize=7)
             fig.colorbar(im, ax=ax, fraction=0.05, pad=0.02).ax.tick_params(labelsize=6)
     fig.suptitle(f"Stability atlas: {surface.replace('_', ' ')} (× = raw non-finite or negative values; "
-                 "white dot = beyond the threshold of the table \"where each method fails\")", fontsize=10)
-    fig.tight_layout(rect=(0, 0, 1, 0.97))
+                 "white dot = beyond the threshold of the table \"where each method fails\";\nwhite cell marked 0 = "
+                 "no noise: at the median direction pair the repeated calls returned the same value; white cell "
+                 "unmarked = no finite value)", fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.96))
     fig.savefig(path, dpi=100, bbox_inches="tight", pad_inches=0.15)
     plt.close(fig)
     return path

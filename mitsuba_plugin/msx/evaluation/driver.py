@@ -25,7 +25,7 @@ from . import atlas as atlas_mod
 from . import charts, common
 from . import energy as energy_mod
 from . import lobes as lobes_mod
-from . import renders, two_references
+from . import renders, scene_advice, two_references
 from . import uncertainty
 from ..plugin.parameters import models
 from .common import CONDUCTOR_ROWS, DIELECTRIC_ROWS, UNBIASED, row_label
@@ -200,6 +200,13 @@ def _time_ratio(rs, builtin_top, top):
     return mine / builtin_top["seconds"] if builtin_top["seconds"] > 0 else float("nan")
 
 
+def _noisy_time(rs, builtin_top, top):
+    """True when the row's render or the built-in's at the top fixed spp took less than
+    scene_advice.NOISY_RENDER (the rule of `msx compare SCENE.xml`): their time ratio is then noise."""
+    mine = next(r["seconds"] for r in rs if r["spp"] == top)
+    return min(mine, builtin_top["seconds"]) < scene_advice.NOISY_RENDER
+
+
 def _sweep_scene(renderer, scene, st, cache, out, prog, results, times_rows):
     size = (st.size, st.size)
     base = renderer.params(scene, ("single", "pt"), size)
@@ -277,6 +284,7 @@ def _sweep_scene(renderer, scene, st, cache, out, prog, results, times_rows):
                  mean_error=rs[-1]["mean_error_pct"], mean_error_se=rs[-1]["mean_error_se_pct"],
                  unbiased=row in UNBIASED, terms=terms[row], seconds_range=(min(secs), max(secs)),
                  time_ratio=_time_ratio(rs, builtin_top, top),
+                 noisy_time=_noisy_time(rs, builtin_top, top),
                  slope=_slope([r["spp"] for r in rs], [r["variance"] for r in rs]), times={},
                  status={s["target"]: s for s in _statuses(rs, targets)}, spp_max=rs[-1]["spp"], cap=cap)
         for rms in targets:

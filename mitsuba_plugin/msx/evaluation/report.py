@@ -9,7 +9,7 @@ import math
 import os
 from pathlib import Path
 
-from . import uncertainty
+from . import scene_advice, uncertainty
 from .atlas import FAIL
 from .common import row_label
 from .common import pct as _pct
@@ -89,6 +89,15 @@ def _time_cell(tf, status=None):
         f"{_sec(t)} <span class=warn>(extrapolated ×{f:.1f})</span>"
 
 
+def _ratio(t):
+    """A row's render time per sample ÷ the built-in's, flagged as noise when its render or the built-in's took
+    less than scene_advice.NOISY_RENDER (t['noisy_time'], set by the driver: the rule of msx compare SCENE.xml)."""
+    txt = f"×{t['time_ratio']:.2f}"
+    if t.get("noisy_time"):
+        txt += " <span class=warn>(noise: renders of a few ms)</span>"
+    return txt
+
+
 def _mean_word(t):
     return uncertainty.sign_word(t["mean_error"], t["mean_error_se"])
 
@@ -110,6 +119,22 @@ def _verdict(b2, b2_se, mean, mean_se):
     if abs(mean) - z * mean_se > LOOK_MEAN or rms_lo > LOOK_RMS:
         return "off"
     return "undecided"
+
+
+# One label per ranking entry (docs/evaluation.md, "The advice"), in this order: "matches" needs both the
+# verdict "right" and the ranking's tie with the Smith model's entry (with mean radiance within noise); an entry
+# tied with the Smith model whose verdict is "undecided" is only "cannot tell" (the tie is then no evidence).
+LABELS = [("matches", "<b>Matches the Smith model</b> (looks right, bias² tied with the reference's model and mean "
+                      "radiance within noise)"),
+          ("right", f"<b>Looks right</b> (converged render within {LOOK_MEAN:g} % of the reference in mean radiance "
+                    f"and {LOOK_RMS:g} % RMS)"),
+          ("undecided", "<b>Cannot tell at this run's noise</b> (the bounds straddle the thresholds)"),
+          ("off", "<b>Visibly off</b>")]
+
+
+def _one_label(verdict, tied_smith):
+    """The one label of an entry: 'matches' when it looks right and matches the Smith model, else its verdict."""
+    return "matches" if verdict == "right" and tied_smith else verdict
 
 
 def _looks_right(t):
@@ -166,38 +191,40 @@ def _auto_saving(atlas, surface):
     return out
 
 
-def _scene_advice(rep):
-    """Sentences for one sweep scene, every one from this run's numbers: per entry of the ranking (rows that
-    are one model here), whether it matches the Smith model, whether it looks right, and what it costs."""
+def _entries(rep):
+    """The entries of a sweep scene's ranking (rows that are one model here), each with its verdict (from the
+    entry's bias² and its best-measured member's mean radiance) and its one label (LABELS)."""
     by = {t["label"]: t for t in rep["table"]}
-    groups = rep["ranking"]
     z = uncertainty.Z
     entries = []
-    for tier in groups:
+    for tier in rep["ranking"]:
         for e in tier:
             best = by[min(e["members"], key=lambda m: by[m]["bias2_se"])]
-            cost = ", ".join(f"{m} ×{by[m]['time_ratio']:.2f}" for m in e["members"])
+            cost = ", ".join(f"{m} {_ratio(by[m])}" for m in e["members"])
             entries.append(dict(e, mean=best["mean_error"], mean_se=best["mean_error_se"], cost=cost,
                                 tied_smith=any(x["unbiased"] for x in tier),
                                 verdict=_verdict(e["bias2"], e["se"], best["mean_error"], best["mean_error_se"])))
+    for e in entries:
+        e["label_key"] = _one_label(e["verdict"], not e["unbiased"] and e["tied_smith"] and
+                                    abs(e["mean"]) <= z * e["mean_se"])
+    return entries
+
+
+def _scene_advice(rep):
+    """Sentences for one sweep scene, every one from this run's numbers: per entry of the ranking (rows that
+    are one model here), its one label (matches the Smith model, looks right, cannot tell, visibly off) and
+    what it costs."""
+    entries = _entries(rep)
     approx = [e for e in entries if not e["unbiased"]]
     lines = []
-    match = [e for e in approx if e["tied_smith"] and abs(e["mean"]) <= z * e["mean_se"]]
-    if match:
-        lines.append("<b>Matches the Smith model</b> (bias² tied with the reference's model and mean radiance "
-                     "within noise): " + ", ".join(f"{e['label']} ({_pct(e['mean'], e['mean_se'])})" for e in match)
-                     + ".")
-    elif approx:
+    if approx and not any(e["label_key"] == "matches" for e in approx):
         best = min(approx, key=lambda e: e["bias2"])
-        lines.append(f"<b>Matches the Smith model</b>: no approximation does within noise; the closest is "
-                     f"<b>{best['label']}</b> (converged RMS error {_rms_bias(best['bias2'], best['se'])}, mean radiance "
-                     f"{_pct(best['mean'], best['mean_se'])}); for the Smith model itself use its unbiased estimators "
-                     "(heitz, invariance).")
-    for verdict, head in (("right", f"<b>Looks right</b> (converged render within {LOOK_MEAN:g} % of the reference in "
-                                    f"mean radiance and {LOOK_RMS:g} % RMS)"),
-                          ("undecided", "<b>Cannot tell at this run's noise</b> (the bounds straddle the thresholds)"),
-                          ("off", "<b>Visibly off</b>")):
-        sel = [e for e in entries if e["verdict"] == verdict]
+        lines.append(f"<b>Matches the Smith model</b>: no approximation does at this run's noise; the closest in "
+                     f"bias² is <b>{best['label']}</b> (converged RMS error {_rms_bias(best['bias2'], best['se'])}, "
+                     f"mean radiance {_pct(best['mean'], best['mean_se'])}); for the Smith model itself use its "
+                     "unbiased estimators (heitz, invariance).")
+    for key, head in LABELS:
+        sel = [e for e in entries if e["label_key"] == key]
         if sel:
             lines.append(head + ": " + "; ".join(
                 f"{html.escape(e['label'])} (mean radiance {_pct(e['mean'], e['mean_se'])}, "
@@ -228,6 +255,77 @@ def _finite(x):
     return x is not None and math.isfinite(x)
 
 
+# The a priori cost order of the papers' models (ties of measured time go to the first: benches/README.md);
+# scene_advice.CANDIDATES is the same order for the candidates of `msx compare SCENE.xml`.
+COST_ORDER = ["builtin", "single", "compensated", "fastmsx", "uncorrelated", "auto", "correlated", "invariance",
+              "heitz"]
+DEFAULT_MODEL = "correlated"  # msx_posfree's default `model` (README, core.py)
+
+
+def _row_states(rep):
+    """Per row of a sweep scene's table (by label): the one label of its ranking entry (_entries: rows that
+    are one model here share it) and whether it is an unbiased row."""
+    return {m: dict(label=e["label_key"], unbiased=e["unbiased"]) for e in _entries(rep) for m in e["members"]}
+
+
+def _choices(rep):
+    """(accurate, fast) rows of a sweep scene's table, with the rules of `msx compare SCENE.xml`
+    (scene_advice.choose, docs/evaluation.md): fast = the cheapest row that looks right; accurate = the
+    cheapest that looks right and matches the Smith model, else the unbiased walk. Cost: render time per
+    sample ÷ the built-in's; times from renders shorter than scene_advice.NOISY_RENDER tie with every other."""
+    states = _row_states(rep)
+    cand = [dict(t, model=t["row"][0], cost=t["time_ratio"], noisy_time=t.get("noisy_time", False))
+            for t in rep["table"]]
+    fast = scene_advice.choose([c for c in cand if states[c["label"]]["label"] in ("matches", "right")], COST_ORDER)
+    accurate = scene_advice.choose([c for c in cand if states[c["label"]]["label"] == "matches" or c["unbiased"]],
+                                   COST_ORDER)
+    return accurate, fast
+
+
+VERDICT_WORDS = {"matches": "<span class=ok>matches the Smith model</span>", "right": "<span class=ok>looks right</span>",
+                 "off": "<span class=bad>visibly off</span>", "undecided": "<span class=warn>cannot tell at this run's noise</span>"}
+
+
+def _model_cell(t):
+    if t is None:
+        return "<span class=warn>cannot tell at this run's noise</span>"
+    name = "single (= built-in)" if t["row"][0] == "builtin" else t["label"]
+    flag = " <b>(the default)</b>" if t["row"][0] == DEFAULT_MODEL else ""
+    return f"<b>{html.escape(name)}</b>{flag} <span class=note>{_ratio(t)}</span>"
+
+
+def _summary_table(ctx):
+    """The page's first table: per material class and sweep scene, the accurate and the fast model."""
+    out = ["<table><tr><th class=l>material class</th><th class=l>scene</th><th class=l>accurate model</th>"
+           f"<th class=l>fast model</th><th class=l>the default, {DEFAULT_MODEL}</th></tr>"]
+    for title, kind, _ in CLASSES:
+        for rep in [r for r in ctx["scenes"] if r["scene"].surface == kind]:
+            accurate, fast = _choices(rep)
+            states = _row_states(rep)
+            dflt = [t for t in rep["table"] if t["row"] == (DEFAULT_MODEL, "pt")]
+            dcell = "not in this sweep"
+            if dflt:
+                st = states[dflt[0]["label"]]
+                dcell = (VERDICT_WORDS[st["label"]]
+                         + f" <span class=note>{_ratio(dflt[0])}</span>")
+            out.append(f"<tr><td class=l>{html.escape(title)}</td><td class=l><a href='#{rep['scene'].name}'>"
+                       f"{html.escape(rep['scene'].title)}</a></td><td class=l>{_model_cell(accurate)}</td>"
+                       f"<td class=l>{_model_cell(fast)}</td><td class=l>{dcell}</td></tr>")
+    if any(r["name"] == "fig08_diffuse" for r in ctx.get("side", [])):
+        out.append("<tr><td class=l>Rough diffuse</td><td class=l>Wang 2022 Fig. 8 (side by side only)</td>"
+                   "<td class=l colspan=3>no converged reference in this evaluation: see <i>Rough diffuse</i> "
+                   "below</td></tr>")
+    out.append("</table>")
+    out.append(f"<p class=note><b>Accurate model</b>: the cheapest that looks right and matches the Smith model "
+               "(definitions below), else the unbiased walk. <b>Fast model</b>: the cheapest that looks right; "
+               "“cannot tell” when none does at this run's noise. Cheapest: render time per sample ÷ the built-in's "
+               f"(×); within {scene_advice.TIME_TIE:.0%} of each other, or from renders shorter than "
+               f"{scene_advice.NOISY_RENDER * 1000:.0f} ms (their ratios are noise: flagged so), the simpler model "
+               f"({', '.join(COST_ORDER)}) — the rules of <code>msx compare SCENE.xml</code>. <b>(the default)</b>: "
+               f"<code>{DEFAULT_MODEL}</code>, msx_posfree's default model; its own column says how it fares.</p>")
+    return "\n".join(out)
+
+
 CLASSES = [("Rough conductors (metals)", "conductor", ["conductor"]),
            ("Glass: reflection and transmission", "dielectric", ["dielectric_outside", "dielectric_inside"])]
 
@@ -240,9 +338,12 @@ def _advice(ctx):
            f"<b>Looks right</b>: the converged render differs from the Smith reference by at most {LOOK_MEAN:g} % in "
            f"mean radiance over the object (about the smallest brightness step people see between two patches "
            f"side by side, 1–2 %) and {LOOK_RMS:g} % RMS per pixel, each bound taken "
-           f"{uncertainty.Z:g} standard errors on the pessimistic side. <b>Matches the Smith model</b>: bias² "
-           "tied with the reference's own model (the ranking rule below). Times: render time per sample "
+           f"{uncertainty.Z:g} standard errors on the pessimistic side. <b>Matches the Smith model</b>: looks "
+           "right, and its bias² is tied with the reference's own model (the ranking rule below) with mean radiance "
+           "within noise. Each model gets one label: matches the Smith model, else looks right, cannot tell at this "
+           "run's noise, or visibly off. Times: render time per sample "
            "relative to Mitsuba's built-in single-scattering BSDF on the same scene and route.</p>"]
+    out.append(_summary_table(ctx))
     for title, kind, surfaces in CLASSES:
         reps = [r for r in ctx["scenes"] if r["scene"].surface == kind]
         out.append(f"<h3>{title}</h3><ul>")
@@ -347,14 +448,18 @@ def _scene_section(rep):
     for t in rep["table"]:
         out.append(f"<tr><td class=l>{t['label']}{' (unbiased)' if t['unbiased'] else ''}</td>"
                    f"<td>{t['top']['rel_rms_pct']:.1f} %</td><td>{_pct(t['mean_error'], t['mean_error_se'], 2)}</td>"
-                   f"<td class=l>{_mean_word(t)}</td><td>{_bias(t)}</td><td>{t['time_ratio']:.2f}</td>" +
+                   f"<td class=l>{_mean_word(t)}</td><td>{_bias(t)}</td><td>{_ratio(t)}</td>" +
                    "".join(f"<td>{_time_cell(t['times'][x], t.get('status', {}).get(x))}</td>" for x in targets) +
                    f"<td>{t.get('spp_max', '—')}</td><td>{t['slope']:.2f}</td><td>{_e(t['top']['rel_mse'])}</td></tr>")
     out.append("</table>")
     lo = min(t["seconds_range"][0] for t in rep["table"])
     hi = max(t["seconds_range"][1] for t in rep["table"])
     cap = rep.get("cap")
-    out.append(f"<p class=note>Renders of this sweep took {_sec(lo)} to {_sec(hi)} each. The sweep is adaptive: "
+    out.append(f"<p class=note>Renders of this sweep took {_sec(lo)} to {_sec(hi)} each. A time ratio whose render "
+               f"(the row's or the built-in's, at the top fixed spp) took less than "
+               f"{scene_advice.NOISY_RENDER * 1000:.0f} ms is flagged as noise: at a few ms the launch and scheduling "
+               "jitter of one render is of the size of the difference between models (single and the built-in, "
+               "identical by construction, then differ by tens of %). The sweep is adaptive: "
                f"after the fixed spps {rep.get('fixed_spps', '')} a row's spp doubles "
                f"(up to {cap} spp here) while a target it has not reached is predicted within that cap. Times to a "
                "target come from the fit error(t) = bias² + c/t of each row's sweep: <b>measured</b> when the "
@@ -545,13 +650,22 @@ def page(ctx):
                  "η = 1.5 dielectric in importance mode, E integrated from <code>eval</code> with a proposal independent "
                  "of the core), the noise of one <code>eval</code> call at fixed directions, raw non-finite or negative "
                  "values counted by the C ABI before it cleans them (×), the largest single contribution to the "
-                 "furnace estimate relative to its mean (firefly risk) and the time per call. White dots: cells "
-                 "beyond the threshold of the table below. <code>single</code> and <code>fastmsx</code> do not "
+                 "furnace estimate relative to its mean (firefly risk) and the time per call. One image per surface "
+                 "(conductor; dielectric from outside; from inside), one row of panels per model, one column per "
+                 "metric, each cell one (α, θ_i). <b>White dots</b>: cells beyond the threshold of the table below. "
+                 "<b>White cells</b> have no colour because they have no value on the log scale: marked <b>0</b> in "
+                 "the noise column, the median noise of one call is exactly 0 — at most of the fixed direction pairs "
+                 "the repeated calls returned the same value (analytic models such as <code>single</code>, "
+                 "<code>compensated</code> and <code>fastmsx</code> everywhere, where the panel says "
+                 "“deterministic”; the walks at some cells, mostly at small α, where a path rarely scatters twice); unmarked, the "
+                 "metric is not finite or not measured there (e.g. the largest contribution ÷ mean of a zero furnace estimate). "
+                 "<code>single</code> and <code>fastmsx</code> do not "
                  "conserve energy by design: their furnace error is charted (Fast-MSX's signed error separately), "
                  "not counted as a failure.</p>")
     parts.append("<h3>Where each method fails</h3>" + _fail_table(ctx["fails"]))
     for p in ctx["stability"]:
-        parts.append(_img(p, Path(p).stem))
+        surface = Path(p).stem.removeprefix("stability_")
+        parts.append(f"<h3>Atlas: {html.escape(surface.replace('_', ' '))}</h3>" + _img(p, Path(p).stem))
     parts.append(_img(ctx["extras"], "p_exit cancellation and Fast-MSX energy"))
     parts.append("<h2>Lobes</h2><p class='note'>f·cos θ_o in the plane of incidence per scattering order (analytic "
                  "models: their whole value as order 1), with the energy each model reflects (E_r) and transmits "

@@ -168,15 +168,7 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
         o = side * wo  # ω_o in the current frame
         transmit = o[2] < 0.0
         lst = last(segments, transmit, l, lo)
-        if traced:
-            v = lst * dr.select(transmit, vertex_transmit(mfa, efa, w, o), vertex_reflect(mfa, efa, w, o))
-        else:  # each event only in the packets that have lanes of it (a symbolic if_stmt branches per packet)
-            zero = (lambda w, o, e: dr.zeros(mi.Float, dr.width(w)))
-            v_t = dr.if_stmt((w, o, efa), transmit, lambda w, o, e: vertex_transmit(mfa, e, w, o), zero,
-                             label="msx_posfree_dielectric_nee_t")
-            v_r = dr.if_stmt((w, o, efa), ~transmit, lambda w, o, e: vertex_reflect(mfa, e, w, o), zero,
-                             label="msx_posfree_dielectric_nee_r")
-            v = lst * dr.select(transmit, v_t, v_r)
+        v = lst * dr.select(transmit, vertex_transmit(mfa, efa, w, o), vertex_reflect(mfa, efa, w, o))
         u_rr, u_choice = rng.next2()
         thr, alive = walk.roulette_from(j >= RR_START, thr, u_rr, 1.0 / roulette_importance(v, lst, RR_NEE_GAIN),
                                         RR_TRACED_FLOOR if traced else 0.0)

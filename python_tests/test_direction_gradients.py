@@ -14,6 +14,8 @@ differentiated geometry) in the Dr.Jit engine (issue 32, item 4; docs/gradients.
 - Through ``prb`` and ``normalmap``: ``single`` gives the built-in's gradient; a walk stops with that line.
 """
 
+from statistics import NormalDist
+
 import numpy as np
 import pytest
 
@@ -191,3 +193,194 @@ def test_prb_through_normalmap(table):
         _normalmap_gradient(_params("conductor", "correlated"))
     text = str(e.value) + str(e.value.__cause__ or "")
     assert "directions that carry a gradient" in text and "max_iterations" not in text, text
+
+
+# ------------------------------------------------------------------ the walks that differentiate through directions
+#
+# The position-free conductor walks on Beckmann draw each normal with everything detached and reflect the
+# attached direction about it, the step weighed by its visible-normal density over the detached one
+# (docs/gradients.md, "Directions through the walks"). Checked per call on the walk's estimate with a fixed
+# lane key, so that the central difference uses the same random numbers (common random numbers: its noise is
+# that of the lanes whose random decisions flip between θ − h and θ + h), against forward-mode AD of the same
+# lanes: a paired z-test per derivative (ω_i alone, ω_o alone), Šidák-corrected over all of them.
+
+DIRECTION_LANES = 1 << 20
+DIRECTION_H = 1e-3
+# model, α, θ_i (> π/2: ω_i below the macro surface, as a normal map can make it), material, estimator
+DIRECTION_CASES = [("correlated", 0.6, 0.5, "none", "pt"), ("correlated", 1.0, 1.3, "Cu", "pt"),
+                   ("uncorrelated", 0.3, 1.0, "none", "pt"), ("correlated", 0.8, 1.75, "none", "pt"),
+                   ("auto", 0.3, 1.35, "Au", "pt"), ("correlated", 0.6, 0.5, "Cu", "bdpt")]
+# Two derivatives (ω_i, ω_o) × two channels per case.
+Z_DIRECTION = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / (4 * len(DIRECTION_CASES)))) / 2.0)
+
+
+def _walk_params(model, alpha, material, estimator="pt", **more):
+    p = {"type": "msx_posfree", "model": model, "alpha": alpha, "distribution": "beckmann", "estimator": estimator,
+         "differentiate_directions": True, **more}
+    if material != "none":
+        p["material"] = material
+    return p
+
+
+def _agrees_with_central_differences(ad, values_at, h, label):
+    """Whether the mean of the per-lane derivatives ``ad`` equals the central difference of the mean of
+    ``values_at(θ)`` (independent lanes at each θ) within noise: a z-test at 1e-3 on AD − D(h), plus the
+    difference quotient's truncation, estimated from D(2h) − D(h) = 3·O(h²) (with that estimate's own noise)."""
+    def quotient(step):
+        with dr.suspend_grad():
+            return (values_at(ANGLE + step) - values_at(ANGLE - step)) / (2 * step)
+
+    d1, d2 = quotient(h), quotient(2 * h)
+    n = len(ad)
+    se1 = np.hypot(ad.std(ddof=1), d1.std(ddof=1)) / np.sqrt(n)
+    se12 = np.hypot(d1.std(ddof=1), d2.std(ddof=1)) / np.sqrt(n)
+    z_max = NormalDist().inv_cdf(1.0 - 0.5e-3)
+    truncation = (abs(d2.mean() - d1.mean()) + z_max * se12) / 3.0
+    print("%s: AD %.5f, central differences %.5f ± %.5f (2h: %.5f), truncation ≤ %.5f" % (
+        label, ad.mean(), d1.mean(), d1.std(ddof=1) / np.sqrt(n), d2.mean(), truncation))
+    assert abs(d1.mean()) > 5 * d1.std(ddof=1) / np.sqrt(n), "the derivative is lost in noise"
+    return abs(ad.mean() - d1.mean()) <= z_max * se1 + truncation
+
+
+@pytest.mark.parametrize("model,alpha,theta_i,material,estimator", DIRECTION_CASES,
+                         ids=["%s-a%g-th%g-%s-%s" % c for c in DIRECTION_CASES])
+def test_walk_derivative_through_directions_equals_central_differences(table, model, alpha, theta_i, material,
+                                                                       estimator):
+    from msx.jit.rng import hash_words
+
+    n = DIRECTION_LANES
+    b = mi.load_dict(_walk_params(model, alpha, material, estimator))
+    call = b._call(mi.BSDFContext(), dr.zeros(mi.SurfaceInteraction3f, n), mi.Bool(True))
+    key = hash_words(7, (dr.arange(mi.Float, n),))
+    wi_w = mi.Vector3f(float(np.sin(theta_i)), 0.0, float(np.cos(theta_i)))
+    wo_w = dr.normalize(mi.Vector3f(-0.5, 0.4, 0.77))
+    lanes = dr.zeros(mi.Vector3f, n)
+
+    def frame(t):
+        return mi.Frame3f(dr.normalize(mi.Vector3f(dr.sin(t), 0.3 * dr.sin(t), dr.cos(t))))
+
+    def estimate(t, which):
+        moving, still = frame(t), frame(mi.Float(ANGLE))
+        wi = (moving if which == "wi" else still).to_local(wi_w) + lanes
+        wo = (moving if which == "wo" else still).to_local(wo_w) + lanes
+        return b._model.differentiable_estimate(call, wi, wo, key)
+
+    for which in ("wi", "wo"):
+        t = mi.Float(ANGLE)
+        dr.enable_grad(t)
+        value = estimate(t, which)
+        dr.forward(t)
+        ad = np.array(dr.grad(value), dtype=np.float64)
+        with dr.suspend_grad():
+            fd = (np.array(estimate(mi.Float(ANGLE + DIRECTION_H), which), dtype=np.float64)
+                  - np.array(estimate(mi.Float(ANGLE - DIRECTION_H), which), dtype=np.float64)) / (2 * DIRECTION_H)
+        for c in (0, 2):
+            diff = ad[c] - fd[c]
+            se = diff.std(ddof=1) / np.sqrt(n)
+            z = diff.mean() / se
+            print("%s %s α %g θ_i %g %s, ∂/∂%s channel %d: AD %.5f, central differences %.5f ± %.5f, z %+.2f" % (
+                model, estimator, alpha, theta_i, material, which, c, ad[c].mean(), fd[c].mean(),
+                fd[c].std(ddof=1) / np.sqrt(n), z))
+            assert abs(fd[c].mean()) > 5 * fd[c].std(ddof=1) / np.sqrt(n), "the derivative is lost in noise"
+            assert se <= 0.01 * abs(fd[c].mean()), "not resolved to 2 % (two standard errors)"
+            assert abs(z) <= Z_DIRECTION, (model, which, c, ad[c].mean(), fd[c].mean())
+
+
+def test_walk_derivative_through_directions_forward_and_reverse(table):
+    """Through the BSDF as a render calls it: forward and reverse mode give the same derivative of the mean
+    of ``eval`` (reverse mode through a walk used to stop drjit: its loops have no adjoint), and it agrees with
+    central differences of that mean (independent lanes: the keys follow the directions)."""
+    import gc
+
+    # A symbolic call traces every live instance of the class: free the ones earlier tests left in
+    # reference cycles (a refused walk without differentiate_directions would stop this trace).
+    gc.collect()
+    n = DIRECTION_LANES
+    b = mi.load_dict(_walk_params("correlated", 0.6, "Cu"))
+    ptr = dr.gather(mi.BSDFPtr, mi.BSDFPtr(b), dr.zeros(mi.UInt32, n))
+    ctx = mi.BSDFContext()
+    wi_w, wo_w = _directions(1, 1.0), _directions(2, 1.0)
+    wi_w, wo_w = dr.gather(mi.Vector3f, wi_w, dr.arange(mi.UInt32, n) % N), dr.gather(mi.Vector3f, wo_w,
+                                                                                      dr.arange(mi.UInt32, n) % N)
+
+    def mean_eval(t):
+        si = dr.zeros(mi.SurfaceInteraction3f, n)
+        si.p = mi.Point3f(dr.arange(mi.Float, n), 0.0, 0.0)
+        fr = mi.Frame3f(mi.Vector3f(dr.sin(t), 0.0 * t, dr.cos(t)))
+        si.sh_frame = fr
+        si.wi = fr.to_local(wi_w)
+        return ptr.eval(ctx, si, fr.to_local(wo_w))
+
+    t = mi.Float(ANGLE)
+    dr.enable_grad(t)
+    f = mean_eval(t)
+    dr.forward(t)
+    fwd = np.array(dr.grad(f), dtype=np.float64)
+    t = mi.Float(ANGLE)
+    dr.enable_grad(t)
+    f = mean_eval(t)
+    dr.backward(dr.sum(f[0]) / n)
+    rev = float(dr.grad(t)[0])
+    assert abs(rev - fwd[0].mean()) <= 1e-3 * abs(fwd[0].mean()), (rev, fwd[0].mean())
+    assert _agrees_with_central_differences(fwd[0], lambda a: np.array(mean_eval(mi.Float(a)), dtype=np.float64)[0],
+                                            0.03, "through the BSDF (reverse %.5f)" % rev)
+
+
+def test_walk_sample_weight_differentiates_through_the_incident_direction(table):
+    """``sample`` with ω_i carrying a gradient draws ω_o with ω_i detached and weighs the walk's differentiable
+    estimate by the detached density, so E[weight · g(ω_o)] = ∫ f(ω_i, ω_o) g(ω_o) dω_o at every θ. With g the
+    world x-component of ω_o (a tilting frame moves the lobe along x), the mean derivative of weight · g equals
+    the central difference of its mean (independent draws at θ ± h)."""
+    n = DIRECTION_LANES
+    b = mi.load_dict(_walk_params("correlated", 0.7, "Cu"))
+    ctx = mi.BSDFContext()
+    rng = np.random.default_rng(3)
+    u = [mi.Float(x) for x in rng.uniform(0.0, 1.0, (3, n)).astype(np.float32)]
+    wi_w = mi.Vector3f(0.5, 0.2, 0.84)
+
+    def weighted(t):
+        si = dr.zeros(mi.SurfaceInteraction3f, n)
+        si.p = mi.Point3f(dr.arange(mi.Float, n), 0.0, 0.0)
+        fr = mi.Frame3f(mi.Vector3f(dr.sin(t), 0.0 * t, dr.cos(t)))
+        si.sh_frame = fr
+        si.wi = fr.to_local(wi_w + dr.zeros(mi.Vector3f, n))
+        bs, w = b.sample(ctx, si, u[0], mi.Point2f(u[1], u[2]))
+        return w[0] * fr.to_world(bs.wo)[0]
+
+    t = mi.Float(ANGLE)
+    dr.enable_grad(t)
+    g = weighted(t)
+    dr.forward(t)
+    ad = np.array(dr.grad(g), dtype=np.float64)
+    assert _agrees_with_central_differences(ad, lambda a: np.array(weighted(mi.Float(a)), dtype=np.float64),
+                                            0.03, "sample weight")
+
+
+@pytest.mark.parametrize("params,needle", [
+    ({"distribution": "ggx"}, "GGX's D there is α²/π"),
+    ({"model": "heitz"}, "not implemented"),
+    ({"surface": "dielectric", "int_ior": 1.5}, "not implemented")])
+def test_differentiate_directions_refused_where_it_would_be_biased(table, params, needle):
+    p = _walk_params("correlated", 0.5, "none") | params
+    if p.get("surface") == "dielectric":
+        p.pop("material", None)
+    with pytest.raises(Exception) as e:
+        mi.load_dict(p)
+    text = str(e.value)
+    assert "differentiate_directions=true is not available" in text and needle in text, text
+
+
+def test_walk_asks_for_differentiate_directions(table):
+    """A walk that can differentiate through directions, without the parameter, names it in its one line."""
+    p = _walk_params("correlated", 0.5, "Cu")
+    del p["differentiate_directions"]
+    bsdf = mi.load_dict(p)
+    angle = mi.Float(ANGLE)
+    dr.enable_grad(angle)
+    si = dr.zeros(mi.SurfaceInteraction3f, 16)
+    frame = mi.Frame3f(mi.Vector3f(dr.sin(angle), 0.0 * angle, dr.cos(angle)))
+    si.sh_frame = frame
+    si.wi = frame.to_local(mi.Vector3f(0.3, 0.1, 0.9))
+    with pytest.raises(ValueError) as e:
+        bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(-0.2, 0.1, 0.95))
+    assert "differentiate_directions" in str(e.value) and "\n" not in str(e.value)

@@ -24,7 +24,8 @@ from pathlib import Path
 STANDINS = ("roughconductor", "roughdielectric", "msx_posfree")
 WRAPPERS = ("twosided", "normalmap", "bumpmap", "mask", "blendbsdf")
 # Parameters of msx_posfree that its built-in twins do not have (removed when a candidate is the built-in).
-MSX_ONLY = ("surface", "model", "estimator", "max_bounces", "seed", "auto_tolerance", "mis_density")
+MSX_ONLY = ("surface", "model", "estimator", "max_bounces", "seed", "auto_tolerance", "mis_density",
+            "differentiate_directions")
 _REF = re.compile(r"\$(\w+)")
 
 

@@ -16,7 +16,7 @@ import mitsuba as mi
 
 from ..names import MODEL_INFO, PLUGIN
 from . import analytic, auto, gradients, heitz, invariance, mis, posfree, posfree_dielectric
-from .microfacet import ConductorFresnel
+from .microfacet import BECKMANN, ConductorFresnel
 from .rng import clean_uniform
 
 # The random walks of the engine, by surface and model name: each model module provides its own table.
@@ -166,24 +166,74 @@ def eta_gradient_problem(cfg):
             "in 'eta' — or keep 'eta' out of the gradient (dr.disable_grad)" % (PLUGIN, cfg.model, able))
 
 
-def direction_gradient_problem(cfg):
-    """None unless ``cfg`` runs a random walk, else the one-line refusal for directions that carry a gradient.
+def directions_differentiable(cfg):
+    """Whether the walk ``cfg`` runs differentiates through ω_i and ω_o without bias (its traced PT estimate:
+    the normals drawn detached, the directions reflected about them attached; docs/gradients.md,
+    "Directions through the walks")."""
+    walk = differentiable_walk(cfg)
+    return walk is not None and cfg.distribution in getattr(walk, "direction_distributions", ())
 
-    A walk's estimate is differentiated through its parameters (jit/gradients.py); where ω_i or ω_o moves
-    (a differentiated shading normal — Mitsuba's ``normalmap``, ``bumpmap`` — or differentiated geometry) its
-    random decisions move too, and AD of the walk as written is biased (measured: GGX α 1, F = 1, ``correlated``
-    −0.086 against −0.131 ± 0.002 by central differences; ``heitz`` −0.121 against −0.226 ± 0.003), and drjit
-    cannot reverse its loops at all. The closed forms differentiate through directions exactly."""
+
+def _direction_walks():
+    """'model (surface, distribution)' of every walk configuration that differentiates through directions."""
+    out = []
+    for surface, walks in WALKS_BY_SURFACE.items():
+        for name, walk in walks.items():
+            dists = getattr(walk, "direction_distributions", ()) if walk.differentiable else ()
+            if dists:
+                runs_it = [m for m in ENGINE_MODELS.get(surface, ()) if walk_name_of(m) == name]
+                out.append("%s (%s, %s)" % ("/".join(runs_it), surface, "/".join(dists)))
+    return "; ".join(out)
+
+
+def differentiate_directions_problem(cfg):
+    """None unless ``differentiate_directions`` is set on a walk whose derivative through directions would be
+    biased (refused when the scene loads, every route)."""
+    if not cfg.differentiate_directions or walk_name(cfg) not in WALKS_BY_SURFACE.get(cfg.surface, {}):
+        return None
+    if directions_differentiable(cfg):
+        return None
+    why = ("with distribution='ggx' the next event's value jumps where its half vector turns horizontal "
+           "(GGX's D there is α²/π, not 0), an edge that moves with the directions and is not estimated yet"
+           if cfg.distribution != BECKMANN and differentiable_walk(cfg) is not None
+           else "the derivative of this walk with respect to the directions is not implemented")
+    return ("%s: differentiate_directions=true is not available for model='%s' on surface '%s' (distribution "
+            "'%s'): %s (docs/gradients.md); the walks that have it: %s; the closed forms (single, fastmsx, "
+            "compensated) differentiate through directions without it"
+            % (PLUGIN, cfg.model, cfg.surface, cfg.distribution, why, _direction_walks()))
+
+
+def direction_gradient_problem(cfg):
+    """None unless ``cfg`` runs a random walk that cannot take directions carrying a gradient, else the one-line
+    refusal.
+
+    A walk differentiates through ω_i and ω_o (a differentiated shading normal — Mitsuba's ``normalmap``,
+    ``bumpmap`` — or differentiated geometry) where ``directions_differentiable`` and the scene asks for it
+    with ``differentiate_directions``: then ``sample`` draws from the proposal whose density it reports, which
+    is what ``prb``'s re-evaluation of the BSDF along a replayed path needs (docs/gradients.md). Elsewhere AD
+    of the walk as written is biased (measured: GGX α 1, F = 1, ``correlated`` −0.086 against −0.131 ± 0.002
+    by central differences; ``heitz`` −0.121 against −0.226 ± 0.003). The closed forms differentiate through
+    directions exactly."""
     if walk_name(cfg) not in WALKS_BY_SURFACE.get(cfg.surface, {}):
         return None
+    if directions_differentiable(cfg):
+        if cfg.differentiate_directions:
+            return None
+        return ("%s: model='%s' on surface '%s' received directions that carry a gradient (a differentiated "
+                "shading normal such as normalmap/bumpmap, or differentiated geometry); set "
+                "<boolean name=\"differentiate_directions\" value=\"true\"/> on this BSDF so that its sampling "
+                "pairs with the derivative (docs/gradients.md) — or keep the normals and geometry out of the "
+                "gradient (dr.disable_grad)" % (PLUGIN, cfg.model, cfg.surface))
     closed = ", ".join(m for m in DIFFERENTIABLE_MODELS.get(cfg.surface, ()) if walk_name_of(m) not in
                        WALKS_BY_SURFACE.get(cfg.surface, {}))
-    return ("%s: model='%s' on surface '%s' received directions that carry a gradient (a differentiated shading "
-            "normal such as normalmap/bumpmap, or differentiated geometry); the derivative of its random walk "
-            "with respect to the directions is not implemented and would be biased (docs/gradients.md) — use %s, "
-            "or keep the normals and geometry out of the gradient (dr.disable_grad)"
-            % (PLUGIN, cfg.model, cfg.surface, "model=" + " or ".join("'%s'" % m for m in closed.split(", "))
-               if closed else "a scalar variant"))
+    return ("%s: model='%s' on surface '%s' (distribution '%s') received directions that carry a gradient (a "
+            "differentiated shading normal such as normalmap/bumpmap, or differentiated geometry); the derivative "
+            "of its random walk with respect to the directions is not available and would be biased "
+            "(docs/gradients.md) — use %s, a walk that has it (%s) with differentiate_directions=true, or keep "
+            "the normals and geometry out of the gradient (dr.disable_grad)"
+            % (PLUGIN, cfg.model, cfg.surface, cfg.distribution,
+               "model=" + " or ".join("'%s'" % m for m in closed.split(", ")) if closed else "a scalar variant",
+               _direction_walks()))
 
 
 def moving_directions(problem, *directions):
@@ -263,29 +313,57 @@ class ConductorModel:
         return (value * call.tint_r if want_value else None), pdf
 
     def differentiable_estimate(self, call, wi, wo, key):
-        """The walk's PT estimate with its derivative in α, η and k (jit/gradients.py)."""
-        fresnel, bounces = call.fresnel, self.bounces(call, wi)
+        """The walk's PT estimate with its derivative in α, η and k (jit/gradients.py), and in the
+        components of ω_i and ω_o where they carry gradients (``direction_gradient_problem`` has let them in
+        only where the walk's derivative through them is unbiased)."""
+        fresnel, bounces = call.fresnel, self.bounces(dr.detach(call), dr.detach(wi))
+        material_values = [] if fresnel.mirror else [fresnel.eta, fresnel.k]
+        n_material = len(material_values)
 
         def material(eta_k):
             return fresnel if fresnel.mirror else ConductorFresnel(*eta_k)
 
-        def run(m, m_sample, *eta_k):
-            return self.walk.eval_pt(m, material(eta_k), wi, wo, bounces, key, mf_sample=m_sample)
+        # A unit direction moves in its tangent plane: its derivative is carried by two coordinates along a
+        # basis (t, b) of that plane at the detached direction, s = (ω − ω̄)·t (value 0), so a moving direction
+        # costs two forward passes of the walk, not three (gradients.attach: one per coordinate).
+        frames = [mi.Frame3f(dr.detach(d)) for d in (wi, wo)]
+        coords = []
+        for d, fr in zip((wi, wo), frames):
+            offset = d - dr.detach(d)
+            coords += [dr.dot(offset, fr.s), dr.dot(offset, fr.t)]
+
+        def split(values):
+            """(material values, ω_i, ω_o) from the values ``attach`` passes: the material, then the two tangent
+            coordinates of each direction."""
+            c = values[n_material:]
+            wi_, wo_ = (dr.detach(d) + c[2 * k] * fr.s + c[2 * k + 1] * fr.t
+                        for k, (d, fr) in enumerate(zip((wi, wo), frames)))
+            return values[:n_material], wi_, wo_
+
+        def run(m, m_sample, *values):
+            eta_k, wi_, wo_ = split(values)
+            return self.walk.eval_pt(m, material(eta_k), wi_, wo_, bounces, key, mf_sample=m_sample)
 
         # BDPT: its own estimate as the value, the PT walk's derivative (both unbiased; docs/gradients.md).
         primal = None
         if self.estimate is not self.walk.eval_pt:
-            def primal(m, *eta_k):
-                return self.estimate(m, material(eta_k), wi, wo, bounces, key)
+            def primal(m, *values):
+                eta_k, wi_, wo_ = split(values)
+                return self.estimate(m, material(eta_k), wi_, wo_, bounces, key)
 
-        return gradients.attach_walk(call, [] if fresnel.mirror else [fresnel.eta, fresnel.k], run, primal)
+        return gradients.attach_walk(call, material_values + coords, run, primal)
 
     def sample_traced(self, call, wi, s1, u1, u2, eval_key):
         """``sample`` while differentiated: ω_o from the proposal, weighed by the walk's estimate there (the
-        one ``eval`` gives, lane key ``eval_key(ω_o)``) over the proposal's density."""
+        one ``eval`` gives, lane key ``eval_key(ω_o)``) over the proposal's density. ω_o is drawn with ω_i
+        detached; where ω_i carries a gradient, the weight is the differentiable estimate over the detached
+        density (the derivative of ∫ f·L dω_o by a detached draw; docs/gradients.md)."""
         walk, mf = self.walk, call.mf
-        wo, pdf, valid = gradients.proposal_sample(walk.exit, mf, wi, s1, u1, u2)
-        value = self.estimate(mf, call.fresnel, wi, wo, self.bounces(call, wi), eval_key(wo))
+        wo, pdf, valid = gradients.proposal_sample(walk.exit, mf, dr.detach(wi), s1, u1, u2)
+        if dr.grad_enabled(wi):
+            value = self.differentiable_estimate(call, wi, wo, eval_key(wo))
+        else:
+            value = self.estimate(mf, call.fresnel, wi, wo, self.bounces(call, wi), eval_key(wo))
         weight = dr.select(valid & (pdf > 0.0), value / pdf, 0.0)
         return wo, pdf, weight * call.tint_r, valid
 

@@ -16,14 +16,18 @@ class ConductorWalk:
     - ``below``: whether the walk also starts below the macro surface (normal mapping);
     - ``eval_bdpt`` (optional, same signature as ``eval_pt``): the bidirectional estimator, None where the
       engine has none (the scene is then refused with a message);
-    - ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md).
+    - ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md);
+    - ``direction_distributions``: the distributions for which that traced ``eval_pt`` also differentiates
+      through ω_i and ω_o without bias (docs/gradients.md, "Directions through the walks").
     """
 
-    def __init__(self, eval_pt, sample_walk, exit, below, eval_bdpt=None, differentiable=False):
+    def __init__(self, eval_pt, sample_walk, exit, below, eval_bdpt=None, differentiable=False,
+                 direction_distributions=()):
         self.eval_pt, self.sample_walk, self.exit, self.below = eval_pt, sample_walk, exit, below
         self.eval_bdpt = eval_bdpt
         # Whether ``eval_pt`` takes ``mf_sample`` (jit/gradients.py): its PT estimate then differentiates.
         self.differentiable = differentiable
+        self.direction_distributions = tuple(direction_distributions)
 
 
 class ConductorAnalytic:

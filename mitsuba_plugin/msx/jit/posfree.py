@@ -23,7 +23,7 @@ import mitsuba as mi
 from . import bdpt, mis, walk
 from .model import ConductorWalk, DiffuseWalk
 from .gradients import LoopValues
-from .microfacet import INV_PI, ConductorFresnel, dot, half_vector, max_channel, normalized, reflect
+from .microfacet import BECKMANN, INV_PI, ConductorFresnel, dot, half_vector, max_channel, normalized, reflect
 from .rng import Stream
 
 UNCORRELATED = "uncorrelated"
@@ -34,6 +34,8 @@ CORRELATED = "correlated"
 RR_START = 1
 RR_NEE_GAIN = 30.0
 RR_LAST_WEIGHT = 0.05
+# The smallest L_j the traced uncorrelated walk's last factor takes (``pt_walk``): 1/L_j² stays finite.
+TRACED_L_MIN = 1e-15
 
 
 def continue_up(segments, l, lam):
@@ -95,13 +97,20 @@ def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex
     traced = mf_sample is not None
 
     def body(j, w, l, thr, result, active, counter, *piped):
-        # Traced, the differentiated values come through the loop's state (gradients.LoopValues).
-        mfa, mfs, lo, material = LoopValues.unpack(traced, mf, lambda_o, (), piped)
+        # Traced, the differentiated values come through the loop's state (gradients.LoopValues): the
+        # material, then ω_o (which carries the derivative in the directions, if any).
+        mfa, mfs, lo, rest = LoopValues.unpack(traced, mf, lambda_o, (), piped)
+        material, wo_ = (rest[:-1], rest[-1]) if traced else ((), wo)
         fr = ConductorFresnel(*material) if material else fresnel
         rng = Stream(key, counter)
         active &= (l > 0.0) & dr.isfinite(l) & (max_channel(thr) > 0.0)
-        last_factor = last(segments, l, lo)
-        cos_wh, nee, nee_ok = nee_term(mfa, w, wo, last_factor)
+        # Traced, the uncorrelated last factor 1/(L_j(1 + Λ_o)) takes L_j ≥ TRACED_L_MIN: after an upward step
+        # with a tiny Λ its derivative, ∝ 1/L_j², overflows and makes the whole lane's derivative NaN (which
+        # gradients.attach then drops: measured, a 0.4 % bias at Beckmann α = 0.3). Such a vertex is reached
+        # from a direction within a few degrees of the normal, so its next-event half vector towards any ω_o
+        # above lies at or below the horizon, where D is 0: the value does not change.
+        last_factor = last(segments, dr.maximum(l, TRACED_L_MIN) if traced and segments == UNCORRELATED else l, lo)
+        cos_wh, nee, nee_ok = nee_term(mfa, w, wo_, last_factor)
         u_rr, _ = rng.next2()
         importance = roulette_importance(nee, last_factor, RR_NEE_GAIN)
         thr, alive = walk.roulette_from(j >= rr_start, thr, u_rr,
@@ -114,12 +123,17 @@ def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex
             """The next direction, from the visible normals of w."""
             rng = Stream(key, counter)
             u1, u2 = rng.next2()
-            m, valid = mfs.sample_visible(w, u1, u2)
+            # Traced, the normal is drawn with everything detached and the new direction reflects the
+            # attached w about it: the draw happens in the space of normals (docs/gradients.md).
+            m, valid = mfs.sample_visible(dr.detach(w) if traced else w, u1, u2)
             cos_wm = dot(w, m)
             d_next = reflect(w, m)
             thr = thr * fr.eval(cos_wm)
             if traced:
-                thr = thr * ((mfa.d(m) * dr.detach(l)) / (mfs.d(m) * l))
+                # The visible-normal density ⟨w·m⟩·D(m)/A(w), A(w) = |w_z|·L, under the attached values over
+                # the same detached: 1, with the score of the draw as its derivative.
+                q = cos_wm * mfa.d(m) / (dr.abs(w[2]) * l)
+                thr = thr * dr.select(dr.detach(q) > 0.0, q / dr.detach(q), 0.0)
             up = d_next[2] > 0.0
             lam = mfa.abs_lambda(d_next)
             thr = dr.select(up, thr * continue_up(segments, l, lam), thr)
@@ -140,7 +154,7 @@ def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex
              dr.zeros(mi.Spectrum, width), mi.Bool(active), mi.UInt32(counter))
     if traced:
         material = () if fresnel.mirror else (mi.Spectrum(fresnel.eta), mi.Spectrum(fresnel.k))
-        state += LoopValues.state(mf, lambda_o, *material)
+        state += LoopValues.state(mf, lambda_o, *material, mi.Vector3f(wo))
     state = dr.while_loop(state, lambda *s: s[5], body, label=label)
     return state[4]
 
@@ -456,7 +470,8 @@ def diffuse_sample_walk(segments, mf, albedo, wi, sample1, u1, u2, max_bounces, 
 # The conductor walks this module provides, by model name (jit/bsdf.py collects them).
 CONDUCTOR_WALKS = {
     name: ConductorWalk(partial(eval_pt, name), partial(sample_walk, name), exit, below=True,
-                        eval_bdpt=partial(conductor_eval_bdpt, name), differentiable=True)
+                        eval_bdpt=partial(conductor_eval_bdpt, name), differentiable=True,
+                        direction_distributions=(BECKMANN,))
     for name, exit in ((UNCORRELATED, mis.SEPARABLE), (CORRELATED, mis.HEIGHT_CORRELATED))
 }
 DIFFUSE_WALKS = {name: DiffuseWalk(partial(diffuse_eval_pt, name), partial(diffuse_sample_walk, name),

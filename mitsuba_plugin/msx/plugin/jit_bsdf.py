@@ -18,8 +18,8 @@ import mitsuba as mi
 
 from ..jit import analytic
 from ..jit.bsdf import (FLT_MIN, INDEX_MATCHED, MATERIAL_VALUE_MAX, MODELS_BY_SURFACE, WO_KEY_GRID, Call,
-                        differentiable_walk, direction_gradient_problem, engine_support, eta_gradient_problem,
-                        flush_subnormal, gradient_problem, moving_directions)
+                        differentiable_walk, differentiate_directions_problem, direction_gradient_problem,
+                        engine_support, eta_gradient_problem, flush_subnormal, gradient_problem, moving_directions)
 from ..jit.microfacet import ConductorFresnel, Microfacet
 from ..jit.rng import hash_words
 from .base import make_base_class, make_factory, native_channels, one_line
@@ -46,7 +46,7 @@ def make_bsdf_factory(variant):
 
             def __init__(self, props):
                 super().__init__(props)
-                problem = engine_support(self._cfg)
+                problem = engine_support(self._cfg) or differentiate_directions_problem(self._cfg)
                 if problem is not None:
                     raise MsxParameterError(problem)
                 if dielectric:
@@ -75,9 +75,11 @@ def make_bsdf_factory(variant):
                     self._refresh_ior()
                 # A differentiable walk samples its proposal while any parameter carries gradients (set
                 # here, by the parameter update, so that prb's primal and adjoint passes sample alike).
+                # ``differentiate_directions``: always, since the directions' gradients (a normal map's, a
+                # shape's) come from outside this BSDF's parameters.
                 self._traced = self._differentiable_walk is not None and (any(
                     dr.grad_enabled(params[k]) for params in map(mi.traverse, self._textures) for k in params.keys())
-                    or (dielectric and dr.grad_enabled(self._ior)))
+                    or (dielectric and dr.grad_enabled(self._ior)) or self._cfg.differentiate_directions)
                 # The perfect mirror (Mitsuba's material='none' with its default η = 0, k = 1) has F = 1; a
                 # constant material's average Fresnel term (compensation) is computed once, here.
                 self._mirror, self._fresnel_average = False, None

@@ -53,7 +53,7 @@ SURFACE_PARAMS = {
     "diffuse": ("reflectance",),
 }
 COMMON_PARAMS = ("surface, distribution, alpha, alpha_u, alpha_v, model, estimator, max_bounces, seed, auto_tolerance, "
-                 "mis_density, sample_visible")
+                 "mis_density, sample_visible, differentiate_directions")
 # The models whose sampling ``sample_visible=false`` changes (as the built-ins': normals drawn from D·cos θ_m);
 # in the Dr.Jit engine only (jit/single.py). A walk draws visible normals by construction.
 SAMPLE_VISIBLE_MODELS = ("single", "fastmsx", "compensated")
@@ -314,6 +314,9 @@ class Config:
             )
         self.auto_tolerance = _fraction(props, "auto_tolerance", lib.MSX_DEFAULT_AUTO_TOLERANCE)
         self.sample_visible = _bool(props, "sample_visible", True)
+        # The walks' sampling for gradients through directions (Dr.Jit engine; docs/gradients.md): nothing is
+        # differentiated in the scalar variants, where it changes nothing.
+        self.differentiate_directions = _bool(props, "differentiate_directions", False)
         self.mis_density = _choice(props, "mis_density", DEFAULT_MIS_DENSITY, MIS_DENSITIES)
         if ("mis_density" in props) and not self.mis_density_applies():
             raise MsxParameterError(

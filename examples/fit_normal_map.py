@@ -157,7 +157,7 @@ def main(argv=None):
 
     msx.register()
     settings = ({"res": 4, "size": 32, "spp": 8, "target_spp": 256, "iterations": 40, "lr": 0.03} if args.quick else
-                {"res": 6, "size": 64, "spp": 16, "target_spp": 1024, "iterations": 120, "lr": 0.01})
+                {"res": 6, "size": 48, "spp": 8, "target_spp": 1024, "iterations": 80, "lr": 0.02})
     truth = true_normals(settings["res"])
     start = angle_error(encode(truth * 0.0 + [0.0, 0.0, 1.0]), truth)
 

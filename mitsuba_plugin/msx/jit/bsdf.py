@@ -323,22 +323,12 @@ class ConductorModel:
         def material(eta_k):
             return fresnel if fresnel.mirror else ConductorFresnel(*eta_k)
 
-        # A unit direction moves in its tangent plane: its derivative is carried by two coordinates along a
-        # basis (t, b) of that plane at the detached direction, s = (ω − ω̄)·t (value 0), so a moving direction
-        # costs two forward passes of the walk, not three (gradients.attach: one per coordinate).
-        frames = [mi.Frame3f(dr.detach(d)) for d in (wi, wo)]
-        coords = []
-        for d, fr in zip((wi, wo), frames):
-            offset = d - dr.detach(d)
-            coords += [dr.dot(offset, fr.s), dr.dot(offset, fr.t)]
+        moving = gradients.TangentCoordinates(wi, wo)
 
         def split(values):
-            """(material values, ω_i, ω_o) from the values ``attach`` passes: the material, then the two tangent
-            coordinates of each direction."""
-            c = values[n_material:]
-            wi_, wo_ = (dr.detach(d) + c[2 * k] * fr.s + c[2 * k + 1] * fr.t
-                        for k, (d, fr) in enumerate(zip((wi, wo), frames)))
-            return values[:n_material], wi_, wo_
+            """(material values, ω_i, ω_o) from the values ``attach`` passes: the material, then the directions'
+            tangent coordinates."""
+            return (values[:n_material],) + moving.directions(values[n_material:])
 
         def run(m, m_sample, *values):
             eta_k, wi_, wo_ = split(values)
@@ -351,7 +341,7 @@ class ConductorModel:
                 eta_k, wi_, wo_ = split(values)
                 return self.estimate(m, material(eta_k), wi_, wo_, bounces, key)
 
-        return gradients.attach_walk(call, material_values + coords, run, primal)
+        return gradients.attach_walk(call, material_values + moving.values, run, primal)
 
     def sample_traced(self, call, wi, s1, u1, u2, eval_key):
         """``sample`` while differentiated: ω_o from the proposal, weighed by the walk's estimate there (the

@@ -117,6 +117,25 @@ def attach_walk(call, material, run, primal=None):
     return attach(estimate, list(call.alphas) + list(material), None if primal is None else value)
 
 
+class TangentCoordinates:
+    """The moving part of unit directions as parameters for :func:`attach`: a unit direction moves in its
+    tangent plane, so its derivative is carried by two coordinates s = (ω − ω̄)·t along a basis (t, b) of that
+    plane at the detached ω̄ (value 0; they carry ω's gradient), and a moving direction costs two forward passes
+    of a walk, not three. ``values`` are the coordinates (two per direction); ``directions(coords)`` rebuilds
+    the directions ω̄ + s_t·t + s_b·b from the values ``attach`` passes (equal to the directions in value)."""
+
+    def __init__(self, *directions):
+        self.frames = [(dr.detach(d), mi.Frame3f(dr.detach(d))) for d in directions]
+        self.values = []
+        for d, (base, fr) in zip(directions, self.frames):
+            offset = d - base
+            self.values += [dr.dot(offset, fr.s), dr.dot(offset, fr.t)]
+
+    def directions(self, coords):
+        return tuple(base + coords[2 * k] * fr.s + coords[2 * k + 1] * fr.t
+                     for k, (base, fr) in enumerate(self.frames))
+
+
 def cosine_share(exit, mf, wi):
     e1 = mis._e1_table(exit, mf.dist).at(dr.sqrt(mf.alpha_u * mf.alpha_v), dr.abs(wi[2]))
     return dr.detach(dr.clip(1.0 - e1, COSINE_SHARE_MIN, COSINE_SHARE_MAX))

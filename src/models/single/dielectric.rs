@@ -1,7 +1,8 @@
 //! Single scattering through a rough dielectric interface, Walter et al. 2007,
 //! exactly as Mitsuba 3's built-in `roughdielectric` computes it (its `eval`,
-//! `pdf` and `sample` with `sample_visible = true`), so that `model="single"`
-//! equals the built-in (README.md's parameter table, docs/paper-notes.md):
+//! `pdf` and `sample`; with `sample_visible = false` the weight differs, below),
+//! so that `model="single"` equals the built-in (README.md's parameter table,
+//! docs/paper-notes.md):
 //!
 //! * `eta` = η_int/η_ext; ω_i with z < 0 lies inside, where the relative IOR
 //!   seen by the query is 1/η;

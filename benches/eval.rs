@@ -134,6 +134,7 @@ fn bench_ffi_eval(c: &mut Criterion, set: &Set) {
             seed: 0,
             auto_tolerance: 0.0,
             mis_density: 0,
+            sample_all_normals: 0,
         };
         let mut h: *mut MsxBsdf = std::ptr::null_mut();
         assert_eq!(msx_bsdf_new(&params, &mut h, std::ptr::null_mut(), 0), MSX_OK);

@@ -60,6 +60,15 @@
 
 #define MSX_MIS_DENSITY_CUI_TYPO 3
 
+/*
+ `MsxParams::sample_all_normals`: 0 = visible normals (Mitsuba's
+ `sample_visible=true`, the default), 1 = normals from D·cos θ_m
+ (`sample_visible=false`).
+ */
+#define MSX_SAMPLE_VISIBLE_NORMALS 0
+
+#define MSX_SAMPLE_ALL_NORMALS 1
+
 #define MSX_MODE_RADIANCE 0
 
 #define MSX_MODE_IMPORTANCE 1
@@ -274,6 +283,14 @@ typedef struct MsxParams {
    surface or model accepts MSX_MIS_DENSITY_DEFAULT (0) only
    */
   uint32_t mis_density;
+  /*
+   MSX_SAMPLE_VISIBLE_NORMALS (0, the default: Mitsuba's sample_visible=true)
+   or MSX_SAMPLE_ALL_NORMALS (1: sample_visible=false, microfacet normals
+   drawn from D·cos θ_m — on a dielectric with roughdielectric's widened α)
+   in single, fastmsx and compensated, whose pdf and weight follow the
+   sampler; the random walks draw visible normals either way
+   */
+  uint32_t sample_all_normals;
 } MsxParams;
 
 /*

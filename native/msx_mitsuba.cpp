@@ -10,7 +10,8 @@
 //            mis_density ("default" where it does not apply)
 //   int      max_bounces (0 = library default)
 //   float    auto_tolerance (0 = library default), ior (dielectric)
-//   bool     isotropic
+//   bool     isotropic, sample_visible (false: MSX_SAMPLE_ALL_NORMALS; the
+//            walks ignore it, the Python front end logs the line that says so)
 //   textures alpha_u, alpha_v and, per surface, specular_reflectance
 //            (conductor, dielectric), eta and k (conductor),
 //            specular_transmittance (dielectric), reflectance (diffuse)
@@ -93,6 +94,8 @@ public:
         p.seed = std::stoull(props.get<std::string>("seed"));
         p.auto_tolerance = props.get<double>("auto_tolerance");
         p.mis_density = m_mis_density;
+        m_sample_visible = props.get<bool>("sample_visible");
+        p.sample_all_normals = m_sample_visible ? MSX_SAMPLE_VISIBLE_NORMALS : MSX_SAMPLE_ALL_NORMALS;
 
         char err[512] = { 0 };
         MsxBsdf *handle = nullptr;
@@ -241,6 +244,7 @@ public:
             << "  distribution = \"" << name_of(MSX_CHOICE_DISTRIBUTION, m_distribution) << "\"," << std::endl
             << "  model = \"" << name_of(MSX_CHOICE_MODEL, m_model) << "\"," << std::endl
             << "  estimator = \"" << name_of(MSX_CHOICE_ESTIMATOR, m_estimator) << "\"," << std::endl
+            << "  sample_visible = " << (m_sample_visible ? "true" : "false") << "," << std::endl
             << "  mis_density = \"" << (m_mis_density == MSX_MIS_DENSITY_DEFAULT ? std::string("default") : name_of(MSX_CHOICE_MIS_DENSITY, m_mis_density)) << "\"," << std::endl
             << "  alpha_u = " << string::indent(m_alpha_u) << "," << std::endl
             << "  alpha_v = " << string::indent(m_alpha_v) << std::endl
@@ -333,6 +337,7 @@ private:
     uint32_t m_model = MSX_MODEL_CORRELATED;
     uint32_t m_estimator = MSX_ESTIMATOR_PT;
     uint32_t m_mis_density = MSX_MIS_DENSITY_DEFAULT;  // MSX_MIS_DENSITY_* (0: the default)
+    bool m_sample_visible = true;  // Mitsuba's sample_visible (MsxParams::sample_all_normals)
     uint32_t m_lobe = +BSDFFlags::GlossyReflection;
     bool m_isotropic = true, m_constant = false;
     float m_ior = (float) MSX_DEFAULT_IOR;

@@ -5,8 +5,8 @@
    tests (src/bsdfs/tests/test_rough_conductor.py, test_rough_dielectric.py of
    Mitsuba 3): isotropic and anisotropic α, Beckmann and GGX, grazing, from
    inside, total internal reflection, from the denser side, one lobe at a time.
-   Their ``sample_visible=false`` variants are left out: msx always samples
-   visible normals (Mitsuba's default). The built-in runs beside each
+   Their ``sample_visible=false`` variants are in test_upstream_rough_bsdfs.py
+   (engine) and test_sample_visible.py (scalar_rgb). The built-in runs beside each
    configuration for reference (its p-value is printed, not asserted). A
    deliberately wrong pdf (the same sampler, the pdf distorted by a smooth
    factor) must be rejected.

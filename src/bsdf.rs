@@ -3,6 +3,7 @@
 //! [`Material`], since Mitsuba evaluates textures at the hit.
 
 use crate::config::{Config, Distribution, Estimator, Model, ModelInfo, ParamError, Surface, ALL_SURFACES, MAX_BOUNCES_LIMIT, MODELS};
+use crate::microfacet::mitsuba::Sampling;
 use crate::microfacet::Microfacet;
 use crate::microfacet::{ConductorFresnel, Microsurface};
 use crate::models::analytic::{Compensated, FastMsx};
@@ -248,6 +249,7 @@ impl Bsdf {
             orders: (orders.0.max(1), orders.1.min(self.cfg.max_bounces)),
             stream: Stream::new(self.cfg.seed, words),
             mis: self.cfg.mis_density,
+            sampling: if self.cfg.sample_visible { Sampling::Visible } else { Sampling::AllNormals },
         }
     }
 

@@ -348,6 +348,12 @@ pub struct Config {
     pub tolerance: f64,
     /// The conductor walks' MIS density (ignored by every other model).
     pub mis_density: MisDensity,
+    /// Mitsuba's `sample_visible`: false makes `single`, `fastmsx` and
+    /// `compensated` draw microfacet normals from D(m)·cos θ_m instead of the
+    /// visible normals (on a dielectric with roughdielectric's widened α). It
+    /// changes their noise, not their expected value. The random walks draw
+    /// visible normals by construction and ignore it.
+    pub sample_visible: bool,
 }
 
 impl Default for Config {
@@ -362,6 +368,7 @@ impl Default for Config {
             seed: 0,
             tolerance: DEFAULT_TOLERANCE,
             mis_density: DEFAULT_MIS_DENSITY,
+            sample_visible: true,
         }
     }
 }

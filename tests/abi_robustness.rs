@@ -71,6 +71,7 @@ fn params(model: u32, distribution: u32) -> MsxParams {
         seed: 1234,
         auto_tolerance: 0.0,
         mis_density: 0,
+        sample_all_normals: 0,
     }
 }
 
@@ -432,6 +433,15 @@ fn invalid_configuration_is_reported_by_name() {
     expect_error(&MsxParams { surface: MSX_SURFACE_DIELECTRIC, mis_density: MSX_MIS_DENSITY_SINGLE_COSINE, ..base }, "mis_density");
     for mis_density in [MSX_MIS_DENSITY_DEFAULT, MSX_MIS_DENSITY_SINGLE_COSINE, MSX_MIS_DENSITY_CUI, MSX_MIS_DENSITY_CUI_TYPO] {
         new(&MsxParams { mis_density, ..base });
+    }
+    // sample_visible: 0 (visible normals) or 1 (all normals); a walk takes 1 too (it draws visible normals).
+    for v in [2, 99, u32::MAX] {
+        expect_error(&MsxParams { sample_all_normals: v, ..base }, "sample_visible");
+    }
+    for (model, surface) in
+        [(MSX_MODEL_SINGLE, MSX_SURFACE_CONDUCTOR), (MSX_MODEL_SINGLE, MSX_SURFACE_DIELECTRIC), (MSX_MODEL_CORRELATED, MSX_SURFACE_CONDUCTOR)]
+    {
+        new(&MsxParams { model, surface, sample_all_normals: MSX_SAMPLE_ALL_NORMALS, ..base });
     }
     // The boundaries are accepted.
     for max_bounces in [0, 1, MSX_DEFAULT_MAX_BOUNCES, MSX_MAX_BOUNCES_LIMIT] {

@@ -223,6 +223,7 @@ fn tolerance_is_validated() {
         seed: 0,
         auto_tolerance: 0.05,
         mis_density: 0,
+        sample_all_normals: 0,
     };
     let mut out: *mut msx::ffi::MsxBsdf = std::ptr::null_mut();
     let mut err = [0 as std::os::raw::c_char; 256];

@@ -116,6 +116,7 @@ fn handles(rng: &mut Rng, n: usize) -> Vec<Handle> {
             seed: rng.next_u64(),
             auto_tolerance: if rng.f() < 0.5 { 0.0 } else { rng.log_uniform(1e-4, 0.9) },
             mis_density: if rng.f() < 0.5 { 0 } else { rng.below(5) as u32 },
+            sample_all_normals: if rng.f() < 0.7 { 0 } else { rng.below(3) as u32 },
         };
         let mut h: *mut MsxBsdf = ptr::null_mut();
         if msx_bsdf_new(&p, &mut h, err.as_mut_ptr(), err.len()) == MSX_OK {

@@ -53,7 +53,18 @@ fn every_model_surface_distribution_is_total() {
     let mut rng = Sampler::new(2024);
     let mut calls = 0usize;
     for (surface, distribution, model, estimator) in combos() {
-        let params = MsxParams { surface, distribution, model, estimator, max_bounces: 0, channels: 3, seed: 7, auto_tolerance: 0.0, mis_density: 0 };
+        let params = MsxParams {
+            surface,
+            distribution,
+            model,
+            estimator,
+            max_bounces: 0,
+            channels: 3,
+            seed: 7,
+            auto_tolerance: 0.0,
+            mis_density: 0,
+            sample_all_normals: 0,
+        };
         let mut h: *mut MsxBsdf = ptr::null_mut();
         let mut err = [0 as std::os::raw::c_char; 256];
         let rc = msx_bsdf_new(&params, &mut h, err.as_mut_ptr(), err.len());

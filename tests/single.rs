@@ -11,6 +11,7 @@ mod common;
 
 use common::dielectric::*;
 use common::*;
+use msx::microfacet::mitsuba::Sampling;
 use msx::models::single::dielectric as sd;
 use msx::rng::Sampler;
 use msx::{Distribution, Microfacet};
@@ -112,7 +113,7 @@ fn single_dielectric_sampling() {
                             for _ in 0..n {
                                 let s1 = rng.next();
                                 let (u1, u2) = rng.next2();
-                                let Some((wo, pdf, weight, is_r)) = sd::sample(&mf, eta, wi, s1, u1, u2, radiance) else {
+                                let Some((wo, pdf, weight, is_r)) = sd::sample(&mf, eta, Sampling::Visible, wi, (s1, u1, u2), radiance) else {
                                     valid.push(0.0);
                                     continue;
                                 };

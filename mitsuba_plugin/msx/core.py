@@ -31,7 +31,7 @@ class CoreBsdf:
 
     def __init__(self, surface="conductor", distribution="ggx", model="correlated", estimator="pt", *,
                  channels=1, seed=0, max_bounces=0, auto_tolerance=0.0, alpha=0.5, alpha_v=None, eta=0.0, k=1.0,
-                 ior=1.5, reflectance=1.0, radiance=True, mis_density=None):
+                 ior=1.5, reflectance=1.0, radiance=True, mis_density=None, sample_visible=True):
         for name, value, allowed in (("surface", surface, SURFACES), ("distribution", distribution, DISTRIBUTIONS),
                                      ("model", model, MODELS), ("estimator", estimator, ESTIMATORS)):
             if value not in allowed:
@@ -44,6 +44,7 @@ class CoreBsdf:
             "estimator": ESTIMATORS[estimator], "max_bounces": max_bounces, "channels": self.channels,
             "seed": seed, "auto_tolerance": auto_tolerance,
             "mis_density": 0 if mis_density is None else MIS_DENSITIES[mis_density],  # None: the core's default
+            "sample_all_normals": 0 if sample_visible else 1,  # Mitsuba's sample_visible=false: 1
         })
         handle = ffi.new("MsxBsdf **")
         self._err = ffi.new("char[]", _ERR_LEN)

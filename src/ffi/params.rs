@@ -36,6 +36,12 @@ pub const MSX_MIS_DENSITY_SINGLE_COSINE: u32 = 1;
 pub const MSX_MIS_DENSITY_CUI: u32 = 2;
 pub const MSX_MIS_DENSITY_CUI_TYPO: u32 = 3;
 
+/// `MsxParams::sample_all_normals`: 0 = visible normals (Mitsuba's
+/// `sample_visible=true`, the default), 1 = normals from D·cos θ_m
+/// (`sample_visible=false`).
+pub const MSX_SAMPLE_VISIBLE_NORMALS: u32 = 0;
+pub const MSX_SAMPLE_ALL_NORMALS: u32 = 1;
+
 pub const MSX_MODE_RADIANCE: u32 = 0;
 pub const MSX_MODE_IMPORTANCE: u32 = 1;
 
@@ -87,6 +93,12 @@ pub struct MsxParams {
     /// correlated, heitz, invariance, auto) report for MIS; any other
     /// surface or model accepts MSX_MIS_DENSITY_DEFAULT (0) only
     pub mis_density: u32,
+    /// MSX_SAMPLE_VISIBLE_NORMALS (0, the default: Mitsuba's sample_visible=true)
+    /// or MSX_SAMPLE_ALL_NORMALS (1: sample_visible=false, microfacet normals
+    /// drawn from D·cos θ_m — on a dielectric with roughdielectric's widened α)
+    /// in single, fastmsx and compensated, whose pdf and weight follow the
+    /// sampler; the random walks draw visible normals either way
+    pub sample_all_normals: u32,
 }
 
 /// Per-hit material values (textures evaluated at the hit).
@@ -209,7 +221,31 @@ pub(super) fn config_from(p: &MsxParams) -> Result<Config, (&'static str, String
             ),
         ));
     }
-    Ok(Config { surface, distribution, model, estimator, max_bounces, channels: p.channels as usize, seed: p.seed, tolerance, mis_density })
+    let sample_visible = match p.sample_all_normals {
+        MSX_SAMPLE_VISIBLE_NORMALS => true,
+        MSX_SAMPLE_ALL_NORMALS => false,
+        other => {
+            return Err((
+                "sample_visible",
+                format!(
+                    "MsxParams::sample_all_normals must be {MSX_SAMPLE_VISIBLE_NORMALS} (visible normals, sample_visible=true) or \
+                     {MSX_SAMPLE_ALL_NORMALS} (all normals, sample_visible=false), got {other}"
+                ),
+            ))
+        }
+    };
+    Ok(Config {
+        surface,
+        distribution,
+        model,
+        estimator,
+        max_bounces,
+        channels: p.channels as usize,
+        seed: p.seed,
+        tolerance,
+        mis_density,
+        sample_visible,
+    })
 }
 
 /// Whether `MsxParams::mis_density` changes anything: the conductor walks.
@@ -287,6 +323,7 @@ mod tests {
             seed: 0,
             auto_tolerance: 0.0,
             mis_density: 0,
+            sample_all_normals: 0,
         };
         let (parameter, message) = config_from(&p).unwrap_err();
         assert_eq!(parameter, "model");

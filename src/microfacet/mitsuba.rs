@@ -5,7 +5,9 @@
 //! * for Beckmann, Mitsuba's G1 is the rational approximation of Walter et
 //!   al. 2007 (< 0.35 % from the exact Smith G1), not the exact Λ;
 //! * its visible-normal sampler (`sample_visible_11`): the concentric-disk
-//!   construction for GGX, three Newton steps in the erf domain for Beckmann.
+//!   construction for GGX, three Newton steps in the erf domain for Beckmann;
+//! * its sampler of all normals, m ~ D(m)·cos θ_m (`sample_all`), which the
+//!   built-ins use with `sample_visible=false` ([`Sampling::AllNormals`]).
 //!
 //! Only `model="single"` uses this file; every multiple-scattering model uses
 //! the exact full-sphere functions of `super`.
@@ -37,6 +39,52 @@ pub fn smith_g1(mf: &Microfacet, v: DVec3, m: DVec3) -> f64 {
         }
         Distribution::Ggx => 2.0 / (1.0 + (1.0 + tan2).sqrt()),
     }
+}
+
+/// Which normals `single` (and the closed forms built on it) draw: Mitsuba's
+/// `sample_visible` parameter of `roughconductor` / `roughdielectric`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Sampling {
+    /// `sample_visible=true` (the default): m ~ D_ωi(m), the visible normals.
+    Visible,
+    /// `sample_visible=false`: m ~ D(m)·cos θ_m, whatever ω_i.
+    AllNormals,
+}
+
+/// Mitsuba's sampler of all normals (`MicrofacetDistribution::sample` with
+/// `sample_visible=false`): m with density D(m)·cos θ_m. `u1` drives the
+/// elevation, `u2` the azimuth, as Mitsuba's `sample.x()` and `sample.y()`.
+pub fn sample_all(mf: &Microfacet, u1: f64, u2: f64) -> DVec3 {
+    let (sin_phi, cos_phi, alpha2) = if mf.alpha_u == mf.alpha_v {
+        let (s, c) = (2.0 * PI * u2).sin_cos();
+        (s, c, mf.alpha_u * mf.alpha_u)
+    } else {
+        // φ from the anisotropic distribution's azimuthal marginal, then the
+        // α of that azimuth (Mitsuba's construction).
+        let tmp = mf.alpha_v / mf.alpha_u * (2.0 * PI * u2).tan();
+        let cos_phi = (1.0 / (tmp * tmp + 1.0).sqrt()).copysign((u2 - 0.5).abs() - 0.25);
+        let sin_phi = cos_phi * tmp;
+        (sin_phi, cos_phi, 1.0 / ((cos_phi / mf.alpha_u).powi(2) + (sin_phi / mf.alpha_v).powi(2)))
+    };
+    let cos_theta = match mf.dist {
+        Distribution::Beckmann => 1.0 / (1.0 - alpha2 * (1.0 - u1).ln()).sqrt(),
+        Distribution::Ggx => 1.0 / (1.0 + alpha2 * u1 / (1.0 - u1)).sqrt(),
+    };
+    let sin_theta = (1.0 - cos_theta * cos_theta).max(0.0).sqrt();
+    DVec3::new(cos_phi * sin_theta, sin_phi * sin_theta, cos_theta)
+}
+
+/// The density of [`sample_all`] at m: D(m)·cos θ_m.
+#[inline]
+pub fn pdf_all(mf: &Microfacet, m: DVec3) -> f64 {
+    mf.d(m) * m.z
+}
+
+/// roughdielectric's widened roughness for sampling all normals (Walter et
+/// al. 2007, §5.3): α·(1.2 − 0.2·√|cos θ_i|), which lowers the weights' variance.
+pub fn widened(mf: &Microfacet, cos_theta_i: f64) -> Microfacet {
+    let s = 1.2 - 0.2 * cos_theta_i.abs().sqrt();
+    Microfacet::new(mf.dist, mf.alpha_u * s, mf.alpha_v * s)
 }
 
 /// Mitsuba's visible-normal sampler for an upward `wi`.

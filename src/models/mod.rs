@@ -24,6 +24,7 @@ pub mod posfree;
 pub mod single;
 
 use crate::config::MisDensity;
+use crate::microfacet::mitsuba::Sampling;
 use crate::microfacet::{Microfacet, Microsurface};
 use crate::rng::{hash_words, Sampler};
 use crate::spectrum::Spectrum;
@@ -45,6 +46,9 @@ pub struct Call {
     pub stream: Stream,
     /// The conductor walks' MIS density (`mis.rs`).
     pub mis: MisDensity,
+    /// The normals `single`, `fastmsx` and `compensated` sample (`sample_visible`);
+    /// the walks draw visible normals whatever it says.
+    pub sampling: Sampling,
 }
 
 /// The inputs a call's random stream is derived from: the BSDF's `seed` and up

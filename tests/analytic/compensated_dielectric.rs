@@ -19,6 +19,7 @@
 use crate::common::{Checker, Stat, UNIFORM_SPHERE_PDF};
 use glam::DVec3;
 use msx::microfacet::fresnel::dielectric_full;
+use msx::microfacet::mitsuba::Sampling;
 use msx::microfacet::{reflect, refract};
 use msx::models::analytic::compensated_dielectric as cd;
 use msx::models::analytic::dielectric_albedo::{self as table, DielectricAlbedoTable};
@@ -255,7 +256,7 @@ fn compensated_at_least_single_and_weight_is_eval_over_pdf() {
                     ck.assert("pdf = single pdf", cd::pdf(&mf, eta, wi, wo) == single_dielectric::pdf(&mf, eta, wi, wo));
                     let (s1, u1, u2) = (rng.next(), rng.next(), rng.next());
                     for radiance in [false, true] {
-                        if let Some((wo, pdf, w)) = cd::sample(&mf, eta, wi, s1, u1, u2, radiance) {
+                        if let Some((wo, pdf, w)) = cd::sample(&mf, eta, Sampling::Visible, wi, (s1, u1, u2), radiance) {
                             if w == 0.0 {
                                 // Mitsuba's sample that ends on the wrong side of its facet
                                 // (weight 0 by convention, eval there belongs to another m).
@@ -309,7 +310,7 @@ fn robustness() {
                         let p = cd::pdf(&mf, eta, wi, wo);
                         ck.assert(&format!("{dist:?} η={eta} α={alpha} eval {v} pdf {p}"), v.is_finite() && v >= 0.0 && p.is_finite() && p >= 0.0);
                         let (s1, u1, u2) = (rng.next(), rng.next(), rng.next());
-                        if let Some((wo, pdf, w)) = cd::sample(&mf, eta, wi, s1, u1, u2, radiance) {
+                        if let Some((wo, pdf, w)) = cd::sample(&mf, eta, Sampling::Visible, wi, (s1, u1, u2), radiance) {
                             ck.assert(
                                 &format!("{dist:?} η={eta} α={alpha} sample {wo} {pdf} {w}"),
                                 wo.is_finite() && pdf.is_finite() && pdf > 0.0 && w.is_finite() && w >= 0.0,

@@ -13,6 +13,7 @@ use crate::common::dielectric::*;
 use crate::common::*;
 use glam::DVec3;
 use msx::microfacet::fresnel;
+use msx::microfacet::mitsuba::Sampling;
 use msx::models::posfree::dielectric as pfd;
 use msx::models::posfree::{Options, Segments};
 use msx::models::single::dielectric as sd;
@@ -484,7 +485,7 @@ fn robustness() {
                         bad += 1;
                     }
                     let (s1, u1, u2) = (rng.next(), rng.next(), rng.next());
-                    if let Some((w, pdf, weight, _)) = sd::sample(&mf, eta, wi, s1, u1, u2, true) {
+                    if let Some((w, pdf, weight, _)) = sd::sample(&mf, eta, Sampling::Visible, wi, (s1, u1, u2), true) {
                         total += 1;
                         if !(w.is_finite() && pdf.is_finite() && pdf > 0.0 && weight.is_finite() && weight >= 0.0) {
                             bad += 1;

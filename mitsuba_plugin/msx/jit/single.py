@@ -116,9 +116,13 @@ def dielectric_sample(mf, eta, wi, sample1, u1, u2, radiance):
         m, _ = distr.sample(wi_up, mi.Point2f(u1, u2))
         pdf = distr.eval(m) * distr.smith_g1(wi_up, m) * dr.abs(dr.dot(wi_up, m)) / dr.abs(cos_i)
     else:
-        m, pdf = distribution(mf, 1.2 - 0.2 * dr.sqrt(dr.abs(cos_i))).sample(wi_up, mi.Point2f(u1, u2))
+        widened = distribution(mf, 1.2 - 0.2 * dr.sqrt(dr.abs(cos_i)))
+        m, pdf = widened.sample(wi_up, mi.Point2f(u1, u2))
     valid = (cos_i != 0.0) & dr.isfinite(cos_i) & (pdf != 0.0) & dr.isfinite(pdf)
     wim = dr.dot(wi, m)
+    if not visible(mf):
+        # A normal drawn from all normals may face away from ω_i: no lobe scatters there (dielectric.rs: no sample).
+        valid &= wim * cos_i > 0.0
     f, cos_t, eta_it, eta_ti = mi.fresnel(wim, eta)
     selected_r = sample1 <= f
     # The lobe is chosen with probability F (detached, as roughdielectric does): its weight F/F is 1, and while
@@ -134,7 +138,12 @@ def dielectric_sample(mf, eta, wi, sample1, u1, u2, radiance):
     wom = dr.dot(wo, m)
     denom = wim + eta_it * wom
     dwh_dwo = dr.select(selected_r, 1.0 / (4.0 * wom), eta_it * eta_it * wom / (denom * denom))
-    g = distr.smith_g1(wo, m) if visible(mf) else _all_normals_weight(distr, wi, wo, m)
+    if visible(mf):
+        g = distr.smith_g1(wo, m)
+    else:
+        # f·|cos θ_o|/pdf with m drawn from the widened D'·cos θ_m: roughdielectric's G term times D(m)/D'(m),
+        # which roughdielectric 3.9.1 leaves out (its weights' mean is then off: docs/mitsuba.md).
+        g = _all_normals_weight(distr, wi, wo, m) * distr.eval(m) / widened.eval(m)
     weight = lobe * dr.select(selected_r | (not radiance), 1.0, eta_ti * eta_ti) * g
     pdf = pdf * dr.abs(dwh_dwo)
     valid &= (pdf > 0.0) & dr.isfinite(pdf) & dr.isfinite(weight)

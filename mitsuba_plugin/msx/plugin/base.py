@@ -120,7 +120,7 @@ def make_base_class(mi, kind, nch):
         def _config(self, props):
             """The parsed and validated parameters (``parameters.py``)."""
             cfg = Config(mi, props)
-            warn(mi, cfg.sample_visible_note(engine=False))
+            warn(mi, cfg.sample_visible_note())
             return cfg
 
         _lobes = staticmethod(lobes)

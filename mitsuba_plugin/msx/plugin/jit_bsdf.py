@@ -61,7 +61,7 @@ def make_bsdf_factory(variant):
 
             def _config(self, props):
                 cfg = vectorized_config(mi, props)
-                warn(mi, cfg.sample_visible_note(engine=True))
+                warn(mi, cfg.sample_visible_note())
                 return cfg
 
             def traverse(self, cb):

@@ -279,7 +279,8 @@ def _native_props(cfg) -> dict:
     d = dict(surface=cfg.surface, distribution=cfg.distribution, model=cfg.model, estimator=cfg.estimator,
              max_bounces=int(cfg.max_bounces), seed=str(cfg.seed),
              auto_tolerance=float(cfg.auto_tolerance if cfg.model == "auto" else 0.0), isotropic=bool(cfg.isotropic),
-             alpha_u=cfg.alpha_u, mis_density=cfg.mis_density if cfg.mis_density_applies() else "default")
+             alpha_u=cfg.alpha_u, mis_density=cfg.mis_density if cfg.mis_density_applies() else "default",
+             sample_visible=bool(cfg.sample_visible))
     if not cfg.isotropic:
         d["alpha_v"] = cfg.alpha_v
     if cfg.specular_reflectance is not None:
@@ -309,7 +310,7 @@ def make_factory(mi):
 
     def factory(props):
         cfg = Config(mi, props)  # the same parsing, validation and messages as the Python back end
-        warn(mi, cfg.sample_visible_note(engine=False))
+        warn(mi, cfg.sample_visible_note())
         return mi.load_dict(dict(type=NATIVE_PLUGIN, **_native_props(cfg)))
 
     return factory

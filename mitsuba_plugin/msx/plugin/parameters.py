@@ -54,8 +54,9 @@ SURFACE_PARAMS = {
 }
 COMMON_PARAMS = ("surface, distribution, alpha, alpha_u, alpha_v, model, estimator, max_bounces, seed, auto_tolerance, "
                  "mis_density, sample_visible, differentiate_directions")
-# The models whose sampling ``sample_visible=false`` changes (as the built-ins': normals drawn from D·cos θ_m);
-# in the Dr.Jit engine only (jit/single.py). A walk draws visible normals by construction.
+# The models whose sampling ``sample_visible=false`` changes (as the built-ins': normals drawn from D·cos θ_m), on
+# every route: the Dr.Jit engine (jit/single.py) and the core (src/models/single/, MsxParams::sample_all_normals).
+# A walk draws visible normals by construction.
 SAMPLE_VISIBLE_MODELS = ("single", "fastmsx", "compensated")
 
 MAX_BOUNCES_LIMIT = lib.MSX_MAX_BOUNCES_LIMIT
@@ -324,18 +325,15 @@ class Config:
                 "here surface='%s', model='%s')" % (PLUGIN, ", ".join(MIS_DENSITY_MODELS), self.surface, self.model)
             )
 
-    def sample_visible_note(self, engine):
-        """None when ``sample_visible`` is honoured (true, the default, everywhere; false for the closed forms
-        in the Dr.Jit engine, ``engine``), else the one line that says it is not, and why."""
-        if self.sample_visible or (engine and self.model in SAMPLE_VISIBLE_MODELS):
+    def sample_visible_note(self):
+        """None when ``sample_visible`` is honoured (true, the default, by every model; false by the closed forms
+        ``single``, ``fastmsx`` and ``compensated`` on every route), else the one line that says it is not, and
+        why: a walk draws visible normals by construction."""
+        if self.sample_visible or self.model in SAMPLE_VISIBLE_MODELS:
             return None
-        if self.model not in SAMPLE_VISIBLE_MODELS:
-            why = ("model='%s' is a random walk that draws visible normals by construction; the option changes "
-                   "the noise of a built-in's samples, not the expected image" % self.model)
-        else:
-            why = ("this back end draws visible normals (sample_visible=false is honoured by the Dr.Jit engine of "
-                   "the vectorized variants); the expected image is the same, only the noise differs")
-        return "%s: sample_visible=false is ignored: %s" % (PLUGIN, why)
+        return ("%s: sample_visible=false is ignored by model='%s': a random walk draws visible normals by "
+                "construction (honoured by %s); the option changes the noise of a built-in's samples, not the "
+                "expected image" % (PLUGIN, self.model, ", ".join(SAMPLE_VISIBLE_MODELS)))
 
     def mis_density_applies(self):
         """Whether ``mis_density`` changes anything: a conductor walk reports it for MIS."""
@@ -369,5 +367,7 @@ class Config:
             "seed": self.seed,
             "auto_tolerance": self.auto_tolerance if self.model == "auto" else 0.0,
             "mis_density": MIS_DENSITIES[self.mis_density] if self.mis_density_applies() else 0,
+            # MSX_SAMPLE_ALL_NORMALS (1) for sample_visible=false; the core's walks ignore it (the note above).
+            "sample_all_normals": 0 if self.sample_visible else 1,
         }
 

@@ -207,7 +207,7 @@ def make_bsdf_class(mi, variant):
             def _config(self, props):
                 # parameters.Config reads constant textures as Python floats: parse through the wrappers.
                 cfg = vectorized_config(mi, props)
-                warn(mi, cfg.sample_visible_note(engine=False))
+                warn(mi, cfg.sample_visible_note())
                 return cfg
 
             # ------------------------------------------------- symbolic fallback

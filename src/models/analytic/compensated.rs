@@ -12,6 +12,7 @@
 //! The albedo table (`src/tables/albedo.rs`) is computed by this project's own code on
 //! first use (deterministic stratified quadrature over visible normals).
 
+use crate::microfacet::mitsuba::Sampling;
 use crate::microfacet::ConductorFresnel;
 use crate::microfacet::Microfacet;
 use crate::models::single::conductor as single;
@@ -97,7 +98,8 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3) -
     single::eval(mf, fresnel, wi, wo) * scale(mf, fresnel, wi)
 }
 
-pub fn sample(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, u1: f64, u2: f64) -> Option<(DVec3, f64, Spectrum)> {
-    let (wo, pdf, weight) = single::sample(mf, fresnel, wi, u1, u2)?;
+/// Samples as `single` (with its `sampling`); weight = eval/pdf.
+pub fn sample(mf: &Microfacet, fresnel: &ConductorFresnel, sampling: Sampling, wi: DVec3, u1: f64, u2: f64) -> Option<(DVec3, f64, Spectrum)> {
+    let (wo, pdf, weight) = single::sample(mf, fresnel, sampling, wi, u1, u2)?;
     Some((wo, pdf, weight * scale(mf, fresnel, wi)))
 }

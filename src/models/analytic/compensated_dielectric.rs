@@ -22,6 +22,7 @@
 //! η_r outside [1/3, 3] or within 1.01 of 1 uses the nearest table edge.
 
 use super::dielectric_albedo::{DielectricAlbedoTable, E_MIN};
+use crate::microfacet::mitsuba::Sampling;
 use crate::microfacet::Microfacet;
 use crate::models::single::dielectric as single_dielectric;
 use glam::DVec3;
@@ -52,13 +53,13 @@ pub fn eval(mf: &Microfacet, eta: f64, wi: DVec3, wo: DVec3, radiance: bool) -> 
     }
 }
 
-/// Density of `sample` (the single-scattering sampler's).
+/// Density of `sample` with visible normals (the single-scattering sampler's).
 pub fn pdf(mf: &Microfacet, eta: f64, wi: DVec3, wo: DVec3) -> f64 {
     single_dielectric::pdf(mf, eta, wi, wo)
 }
 
 /// Samples ω_o as `single_dielectric::sample`; returns (ω_o, pdf, weight = eval/pdf).
-pub fn sample(mf: &Microfacet, eta: f64, wi: DVec3, sample1: f64, u1: f64, u2: f64, radiance: bool) -> Option<(DVec3, f64, f64)> {
-    let (wo, pdf, weight, _) = single_dielectric::sample(mf, eta, wi, sample1, u1, u2, radiance)?;
+pub fn sample(mf: &Microfacet, eta: f64, sampling: Sampling, wi: DVec3, u: (f64, f64, f64), radiance: bool) -> Option<(DVec3, f64, f64)> {
+    let (wo, pdf, weight, _) = single_dielectric::sample(mf, eta, sampling, wi, u, radiance)?;
     Some((wo, pdf, weight * scale(mf, eta, wi)))
 }

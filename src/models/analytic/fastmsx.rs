@@ -13,6 +13,7 @@
 //! The model is neither reciprocal nor energy conserving (the paper says so);
 //! its albedo is measured in the tests. Sampling uses `single`'s sampler.
 
+use crate::microfacet::mitsuba::Sampling;
 use crate::microfacet::ConductorFresnel;
 use crate::microfacet::Microfacet;
 use crate::models::single::conductor as single;
@@ -55,8 +56,9 @@ pub fn eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3) -
     single::eval(mf, fresnel, wi, wo) + eval_second(mf, fresnel, wi, wo)
 }
 
-/// Samples with `single`'s visible-normal sampler; weight = eval/pdf.
-pub fn sample(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, u1: f64, u2: f64) -> Option<(DVec3, f64, Spectrum)> {
-    let (wo, pdf, weight_single) = single::sample(mf, fresnel, wi, u1, u2)?;
+/// Samples with `single`'s sampler (visible normals, or all normals with
+/// `sample_visible=false`); weight = eval/pdf.
+pub fn sample(mf: &Microfacet, fresnel: &ConductorFresnel, sampling: Sampling, wi: DVec3, u1: f64, u2: f64) -> Option<(DVec3, f64, Spectrum)> {
+    let (wo, pdf, weight_single) = single::sample(mf, fresnel, sampling, wi, u1, u2)?;
     Some((wo, pdf, weight_single + eval_second(mf, fresnel, wi, wo) * (1.0 / pdf)))
 }

@@ -32,12 +32,12 @@ impl ScatteringModel for FastMsx {
     }
 
     fn pdf(&self, call: &Call, wi: DVec3, wo: DVec3) -> f64 {
-        single::pdf(&call.mf, wi, wo)
+        single::pdf_with(&call.mf, call.sampling, wi, wo)
     }
 
     fn sample(&self, call: &Call, wi: DVec3, (_, u1, u2): (f64, f64, f64)) -> Option<Sampled> {
         let Microsurface::Conductor(fresnel) = call.surf else { return None };
-        let (wo, pdf, weight) = fastmsx::sample(&call.mf, &fresnel, wi, u1, u2)?;
+        let (wo, pdf, weight) = fastmsx::sample(&call.mf, &fresnel, call.sampling, wi, u1, u2)?;
         Some(Sampled { wo, weight, order: 1, pdf: Some(pdf) })
     }
 }
@@ -65,9 +65,9 @@ impl ScatteringModel for Compensated {
 
     fn sample(&self, call: &Call, wi: DVec3, (s1, u1, u2): (f64, f64, f64)) -> Option<Sampled> {
         let (wo, pdf, weight) = match &call.surf {
-            Microsurface::Conductor(fresnel) => compensated::sample(&call.mf, fresnel, wi, u1, u2)?,
+            Microsurface::Conductor(fresnel) => compensated::sample(&call.mf, fresnel, call.sampling, wi, u1, u2)?,
             &Microsurface::Dielectric { eta, radiance } => {
-                let (wo, pdf, w) = compensated_dielectric::sample(&call.mf, eta, wi, s1, u1, u2, radiance)?;
+                let (wo, pdf, w) = compensated_dielectric::sample(&call.mf, eta, call.sampling, wi, (s1, u1, u2), radiance)?;
                 (wo, pdf, Spectrum::splat(w))
             }
             &Microsurface::Diffuse { .. } => return None,

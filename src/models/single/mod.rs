@@ -29,8 +29,8 @@ impl ScatteringModel for Single {
 
     fn pdf(&self, call: &Call, wi: DVec3, wo: DVec3) -> f64 {
         match &call.surf {
-            Microsurface::Conductor(_) => conductor::pdf(&call.mf, wi, wo),
-            &Microsurface::Dielectric { eta, .. } => dielectric::pdf(&call.mf, eta, wi, wo),
+            Microsurface::Conductor(_) => conductor::pdf_with(&call.mf, call.sampling, wi, wo),
+            &Microsurface::Dielectric { eta, .. } => dielectric::pdf_with(&call.mf, call.sampling, eta, wi, wo),
             &Microsurface::Diffuse { .. } => 0.0,
         }
     }
@@ -38,16 +38,16 @@ impl ScatteringModel for Single {
     fn eval_pdf(&self, call: &Call, wi: DVec3, wo: DVec3) -> (Spectrum, f64) {
         match &call.surf {
             // The conductor shares the half vector, D and G1(ω_i) between the two.
-            Microsurface::Conductor(fresnel) if call.includes_order_one() => conductor::eval_pdf(&call.mf, fresnel, wi, wo),
+            Microsurface::Conductor(fresnel) if call.includes_order_one() => conductor::eval_pdf(&call.mf, fresnel, call.sampling, wi, wo),
             _ => (self.eval(call, wi, wo), self.pdf(call, wi, wo)),
         }
     }
 
     fn sample(&self, call: &Call, wi: DVec3, (s1, u1, u2): (f64, f64, f64)) -> Option<Sampled> {
         let (wo, pdf, weight) = match &call.surf {
-            Microsurface::Conductor(fresnel) => conductor::sample(&call.mf, fresnel, wi, u1, u2)?,
+            Microsurface::Conductor(fresnel) => conductor::sample(&call.mf, fresnel, call.sampling, wi, u1, u2)?,
             &Microsurface::Dielectric { eta, radiance } => {
-                let (wo, pdf, w, _) = dielectric::sample(&call.mf, eta, wi, s1, u1, u2, radiance)?;
+                let (wo, pdf, w, _) = dielectric::sample(&call.mf, eta, call.sampling, wi, (s1, u1, u2), radiance)?;
                 (wo, pdf, Spectrum::splat(w))
             }
             &Microsurface::Diffuse { .. } => return None,

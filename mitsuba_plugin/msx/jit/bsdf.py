@@ -16,7 +16,7 @@ import mitsuba as mi
 
 from ..names import MODEL_INFO, PLUGIN
 from . import analytic, auto, gradients, heitz, invariance, mis, posfree, posfree_dielectric
-from .microfacet import BECKMANN, ConductorFresnel
+from .microfacet import ConductorFresnel
 from .rng import clean_uniform
 
 # The random walks of the engine, by surface and model name: each model module provides its own table.
@@ -193,14 +193,11 @@ def differentiate_directions_problem(cfg):
         return None
     if directions_differentiable(cfg):
         return None
-    why = ("with distribution='ggx' the next event's value jumps where its half vector turns horizontal "
-           "(GGX's D there is α²/π, not 0), an edge that moves with the directions and is not estimated yet"
-           if cfg.distribution != BECKMANN and differentiable_walk(cfg) is not None
-           else "the derivative of this walk with respect to the directions is not implemented")
     return ("%s: differentiate_directions=true is not available for model='%s' on surface '%s' (distribution "
-            "'%s'): %s (docs/gradients.md); the walks that have it: %s; the closed forms (single, fastmsx, "
-            "compensated) differentiate through directions without it"
-            % (PLUGIN, cfg.model, cfg.surface, cfg.distribution, why, _direction_walks()))
+            "'%s'): the derivative of this walk with respect to the directions is not implemented "
+            "(docs/gradients.md); the walks that have it: %s; the closed forms (single, fastmsx, compensated) "
+            "differentiate through directions without it"
+            % (PLUGIN, cfg.model, cfg.surface, cfg.distribution, _direction_walks()))
 
 
 def direction_gradient_problem(cfg):
@@ -332,7 +329,9 @@ class ConductorModel:
 
         def run(m, m_sample, *values):
             eta_k, wi_, wo_ = split(values)
-            return self.walk.eval_pt(m, material(eta_k), wi_, wo_, bounces, key, mf_sample=m_sample)
+            tangent = moving.tangent(values[n_material:])
+            return self.walk.eval_pt(m, material(eta_k), wi_, wo_, bounces, key, mf_sample=m_sample,
+                                     **({"direction_tangent": tangent} if tangent is not None else {}))
 
         # BDPT: its own estimate as the value, the PT walk's derivative (both unbiased; docs/gradients.md).
         primal = None

@@ -135,6 +135,17 @@ class TangentCoordinates:
         return tuple(base + coords[2 * k] * fr.s + coords[2 * k + 1] * fr.t
                      for k, (base, fr) in enumerate(self.frames))
 
+    def tangent(self, coords):
+        """(s, tangents of the directions in s) while one coordinate s among ``coords`` is differentiated
+        (attach's forward pass over it), else None."""
+        for i, c in enumerate(coords):
+            if dr.grad_enabled(c):
+                k, basis = divmod(i, 2)
+                zero = mi.Vector3f(0.0)
+                t = self.frames[k][1].t if basis else self.frames[k][1].s
+                return (c,) + tuple(t if n == k else zero for n in range(len(self.frames)))
+        return None
+
 
 def cosine_share(exit, mf, wi):
     e1 = mis._e1_table(exit, mf.dist).at(dr.sqrt(mf.alpha_u * mf.alpha_v), dr.abs(wi[2]))

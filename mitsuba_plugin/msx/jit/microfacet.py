@@ -122,6 +122,17 @@ class Microfacet:
             v = a * a * a / (math.pi * u * u)
         return dr.select((m[2] > 0.0) & dr.isfinite(v), v, 0.0)
 
+    def d_horizon(self, m):
+        """The limit of D at a horizontal normal m (m_z → 0⁺): GGX's (α_u α_v)³/(π (m_x² α_v² + m_y² α_u²)²),
+        α²/π when isotropic; Beckmann's is 0."""
+        if self.dist == BECKMANN:
+            return dr.zeros(mi.Float, dr.width(m))
+        ax, ay = self.alpha_u, self.alpha_v
+        u = m[0] * m[0] * ay * ay + m[1] * m[1] * ax * ax
+        a = ax * ay
+        v = a * a * a / (math.pi * u * u)
+        return dr.select(dr.isfinite(v), v, 0.0)
+
     def d_visible(self, w, m):
         """D_ω(m) = ⟨ω, m⟩ D(m) / A(ω)."""
         cos = dot(w, m)

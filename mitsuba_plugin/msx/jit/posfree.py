@@ -15,6 +15,7 @@ The walks are ``dr.while_loop``s whose state is the vertex index, the direction 
 L_j, the throughput, the estimate and the lane's random stream (key, counter).
 """
 
+import math
 from functools import partial
 
 import drjit as dr
@@ -23,7 +24,7 @@ import mitsuba as mi
 from . import bdpt, mis, walk
 from .model import ConductorWalk, DiffuseWalk
 from .gradients import LoopValues
-from .microfacet import BECKMANN, INV_PI, ConductorFresnel, dot, half_vector, max_channel, normalized, reflect
+from .microfacet import BECKMANN, GGX, INV_PI, ConductorFresnel, dot, half_vector, max_channel, normalized, reflect
 from .rng import Stream
 
 UNCORRELATED = "uncorrelated"
@@ -65,22 +66,50 @@ def nee_term(mf, w, wo, last_factor):
     return cos_wh, dr.select(valid, value, 0.0), valid
 
 
-def eval_pt(segments, mf, fresnel, wi, wo, max_bounces, key, mf_sample=None):
+def eval_pt(segments, mf, fresnel, wi, wo, max_bounces, key, mf_sample=None, direction_tangent=None):
     """One PT estimate of f(ω_i, ω_o)·cos θ_o (Wang eqs. 24–26), all orders 1..max_bounces: the walk
     closes the path towards ω_o at every vertex and samples the next direction from the visible normals.
-    ω_i may lie below the macro surface (normal mapping); ω_o must point up. ``mf_sample``: see
-    ``pt_walk``."""
+    ω_i may lie below the macro surface (normal mapping); ω_o must point up. ``mf_sample``,
+    ``direction_tangent``: see ``pt_walk``."""
     lambda_o = mf.lambda_(wo)
     start = (wi[2] != 0.0) & (wo[2] > 0.0)
     width = dr.width(wi)
     # Vertex 0: light arrives from ω_i, L_0 = |Λ(d_0)| = |Λ(−ω_i)| (1 + Λ(ω_i) for ω_i above).
     return pt_walk(segments, mf, fresnel, wo, lambda_o, mi.Vector3f(wi), mf.abs_lambda(-wi),
                    dr.full(mi.Spectrum, 1.0, width), start, 0, max_bounces, RR_START, key, mi.UInt32(0),
-                   mf_sample=mf_sample)
+                   mf_sample=mf_sample, direction_tangent=direction_tangent)
+
+
+def horizon_edge_term(segments, mf, fresnel, w, tw, l, wo, two, lambda_o, u):
+    """The term of a directional derivative that the next vertex's next-event value misses where it jumps
+    (GGX; docs/gradients.md, "Directions through the walks"): from a vertex reached going up, that value jumps
+    from D(h) at a horizontal h to 0 on the circle of new directions d with d_z = ω_o,z, which moves with the
+    directions. In the space of new directions the term is ∫ ρ(d)·V⁺(d)·(∂ω_o,z − u_z) dφ over that circle
+    (solid angle dz dφ): ρ the step's density times its weight, F(w·m)·D(m)/(4|w_z|L)·c(d), m the normal that
+    reflects w into d; V⁺ the next value's limit on its nonzero side; u_z the speed of d_z at fixed m, from the
+    tangent ``tw`` of w; ``two`` the tangent of ω_o. One uniform azimuth ``u`` estimates it. Everything here
+    is detached: the term enters as (s − s̄)·term, a derivative with no value."""
+    z = wo[2]
+    r = dr.safe_sqrt(1.0 - z * z)
+    sp, cp = dr.sincos(2.0 * math.pi * u)
+    d = mi.Vector3f(r * cp, r * sp, z)
+    m, length = half_vector(w, d)
+    cos_wm = dot(w, m)
+    lam = mf.abs_lambda(d)
+    rho = fresnel.eval(cos_wm) * (mf.d(m) / (4.0 * dr.abs(w[2]) * l) * continue_up(segments, l, lam))
+    # The next vertex: light from w' = −d, its half vector towards ω_o horizontal (its z is 0 on the circle).
+    h = mi.Vector3f(wo[0] - d[0], wo[1] - d[1], 0.0)
+    h_len = dr.norm(h)
+    h = h / dr.select(h_len > 0.0, h_len, 1.0)
+    v = fresnel.eval(dot(-d, h)) * (mf.d_horizon(h) * last(segments, lam, lambda_o) / (4.0 * z))
+    u_z = -tw[2] + 2.0 * dot(tw, m) * m[2]
+    term = 2.0 * math.pi * rho * v * (two[2] - u_z)
+    ok = (length > 0.0) & (cos_wm > 0.0) & (m[2] > 0.0) & (h_len > 0.0) & (z > 0.0) & (lam > 0.0)
+    return dr.select(ok & dr.all(dr.isfinite(term)), term, 0.0)
 
 
 def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex, max_bounces, rr_start, key,
-            counter, label="msx_posfree_conductor_pt", mf_sample=None):
+            counter, label="msx_posfree_conductor_pt", mf_sample=None, direction_tangent=None):
     """The PT-with-NEE walk (twin of ``pt_walk`` in conductor.rs) from vertex ``first_vertex`` (0-based;
     a Python int or a UInt32 per lane) on, arriving there with the state (w = −d_j, l = L_j, ``thr`` the
     prefix throughput) on the lanes ``active``: at each vertex ≥ ``rr_start`` play Russian roulette on the
@@ -93,14 +122,23 @@ def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex
     are not ``mf`` — the parameters with their derivatives detached. Each step's throughput then carries the
     ratio of its density under ``mf`` to its density under ``mf_sample``, D(m)/L_j over the same with
     ``mf_sample`` (value 1 where the two are equal, the score as derivative), and the roulette's survival
-    probability is detached: the estimate's derivative is then an unbiased estimate of the derivative of f."""
+    probability is detached: the estimate's derivative is then an unbiased estimate of the derivative of f.
+
+    ``direction_tangent`` (traced only): (s, t_i, t_o) while one coordinate s of the directions is
+    differentiated (gradients.TangentCoordinates), t_i and t_o the tangents of ω_i and ω_o in s. Where the
+    distribution's D does not vanish at horizontal normals (GGX), each vertex then adds the edge term of the
+    next vertex's next-event value (``horizon_edge_term``), with the tangent of w carried in the state."""
     traced = mf_sample is not None
+    edges = traced and direction_tangent is not None and mf.dist != BECKMANN
 
     def body(j, w, l, thr, result, active, counter, *piped):
         # Traced, the differentiated values come through the loop's state (gradients.LoopValues): the
         # material, then ω_o (which carries the derivative in the directions, if any).
         mfa, mfs, lo, rest = LoopValues.unpack(traced, mf, lambda_o, (), piped)
-        material, wo_ = (rest[:-1], rest[-1]) if traced else ((), wo)
+        if edges:  # ... then the coordinate s, the tangents of w and of ω_o
+            material, (wo_, s_dir, tw, two) = rest[:-4], rest[-4:]
+        else:
+            material, wo_ = (rest[:-1], rest[-1]) if traced else ((), wo)
         fr = ConductorFresnel(*material) if material else fresnel
         rng = Stream(key, counter)
         active &= (l > 0.0) & dr.isfinite(l) & (max_channel(thr) > 0.0)
@@ -111,13 +149,18 @@ def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex
         # above lies at or below the horizon, where D is 0: the value does not change.
         last_factor = last(segments, dr.maximum(l, TRACED_L_MIN) if traced and segments == UNCORRELATED else l, lo)
         cos_wh, nee, nee_ok = nee_term(mfa, w, wo_, last_factor)
-        u_rr, _ = rng.next2()
+        u_rr, u_edge = rng.next2()
         importance = roulette_importance(nee, last_factor, RR_NEE_GAIN)
         thr, alive = walk.roulette_from(j >= rr_start, thr, u_rr,
                                         1.0 / (importance if not traced else dr.detach(importance)))
         active &= alive
         result = dr.select(active & nee_ok, result + thr * fr.eval(cos_wh) * nee, result)
         active &= j + 1 < max_bounces
+        if edges:
+            frd = ConductorFresnel(*[dr.detach(x) for x in material]) if material else fresnel
+            edge = horizon_edge_term(segments, mfs, frd, dr.detach(w), tw, dr.detach(l), dr.detach(wo_), two,
+                                     dr.detach(lo), u_edge)
+            result = dr.select(active, result + (s_dir - dr.detach(s_dir)) * dr.detach(thr) * edge, result)
 
         def next_vertex(w, l, thr, active, counter):
             """The next direction, from the visible normals of w."""
@@ -137,15 +180,18 @@ def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex
             up = d_next[2] > 0.0
             lam = mfa.abs_lambda(d_next)
             thr = dr.select(up, thr * continue_up(segments, l, lam), thr)
-            return -d_next, lam, thr, active & valid & (cos_wm > 0.0), rng.counter
+            return -d_next, lam, thr, active & valid & (cos_wm > 0.0), rng.counter, m
 
         step = (w, l, thr, active, rng.counter)
         if traced:
-            w, l, thr, active, counter = next_vertex(*step)
+            w, l, thr, active, counter, m = next_vertex(*step)
+            if edges:  # the tangent of the next w = w − 2(w·m)m at the fixed normal
+                tw = tw - 2.0 * dot(tw, m) * m
+                piped = piped[:-4] + (wo_, s_dir, tw, two)
         else:
             # A packet whose lanes have all ended (the last vertex; auto's order-1 lanes) skips the sampling:
             # a symbolic if_stmt branches per packet. An ended lane's state is never read again.
-            w, l, thr, active, counter = dr.if_stmt(step, active, next_vertex, lambda *a: a,
+            w, l, thr, active, counter = dr.if_stmt(step, active, lambda *a: next_vertex(*a)[:5], lambda *a: a,
                                                     label="msx_posfree_next_vertex")
         return (j + 1, w, l, thr, result, active, counter) + piped
 
@@ -155,6 +201,9 @@ def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex
     if traced:
         material = () if fresnel.mirror else (mi.Spectrum(fresnel.eta), mi.Spectrum(fresnel.k))
         state += LoopValues.state(mf, lambda_o, *material, mi.Vector3f(wo))
+        if edges:
+            s_dir, t_i, t_o = direction_tangent
+            state += (mi.Float(s_dir), mi.Vector3f(t_i), mi.Vector3f(t_o))
     state = dr.while_loop(state, lambda *s: s[5], body, label=label)
     return state[4]
 
@@ -471,7 +520,7 @@ def diffuse_sample_walk(segments, mf, albedo, wi, sample1, u1, u2, max_bounces, 
 CONDUCTOR_WALKS = {
     name: ConductorWalk(partial(eval_pt, name), partial(sample_walk, name), exit, below=True,
                         eval_bdpt=partial(conductor_eval_bdpt, name), differentiable=True,
-                        direction_distributions=(BECKMANN,))
+                        direction_distributions=(BECKMANN, GGX))
     for name, exit in ((UNCORRELATED, mis.SEPARABLE), (CORRELATED, mis.HEIGHT_CORRELATED))
 }
 DIFFUSE_WALKS = {name: DiffuseWalk(partial(diffuse_eval_pt, name), partial(diffuse_sample_walk, name),

@@ -12,9 +12,12 @@ Sections (scene, parameter):
 - glass α and glass η: a rough glass sphere (GGX α = 0.5, IOR 1.5) in front of a checkered wall under the same
   sky and sun, ``roughdielectric`` against the msx dielectric models; ``eta`` is the relative IOR
   (``ball.bsdf.eta`` for the built-in and msx alike). A configuration that refuses to be differentiated in the parameter (some glass
-  walks in η) is reported as "refuses".
+  walks in η) is reported as "refuses";
+- normal map: examples/fit_normal_map.py's scene (a Beckmann α = 0.5 copper plate under three coloured suns,
+  its 6 × 6 normal map differentiated through Mitsuba's ``normalmap``), ``roughconductor`` against ``single``
+  and the walks that differentiate through directions (``differentiate_directions``), Beckmann and GGX.
 
-    python3 benches/gradient_bench.py [--scene copper|glass|all] [--param alpha|eta|all]
+    python3 benches/gradient_bench.py [--scene copper|glass|normalmap|all] [--param alpha|eta|all]
                                       [--size 64] [--spp 16] [--repeats 7]
 """
 
@@ -31,8 +34,10 @@ MODELS = ["single", "compensated", "fastmsx", "uncorrelated", "correlated", "hei
 BDPT_MODELS = ["correlated", "invariance"]
 GLASS_MODELS = ["single", "compensated", "uncorrelated", "correlated", "heitz", "invariance"]
 # mi.traverse keys of the parameters, per scene (the sphere's BSDF is "ball.bsdf").
-KEYS = {"alpha": "ball.bsdf.alpha.value", "eta": "ball.bsdf.eta"}
-SYMBOLS = {"alpha": "α", "eta": "η"}
+KEYS = {"alpha": "ball.bsdf.alpha.value", "eta": "ball.bsdf.eta", "normals": "plate.bsdf.normalmap.data"}
+SYMBOLS = {"alpha": "α", "eta": "η", "normals": "the normal map"}
+# The walks that differentiate through directions (docs/gradients.md, "Directions through the walks").
+DIRECTION_MODELS = ["uncorrelated", "correlated", "auto"]
 
 
 def glass_scene_dict(bsdf, size):
@@ -89,6 +94,16 @@ def sections(scenes, params):
             {f"msx {m}": {"type": "msx_posfree", "surface": "dielectric", "model": m, **glass} for m in GLASS_MODELS}
         )
         out += [("glass", p, configs) for p in ("alpha", "eta") if p in params]
+    if "normalmap" in scenes:
+        cu = {"material": "Cu", "alpha": 0.5}
+        configs = {"roughconductor": {"type": "roughconductor", **cu}, "msx single": {"type": "msx_posfree",
+                                                                                      "model": "single", **cu}}
+        for dist in ("beckmann", "ggx"):
+            configs.update({f"msx {m} {dist}": {"type": "msx_posfree", "model": m, "distribution": dist,
+                                                "differentiate_directions": True, **cu} for m in DIRECTION_MODELS})
+        configs["msx correlated bdpt"] = {"type": "msx_posfree", "model": "correlated", "estimator": "bdpt",
+                                          "differentiate_directions": True, **cu}
+        out.append(("normalmap", "normals", configs))
     return out
 
 
@@ -103,12 +118,12 @@ def messages(err):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--scene", choices=["copper", "glass", "all"], default="all")
+    ap.add_argument("--scene", choices=["copper", "glass", "normalmap", "all"], default="all")
     ap.add_argument(
         "--param",
         choices=["alpha", "eta", "all"],
         default="all",
-        help="the differentiated parameter (copper: alpha only)",
+        help="the differentiated parameter (copper: alpha only; the normal map scene: its map)",
     )
     ap.add_argument("--size", type=int, default=64)
     ap.add_argument("--spp", type=int, default=16)
@@ -124,11 +139,16 @@ def main():
 
     msx.register()
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples"))
+    from fit_normal_map import encode, scene_dict as normal_map_scene, true_normals
     from fit_roughness import scene_dict
 
-    scene_dicts = {"copper": scene_dict, "glass": glass_scene_dict}
-    scenes = ["copper", "glass"] if args.scene == "all" else [args.scene]
-    params = ["alpha", "eta"] if args.param == "all" else [args.param]
+    flat = true_normals(6) * 0.0 + [0.0, 0.0, 1.0]
+    scene_dicts = {"copper": scene_dict, "glass": glass_scene_dict,
+                   "normalmap": lambda bsdf, size: normal_map_scene(bsdf, encode(flat), size)}
+    scenes = ["copper", "glass", "normalmap"] if args.scene == "all" else [args.scene]
+    params = ["alpha", "eta", "normals"] if args.param == "all" else [args.param]
+    if args.scene == "normalmap":
+        params = ["normals"]
     todo = sections(scenes, params)
     if not todo:
         ap.error(f"nothing to measure for --scene {args.scene} --param {args.param} (copper: alpha only)")
@@ -151,7 +171,7 @@ def main():
         g = dr.grad(params[key])
         dr.eval(g)
         dr.sync_thread()
-        return float(g[0])
+        return float(dr.ravel(g)[0])
 
     # Each timed step follows an untimed one on the same scene, as in an optimisation loop (one scene, many
     # steps): the kernels depend on the objects drjit has registered (instance ids are literals in the dispatch

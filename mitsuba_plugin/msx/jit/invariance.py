@@ -16,7 +16,7 @@ Dielectric: until the first refraction the path reflects in ω_i's medium, a mon
 depth has the exact law of ``PieceChain`` (pieces of rates L_i, π over the piece index); the next events
 use its exact exit probability (reflection) or the top piece's Beta term plus one sampled depth
 (transmission); at the first refraction the depth is drawn from that law, flipped, and
-``heitz.dielectric_eval_from`` / ``dielectric_sample_from`` continue the path. The pieces live in
+``heitz.dielectric_eval_from`` / ``sample_from`` continue the path. The pieces live in
 ``DIELECTRIC_RUN_SLOTS`` registers (below).
 
 The conductor walk:
@@ -1025,7 +1025,7 @@ def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
     """Random-walk sampling with the heights of the first run integrated out (Rust
     ``dielectric::sample``): leave along an upward direction with the exact conditional exit probability;
     at the first refraction draw the vertex depth from its exact law and continue with Heitz's walk
-    (``heitz.dielectric_sample_from``). (sample1, u1, u2) drive the first vertex (Fresnel choice, visible
+    (``heitz.sample_from``). (sample1, u1, u2) drive the first vertex (Fresnel choice, visible
     normal). Returns (ω_o, weight = 1, × 1/η_r² for a Radiance-mode transmission, valid)."""
     last = max_bounces
     slots = run_slots(last, DIELECTRIC_RUN_SLOTS)
@@ -1079,8 +1079,8 @@ def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
     t1, hit1 = heitz.sample_height(mf, h_dir, h_t, u_h)
     inside_now = ~outside
     leave_now = refracted & ~hit1
-    wo_h, _, done_h = heitz.dielectric_sample_from(mf, eta, h_dir, t1, inside_now, j, mi.Float(1.0),
-                                                   refracted & hit1, last, key, rng.counter, u_a, a, b)
+    wo_h, _, done_h = heitz.sample_from(mf, heitz.DielectricFacets(eta), h_dir, t1, inside_now, j, mi.Float(1.0),
+                                        refracted & hit1, last, key, rng.counter, (u_a, a, b))
     wo_now = dr.select(inside_now, h_dir, -h_dir)
     wo = dr.select(refracted, dr.select(leave_now, wo_now, wo_h), wo_run)
     valid = dr.select(refracted, dr.select(leave_now, mi.Bool(True), done_h), done)

@@ -7,6 +7,9 @@ import mitsuba as mi
 
 from .microfacet import max_channel
 
+# src/walk/mod.rs: the first vertex (0-based) at which a walk plays Russian roulette.
+RR_START = 1
+
 
 def russian_roulette_keep(throughput, u, keep, floor=0.0):
     """Russian roulette that keeps a path surely while its largest channel is ≥ ``keep`` (a Float per
@@ -39,3 +42,29 @@ def cosine_about(n, u1, u2):
     sp, cp = dr.sincos(2.0 * math.pi * u2)
     z = dr.sqrt(dr.maximum(1.0 - u1, 0.0))
     return dr.normalize(t * (r * cp) + bt * (r * sp) + n * z)
+
+
+def while_loop(state, body, label, cond="active"):
+    """``dr.while_loop`` over named state, the role of Mitsuba's ``DRJIT_STRUCT`` loop records: ``state``
+    maps names to values (arrays, or lists and tuples of them); ``body`` is called with them as keyword
+    arguments and returns the next state as a dict of the same names; the loop runs on the lanes where the
+    entry ``cond`` is True. Returns the final state as a dict. An entry that is added, dropped or misspelt
+    on one side fails when the kernel is traced, instead of shifting the positions of the others."""
+    names = list(state)
+
+    def step(s):
+        new = body(**s)
+        if set(new) != set(names):
+            raise KeyError("%s: the loop body returns %s, the state is %s" % (label, sorted(new), sorted(names)))
+        return ({k: new[k] for k in names},)
+
+    return dr.while_loop(({k: state[k] for k in names},), lambda s: s[cond], step, label=label)[0]
+
+
+def vertex_numbers(rng):
+    """The (u_choice, u1, u2) of the next vertex of a sampled walk from the lane's stream (twin of
+    ``vertex_numbers`` after the first vertex, whose numbers are the caller's): two numbers for (u1, u2),
+    then one for the choice (the exit decision, or a dielectric's reflect-or-refract)."""
+    a, b = rng.next2()
+    c, _ = rng.next2()
+    return c, a, b

@@ -6,6 +6,7 @@ import drjit as dr
 import mitsuba as mi
 
 from .microfacet import max_channel
+from .rng import Stream, clean_uniform
 
 # src/walk/mod.rs: the first vertex (0-based) at which a walk plays Russian roulette.
 RR_START = 1
@@ -68,3 +69,27 @@ def vertex_numbers(rng):
     a, b = rng.next2()
     c, _ = rng.next2()
     return c, a, b
+
+
+def sample_walk(wi, first, active, exit_state, vertex, max_bounces, key, weight, label):
+    """The loop of a sampling walk that leaves the microsurface by an exit probability, one vertex per
+    iteration (the loop of ``sample_conductor`` with ``vertex_numbers``; the invariance model's walks on
+    conductor and Lambertian facets): the walk arrives along −``wi`` with the lane's ``weight`` and the
+    walk's exit bookkeeping ``exit_state`` (loop state: arrays, lists or tuples of them). Vertex j uses the
+    numbers (u_exit, u1, u2): ``first`` at j = 0, the lane's stream after it.
+    ``vertex(w, weight, u, exit_state, rng, active)`` → (d, weight, leaves, active, exit_state) scatters the
+    arriving w = −d_j into d = d_{j+1} (drawing any further numbers from ``rng``) and says where the walk
+    leaves along d. More than ``max_bounces`` vertices is invalid. Returns (ω_o, weight, valid)."""
+
+    def body(j, w, weight, done, active, counter, u, exit_state):
+        rng = Stream(key, counter)
+        d, weight, done, active, exit_state = vertex(w, weight, u, exit_state, rng, active)
+        active &= j + 1 < max_bounces
+        u = vertex_numbers(rng)  # before the counter is read
+        return dict(j=j + 1, w=-d, weight=weight, done=done, active=active, counter=rng.counter, u=u,
+                    exit_state=exit_state)
+
+    state = dict(j=mi.UInt32(0), w=mi.Vector3f(wi), weight=weight, done=mi.Bool(False), active=mi.Bool(active),
+                 counter=mi.UInt32(0), u=tuple(clean_uniform(mi.Float(x)) for x in first), exit_state=exit_state)
+    out = while_loop(state, body, label=label)
+    return -out["w"], out["weight"], out["done"]

@@ -175,6 +175,29 @@ def transmit_exit(chain, lambda_t, key, counter, active, traced=False):
     return dr.select(run, e, 0.0), counter
 
 
+def refraction(chain, o, refr, handed, key, counter, traced=False):
+    """Where the first run refracts (``refr``): the vertex depth drawn from the chain's law (``draw_depth``),
+    and what Heitz's walk continues from, ``handed`` = (refracted, its direction, its height): the refracted
+    ray −``o`` and the flipped height. Returns (handed, counter, the draw's density ratio)."""
+    tau, _, counter, ratio = draw_depth(chain, 0, key, counter, refr, traced)
+    refracted, h_dir, h_t = handed
+    handed = (refracted | refr, dr.select(refr, -o, h_dir), dr.select(refr, heitz.flip_height(-tau), h_t))
+    return handed, counter, ratio
+
+
+def extend_run(mf, chain, d, active):
+    """Appends the reflected direction ``d`` to the first run's chain where ``active`` (the walk ends on a
+    degenerate direction): returns (active, d points up, H_{m+1}/H_m of an upward d, a downward d pushed)."""
+    active &= dr.all(dr.isfinite(d)) & (d[2] != 0.0)
+    up = d[2] > 0.0
+    lam = mf.lambda_(d)
+    active &= ~(up & dr.isnan(lam))
+    cont = chain.push_up(lam, active & up)
+    l = mf.abs_lambda(d)
+    pushed = chain.push_down(l, active & ~up & dr.isfinite(l))
+    return active, up, cont, pushed
+
+
 def dielectric_valid(w, eta):
     return dr.all(dr.isfinite(w)) & (w[2] != 0.0) & dr.isfinite(eta) & (eta > 0.0)
 
@@ -307,24 +330,15 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None):
             active &= valid
             o, d, crossed = reflect_or_refract_unit(w, m, cos_wm, es, u_f)
             refr = active & crossed
-        tau, _, counter, depth_ratio = draw_depth(chain, 0, key, rng.counter, refr, traced)
+        (refracted, h_dir, h_t), counter, depth_ratio = refraction(chain, o, refr, (refracted, h_dir, h_t), key,
+                                                                   rng.counter, traced)
         if traced:
             thr = dr.select(active, thr * weight * dr.select(refr, depth_ratio, 1.0), thr)
-        refracted = refracted | refr
-        h_dir = dr.select(refr, -o, h_dir)
-        h_t = dr.select(refr, heitz.flip_height(-tau), h_t)
         active &= ~refr
         # Reflect, and extend the run's exit table.
-        active &= dr.all(dr.isfinite(d)) & (d[2] != 0.0)
-        up = d[2] > 0.0
-        lam = mfa.lambda_(d)
-        active &= ~(up & dr.isnan(lam))
-        cont = chain.push_up(lam, active & up)
+        active, up, cont, pushed = extend_run(mfa, chain, d, active)
         thr = dr.select(active & up, thr * cont, thr)
-        active &= ~up | (cont > 0.0)
-        l = mfa.abs_lambda(d)
-        pushed = chain.push_down(l, active & ~up & dr.isfinite(l))
-        active &= up | pushed
+        active &= (~up | (cont > 0.0)) & (up | pushed)
         if traced:
             piped = lv.piped(eta_a, h_tw)
         return dict(j=j + 1, w=-d, thr=thr, result=result, active=active, counter=counter, refracted=refracted,
@@ -370,22 +384,13 @@ def sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
         active &= valid
         o, d, crossed = reflect_or_refract_unit(w, m, cos_wm, e, ua)
         refr = active & crossed
-        tau, _, counter, _ = draw_depth(chain, 0, key, counter, refr)
-        refracted = refracted | refr
-        h_dir = dr.select(refr, -o, h_dir)
-        h_t = dr.select(refr, heitz.flip_height(-tau), h_t)
+        (refracted, h_dir, h_t), counter, _ = refraction(chain, o, refr, (refracted, h_dir, h_t), key, counter)
         active &= ~refr
-        active &= dr.all(dr.isfinite(d)) & (d[2] != 0.0)
-        up = d[2] > 0.0
-        lam = mf.lambda_(d)
-        active &= ~(up & dr.isnan(lam))
-        cont = chain.push_up(lam, active & up)
+        active, up, cont, pushed = extend_run(mf, chain, d, active)
         rng = Stream(key, counter)
         u_exit, c = rng.next2()
         leaves = active & up & (u_exit >= cont)
         done = leaves
-        l = mf.abs_lambda(d)
-        pushed = chain.push_down(l, active & ~up & dr.isfinite(l))
         active &= (up & ~leaves) | pushed
         active &= j + 1 < last
         a, b = rng.next2()

@@ -127,6 +127,18 @@ def diffuse_direction(mf, d):
     return l, d[2] < 0.0, ok
 
 
+def scatter(mf, table, m, active, rng):
+    """The phase function's new direction d about the visible normal ``m`` (a cosine lobe, two numbers of the
+    lane's stream), appended to the exit table where ``active`` (and usable): (d, d points down,
+    H_{m+1}/H_m, pushed, active)."""
+    u3, u4 = rng.next2()
+    d = walk.cosine_about(m, u3, u4)
+    l, down, ok = diffuse_direction(mf, d)
+    active &= ok
+    cont, pushed = table.push(l, down, active)
+    return d, down, cont, pushed, active
+
+
 def eval(mf, albedo, wi, wo, max_bounces, key):
     """One unbiased estimate of f(ω_i, ω_o)·cos θ_o on Lambertian facets (Rust ``general::eval``): the
     phase-function walk (visible normal m of −d_m, cosine lobe about m); at each vertex the next event
@@ -155,12 +167,8 @@ def eval(mf, albedo, wi, wo, max_bounces, key):
         u_rr, _ = rng.next2()
         thr, alive = walk.roulette_from(j >= walk.RR_START, thr, u_rr)
         active &= alive
-        u3, u4 = rng.next2()
-        d = walk.cosine_about(m, u3, u4)
-        l, down, ok = diffuse_direction(mf, d)
-        active &= ok
+        d, down, cont, pushed, active = scatter(mf, table, m, active, rng)
         thr = thr * albedo
-        cont, pushed = table.push(l, down, active)
         thr = dr.select(active, thr * cont, thr)
         active &= pushed & (cont > 0.0) & (max_channel(thr) > 0.0)
         return dict(j=j + 1, w=-d, thr=thr, result=result, active=active, counter=rng.counter,
@@ -185,12 +193,8 @@ def sample(mf, albedo, wi, sample1, u1, u2, max_bounces, key):
         table = ExitTable.from_state(table_state, capacity)
         m, valid = mf.sample_visible(w, u1, u2)
         active &= valid
-        u3, u4 = rng.next2()
-        d = walk.cosine_about(m, u3, u4)
-        l, down, ok = diffuse_direction(mf, d)
-        active &= ok
+        d, down, cont, pushed, active = scatter(mf, table, m, active, rng)
         weight = weight * albedo
-        cont, pushed = table.push(l, down, active)
         active &= pushed
         leaves = active & ~down & (u_exit >= cont)
         active &= ~leaves & (cont > 0.0)

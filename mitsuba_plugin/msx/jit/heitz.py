@@ -199,17 +199,20 @@ def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None):
     ``Mat::Diffuse``; the dielectric's, which changes sides, is ``dielectric_eval_from``): entering from ω_i
     at t = 0, each vertex draws its height conditioned on hitting (the throughput carries P_hit), then the
     facets estimate towards ω_o and scatter (``facets.eval_vertex``), then Russian roulette (keep = 1).
-    ``mf_sample``: as ``eval``'s; the facets' own differentiated values (``facets.values``) travel in the
-    loop's state with the statistics."""
+    ``mf_sample``: as ``eval``'s. The statistics and the facets' own values (``facets.values``) travel in the
+    loop's state whenever they carry derivatives (``walk.carries_gradients``; gradients.LoopValues): with
+    ``mf_sample``, and without it when a caller differentiates the walk as written (the traced ``sample``'s
+    weight)."""
     last = max_bounces  # a Python int, or a UInt32 per lane (model 'auto' style caps)
     lambda_o = mf.lambda_(wo)
     start = valid_incidence(wi) & valid_incidence(wo) & (last > 0)
     traced = mf_sample is not None
+    piped_values = traced or walk.carries_gradients(mf, lambda_o, *facets.values())
 
     def body(order, wr, t, thr, result, active, counter, piped):
-        # Traced, the differentiated values come through the loop's state (gradients.LoopValues).
-        mfa, mfs, lo, values = LoopValues.unpack(traced, mf, lambda_o, (), piped)
-        f = facets.with_values(values) if traced else facets
+        mfa, mfs, lo, values = LoopValues.unpack(piped_values, mf, lambda_o, (), piped)
+        mfs = mfs if traced else mfa  # the walk as written draws from the statistics it evaluates
+        f = facets.with_values(values) if piped_values else facets
         rng = Stream(key, counter)
         u_h, u_rr = rng.next2()
         tn, p_hit = sample_height_hit(mfs, wr, t, u_h)
@@ -228,7 +231,7 @@ def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None):
 
     state = dict(order=mi.UInt32(1), wr=-mi.Vector3f(wi), t=mi.Float(0.0), thr=mi.Spectrum(1.0),
                  result=dr.zeros(mi.Spectrum), active=mi.Bool(start), counter=mi.UInt32(0),
-                 piped=LoopValues.state(mf, lambda_o, *facets.values()) if traced else ())
+                 piped=LoopValues.state(mf, lambda_o, *facets.values()) if piped_values else ())
     return walk.while_loop(state, body, label=facets.eval_label)["result"]
 
 

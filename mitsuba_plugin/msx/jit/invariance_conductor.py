@@ -107,17 +107,21 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
     w = −d_m, ``pdf_scale`` = 1/(4 A(w)), the throughput Π F · H_m and the exit table ``dp0`` of d_0..d_m,
     on the lanes ``active``; orders up to ``last``. ``light`` (a ``LightVertex`` with ``lambda_o`` set, or
     None) and ``connect_max``: the connection strategy for orders 2..connect_max (none with None and 0: the
-    BDPT's tail). The lane's stream is (``key``, ``counter``). ``mf_sample``: as ``eval``'s; the
-    differentiated values (α, η, k, Λ(ω_o), the light vertex's) then travel in the loop's state (drjit 1.5
-    rejects differentiable reads of wide values from outside a loop inside a symbolic call)."""
+    BDPT's tail). The lane's stream is (``key``, ``counter``). ``mf_sample``: as ``eval``'s. The call's
+    values (α, η, k, Λ(ω_o), the light vertex's) travel in the loop's state whenever they carry derivatives
+    (``walk.carries_gradients``): with ``mf_sample``, and without it when a caller differentiates the walk as
+    written (the traced ``sample``'s weight)."""
     connects = light is not None
     traced = mf_sample is not None
+    material = () if fresnel.mirror else (fresnel.eta, fresnel.k)
+    piped_values = traced or walk.carries_gradients(mf, lambda_o, *material)
 
     def body(j, w, pdf_scale, pdf_walk, thr, result, active, counter, dp_state, piped):
         mf, fresnel, lambda_o, light, mf_s = outer_mf, outer_fresnel, outer_lambda_o, outer_light, outer_mf
-        if traced:
+        if piped_values:
             lv = LoopValues(outer_mf.dist, piped)
-            mf, mf_s, lambda_o, rest = lv.mf, lv.mf_sample, lv.lambda_o, lv.rest
+            mf, lambda_o, rest = lv.mf, lv.lambda_o, lv.rest
+            mf_s = lv.mf_sample if traced else mf
             if connects:
                 light = copy.copy(outer_light)
                 light.l_y, light.pdf, light.phase, light.fresnel = rest[:4]
@@ -182,7 +186,7 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
     outer_mf, outer_fresnel, outer_lambda_o, outer_light = mf, fresnel, lambda_o, light
     width = dr.width(w)
     piped = ()
-    if traced:
+    if piped_values:
         piped += (mi.Float(mf.alpha_u), mi.Float(mf.alpha_v), mi.Float(lambda_o))
         if connects:
             piped += (mi.Float(light.l_y), mi.Float(light.pdf), mi.Float(light.phase), mi.Spectrum(light.fresnel))
@@ -224,7 +228,11 @@ class WholePath:
         """Orders above K_b: the walk of ``eval`` without its connection strategy from camera vertex K_b,
         with the exit table of d_0..d_{K_b} and the throughput Π F · H_{K_b}."""
         last = orders[1]
-        dp = MonotoneExit.new(cam[0].l, run_slots(last))
+        # Differentiated (the sample weight's derivative), the run's passes are unrolled: drjit 1.5's forward
+        # mode fails on their branch inside the loop (``over_run``).
+        material = () if surface.fresnel.mirror else (surface.fresnel.eta, surface.fresnel.k)
+        dp = MonotoneExit.new(cam[0].l, run_slots(last),
+                              unrolled=walk.carries_gradients(surface.mf, surface.lambda_o, *material))
         hit, ok = mi.Float(1.0), mi.Bool(ready)
         for c in cam[1 : kb + 1]:
             up = c.d[2] > 0.0

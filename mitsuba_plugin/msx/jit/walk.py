@@ -45,6 +45,14 @@ def cosine_about(n, u1, u2):
     return dr.normalize(t * (r * cp) + bt * (r * sp) + n * z)
 
 
+def carries_gradients(mf, *values):
+    """Whether the statistics ``mf`` or one of ``values`` carries derivatives (a Python bool of the trace):
+    a walk's loop then takes them through its state. Read from outside the loop inside a symbolic call,
+    drjit 1.5 refuses them (``ad_traverse … isolate_grad``) or drops their derivative (measured: the traced
+    ``sample`` weight's derivative in a conductor's η was 0 on every lane)."""
+    return any(dr.grad_enabled(v) for v in (mf.alpha_u, mf.alpha_v) + values)
+
+
 def while_loop(state, body, label, cond="active"):
     """``dr.while_loop`` over named state, the role of Mitsuba's ``DRJIT_STRUCT`` loop records: ``state``
     maps names to values (arrays, or lists and tuples of them); ``body`` is called with them as keyword

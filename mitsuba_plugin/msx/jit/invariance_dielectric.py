@@ -16,7 +16,7 @@ from . import heitz, invariance_recursion, walk
 from .dielectric import eta_seen, radiance_scale, reflect_or_refract_unit
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
 from .gradients import LoopValues
-from .invariance_recursion import over_run, run_slots
+from .invariance_recursion import over_run, push_down, run_slots
 from .rng import Stream, clean_uniform
 from .special import expm1, l_beta, optical_depth
 
@@ -56,16 +56,7 @@ class PieceChain:
     def push_down(self, l, active):
         """Appends a downward direction (|Λ| = ``l``) where ``active``; False on a non-monotone run or a
         full run (a = n): the walk ends there."""
-        ok = active & ~self.has_up & (self.a < self.n)
-        a = self.a
-
-        def step(i, rates):
-            if i == 0:
-                return rates
-            return rates[:i] + (dr.select(ok & (a == i), l, rates[i]),) + rates[i + 1:]
-
-        self.rates = list(over_run(self.n, a + 1, step, tuple(self.rates), unrolled=self.unrolled))
-        self.a = dr.select(ok, self.a + 1, self.a)
+        self.rates, self.a, ok = push_down(self.rates, self.a, self.has_up, l, active, self.unrolled)
         return ok
 
     def push_up(self, lam, active):

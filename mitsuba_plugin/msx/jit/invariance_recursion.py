@@ -85,6 +85,22 @@ def over_run(n, a, step, carry, reverse=True, unrolled=False):
     return carry
 
 
+def push_down(run, a, has_up, l, active, unrolled):
+    """Appends ``l`` to a downward run held in the registers ``run`` (a list; slots 0..a−1 in use) where
+    ``active``, unless an upward direction came before (``has_up``: the path would not be monotone) or the
+    run is full: the shared step of ``MonotoneExit`` and ``PieceChain`` (jit/invariance_dielectric.py).
+    Returns (run, a, pushed)."""
+    ok = active & ~has_up & (a < len(run))
+
+    def step(i, slots):
+        if i == 0:
+            return slots
+        return slots[:i] + (dr.select(ok & (a == i), l, slots[i]),) + slots[i + 1:]
+
+    run = list(over_run(len(run), a + 1, step, tuple(run), unrolled=unrolled))
+    return run, dr.select(ok, a + 1, a), ok
+
+
 class MonotoneExit:
     """Incremental exit probabilities of a monotone path d_0..d_m (twin of ``MonotoneExit``), per lane in
     ``n`` registers, unrolled at trace time: Python lists ``down`` (|Λ| of the downward run; slot i < a holds
@@ -116,16 +132,7 @@ class MonotoneExit:
     def push_down(self, l, active):
         """Appends a downward direction of |Λ| = ``l`` where ``active``; False on a non-monotone path or a
         full run (a = n), which ends the walk."""
-        ok = active & ~self.has_up & (self.a < self.n)
-        a = self.a
-
-        def step(i, down):
-            if i == 0:
-                return down
-            return down[:i] + (dr.select(ok & (a == i), l, down[i]),) + down[i + 1:]
-
-        self.down = list(over_run(self.n, a + 1, step, tuple(self.down), unrolled=self.unrolled))
-        self.a = dr.select(ok, self.a + 1, self.a)
+        self.down, self.a, ok = push_down(self.down, self.a, self.has_up, l, active, self.unrolled)
         return ok
 
     def columns(self, lambda_x, lambda_y):

@@ -1,6 +1,6 @@
 """The Dr.Jit engine's bidirectional estimators (Wang 2022 eqs. 27–29; ``msx/jit/bdpt.py`` and the conductor's
 vertex terms in ``msx/jit/posfree.py``; Cui 2023's with the whole path's exit probability, ``WholePath`` in
-``msx/jit/invariance.py``) against the Rust core's BDPT and the engine's own PT, in ``llvm_ad_rgb``.
+``msx/jit/invariance_conductor.py``) against the Rust core's BDPT and the engine's own PT, in ``llvm_ad_rgb``.
 
 The BDPT estimate has the expectation of the PT estimate (both are unbiased estimates of f·cos θ_o), so:
 - the mean of ``eval`` at fixed (ω_i, ω_o) pairs equals the core's BDPT mean and the engine's PT mean within

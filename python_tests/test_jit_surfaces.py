@@ -1,5 +1,5 @@
 """The Dr.Jit engine's walks on the dielectric and the diffuse microsurface (jit/heitz.py: Heitz 2016;
-jit/invariance.py: Cui 2023 on Lambertian facets) equal the Rust core in distribution, in llvm_ad_rgb.
+jit/invariance_general.py: Cui 2023 on Lambertian facets) equal the Rust core in distribution, in llvm_ad_rgb.
 
 Each configuration is built twice: ``msx_posfree`` through Mitsuba (the engine) and
 ``msx.core.CoreBsdf`` (the Rust core, float64), GGX. Both give independent Monte Carlo estimates (the

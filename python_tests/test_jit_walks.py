@@ -1,5 +1,5 @@
 """The Dr.Jit engine's conductor random walks ``heitz`` (jit/heitz.py) and ``invariance``
-(jit/invariance.py) equal the Rust core in distribution.
+(jit/invariance_*.py) equal the Rust core in distribution.
 
 Each configuration is built twice: ``msx_posfree`` through Mitsuba in llvm_ad_rgb (the engine, backend
 'jit') and ``msx.core.CoreBsdf`` (the Rust core, float64), Cu's RGB (η, k) as Mitsuba's roughconductor
@@ -364,7 +364,7 @@ def test_the_run_tail_branch_changes_no_bit(monkeypatch):
     visited, on runs long enough to take the branch (GGX α = 4 at normal incidence: conductor, and the
     dielectric from below, where total internal reflection lengthens the run) — which the walk with only
     ``RUN_SLOTS_ALWAYS`` slots shows: it differs."""
-    from msx.jit import invariance
+    from msx.jit import invariance_recursion as invariance
 
     n = 1 << 16
     u = uniforms(77, n)

@@ -11,7 +11,7 @@ found by name (docs/engines.md):
 | ``beckmann.py`` | ``src/microfacet/beckmann.rs`` | Beckmann Λ and full-sphere visible normals in float32 |
 | ``dielectric.py`` | ``src/microfacet/dielectric.rs`` | the dielectric interface: η seen, Fresnel, refraction, half vector |
 | ``rng.py`` | ``src/rng.rs`` | each lane's random stream, derived from its inputs and ``seed`` |
-| ``walk.py`` | ``src/walk/mod.rs`` | Russian roulette, cosine directions |
+| ``walk.py`` | ``src/walk/mod.rs`` | Russian roulette, cosine directions, a sampled vertex's numbers, named loop state |
 | ``tables.py`` | ``src/tables/`` | the core's tables, read through ``msx_table`` and uploaded as textures |
 | ``mis.py`` | ``src/models/mis.rs`` | the walks' MIS densities |
 | ``model.py`` | ``ScatteringModel`` in ``src/models/mod.rs`` | the model interface |
@@ -20,7 +20,11 @@ found by name (docs/engines.md):
 | ``posfree_dielectric.py`` | ``src/models/posfree/dielectric.rs`` | Wang 2022 through a rough dielectric |
 | ``bdpt.py`` | ``src/walk/bdpt.rs`` | the bidirectional estimator |
 | ``heitz.py`` | ``src/walk/height.rs`` | Heitz 2016 random walk with explicit heights |
-| ``invariance.py`` | ``src/models/invariance/`` | Cui 2023 position-free invariance walks |
+| ``invariance.py`` | ``src/models/invariance/mod.rs`` | Cui 2023: the model's walks on the three surfaces (its tables) |
+| ``invariance_recursion.py`` | ``src/models/invariance/recursion.rs`` | exit probabilities of monotone paths in registers |
+| ``invariance_conductor.py`` | ``src/models/invariance/conductor.rs`` | Cui 2023 on conductor facets: PT eval, sample, BDPT |
+| ``invariance_general.py`` | ``src/models/invariance/general.rs`` | Cui 2023 on Lambertian facets (complete recursion) |
+| ``invariance_dielectric.py`` | ``src/models/invariance/dielectric.rs`` | Cui 2023 through a rough dielectric |
 | ``analytic.py`` | ``src/models/analytic/`` | Fast-MSX, energy compensation |
 | ``auto.py`` | ``src/models/auto/`` | ``auto``: ``correlated`` with a per-lane bounce cap |
 | ``gradients.py``, ``glass_traced.py`` | — | gradients of the walks (docs/gradients.md) |

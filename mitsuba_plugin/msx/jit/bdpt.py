@@ -66,6 +66,24 @@ def bdpt_orders(max_bounces, bdpt_orders=DEFAULT_BDPT_ORDERS):
     return min(max_bounces, min(max(bdpt_orders, 1), MAX_BDPT_ORDERS))
 
 
+def subpath(start, ready, step, n, active, rng):
+    """A subpath of ``n`` sampled vertices after ``start`` (the camera's or the light's: the Rust's
+    ``camera_step``/``light_step`` loops of ``estimate_on``): the vertices, their ``Mis`` records and the
+    per-lane masks ``ok[i]`` of the lanes on which vertex i exists (the previous one existed, was ``ready``
+    and its step was valid). ``step(v, i, rng)`` → (vertex, p_in, p_rev, valid)."""
+    verts = [start]
+    records = [Mis(mi.Float(1.0), mi.Float(0.0))]
+    ok = [mi.Bool(active)]
+    for i in range(n):
+        go = ok[i] & ready(verts[i])
+        v, p_in, p_rev, valid = step(verts[i], i, rng)
+        chain = records[i].extend(p_rev) if i >= 1 else mi.Float(0.0)
+        verts.append(v)
+        records.append(Mis(p_in, chain))
+        ok.append(go & valid)
+    return verts, records, ok
+
+
 def estimate(surface, orders, bdpt_orders_=DEFAULT_BDPT_ORDERS, key=None, rng=None):
     """The BDPT estimate of f(ω_i, ω_o)·|cos θ_o| over the orders ``orders`` = (lo, hi) (Python ints,
     1 ≤ lo ≤ hi within the bounce cap): orders up to K_b bidirectionally, the rest by the surface's path
@@ -81,16 +99,8 @@ def estimate(surface, orders, bdpt_orders_=DEFAULT_BDPT_ORDERS, key=None, rng=No
 
     # ---- camera subpath d_0..d_{n_c} (n_c = kb − 1, or kb if the PT tail needs d_kb)
     n_c_target = kb if pt_tail else kb - 1
-    cam = [surface.camera_start()]
-    cam_mis = [Mis(mi.Float(1.0), mi.Float(0.0))]
-    cam_ok = [mi.Bool(surface.active)]
-    for s in range(n_c_target):
-        go = cam_ok[s] & surface.camera_ready(cam[s])
-        v, p_in, p_rev, valid = surface.camera_step(cam[s], s, rng)
-        chain = cam_mis[s].extend(p_rev) if s >= 1 else mi.Float(0.0)
-        cam.append(v)
-        cam_mis.append(Mis(p_in, chain))
-        cam_ok.append(go & valid)
+    cam, cam_mis, cam_ok = subpath(surface.camera_start(), surface.camera_ready, surface.camera_step, n_c_target,
+                                   surface.active, rng)
     if not pt_tail:
         # The last camera vertex, used only by connections (a no-op for the conductor).
         ready = cam_ok[n_c_target] & surface.camera_ready(cam[n_c_target])
@@ -98,16 +108,8 @@ def estimate(surface, orders, bdpt_orders_=DEFAULT_BDPT_ORDERS, key=None, rng=No
 
     if o_lo <= kb:
         # ---- light subpath e_0 = ω_o, e_1 = d_{k−1}, … (kb − 1 sampled)
-        lig = [surface.light_start()]
-        lig_mis = [Mis(mi.Float(1.0), mi.Float(0.0))]
-        lig_ok = [mi.Bool(surface.active)]
-        for t in range(kb - 1):
-            go = lig_ok[t] & surface.light_ready(lig[t])
-            v, p_in, p_rev, valid = surface.light_step(lig[t], t, rng)
-            chain = lig_mis[t].extend(p_rev) if t >= 1 else mi.Float(0.0)
-            lig.append(v)
-            lig_mis.append(Mis(p_in, chain))
-            lig_ok.append(go & valid)
+        lig, lig_mis, lig_ok = subpath(surface.light_start(), surface.light_ready, surface.light_step, kb - 1,
+                                       surface.active, rng)
 
         # ---- connections: order k, strategy s, t = k − 1 − s
         for k in range(o_lo, kb + 1):

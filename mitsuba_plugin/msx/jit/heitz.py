@@ -191,15 +191,28 @@ def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None):
     under ``mf`` to its density under ``mf_sample`` (value 1, derivative the score); the roulette is
     detached (``walk.russian_roulette_keep``). The estimate's derivative is then an unbiased estimate of
     the derivative of f. The differentiated values travel in the loop's state."""
+    return eval_from(mf, ConductorFacets(fresnel), wi, wo, max_bounces, key, mf_sample)
+
+
+def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None):
+    """Heitz's eval walk on conductor or Lambertian facets (Rust ``eval_from`` with ``Mat::Conductor`` /
+    ``Mat::Diffuse``; the dielectric's, which changes sides, is ``dielectric_eval_from``): entering from ω_i
+    at t = 0, each vertex draws its height conditioned on hitting (the throughput carries P_hit), then the
+    facets estimate towards ω_o and scatter (``facets.eval_vertex``), then Russian roulette (keep = 1).
+    ``mf_sample``: as ``eval``'s. The statistics and the facets' own values (``facets.values``) travel in the
+    loop's state whenever they carry derivatives (``walk.carries_gradients``; gradients.LoopValues): with
+    ``mf_sample``, and without it when a caller differentiates the walk as written (the traced ``sample``'s
+    weight)."""
     last = max_bounces  # a Python int, or a UInt32 per lane (model 'auto' style caps)
     lambda_o = mf.lambda_(wo)
     start = valid_incidence(wi) & valid_incidence(wo) & (last > 0)
     traced = mf_sample is not None
+    piped_values = traced or walk.carries_gradients(mf, lambda_o, *facets.values())
 
-    def body(order, wr, t, thr, result, active, counter, *piped):
-        # Traced, the differentiated values come through the loop's state (gradients.LoopValues).
-        mfa, mfs, lo, material = LoopValues.unpack(traced, mf, lambda_o, (), piped)
-        fr = ConductorFresnel(*material) if material else fresnel
+    def body(order, wr, t, thr, result, active, counter, piped):
+        mfa, mfs, lo, values = LoopValues.unpack(piped_values, mf, lambda_o, (), piped)
+        mfs = mfs if traced else mfa  # the walk as written draws from the statistics it evaluates
+        f = facets.with_values(values) if piped_values else facets
         rng = Stream(key, counter)
         u_h, u_rr = rng.next2()
         tn, p_hit = sample_height_hit(mfs, wr, t, u_h)
@@ -208,30 +221,154 @@ def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None):
         if traced:
             thr = thr * height_step_ratio(mfa, mfs, wr, t, tn)
         t = tn
-        wi_l = -wr
-        # Next-event estimation towards ω_o: F · phase · G1(ω_o, h).
-        p, c, ok = conductor_phase(mfa, wi_l, wo)
-        contrib = fr.eval(c) * (p * masking_at(lo, t))
-        result = dr.select(active & ok, result + thr * contrib, result)
+        nee, nee_ok, wr, thr, valid = f.eval_vertex(mfa, mfs, -wr, wo, lo, t, thr, rng, traced)
+        result = dr.select(active & nee_ok, result + nee, result)
         active &= order < last
-        # Continue: reflect about a visible normal of wi_l, then the roulette.
-        u1, u2 = rng.next2()
-        m, cos_wm, valid = visible_normal(mfs, wi_l, u1, u2)
-        thr = thr * fr.eval(cos_wm)
-        if traced:
-            thr = thr * visible_ratio(mfa, mfs, wi_l, m)
-        wr = dr.normalize(reflect(wi_l, m))
         thr, survived = walk.russian_roulette_keep(thr, u_rr, 1.0)
         active &= valid & survived & dr.all(dr.isfinite(wr))
-        return (order + 1, wr, t, thr, result, active, rng.counter) + piped
+        return dict(order=order + 1, wr=wr, t=t, thr=thr, result=result, active=active, counter=rng.counter,
+                    piped=piped)
 
-    state = (mi.UInt32(1), -mi.Vector3f(wi), mi.Float(0.0), mi.Spectrum(1.0), dr.zeros(mi.Spectrum),
-             mi.Bool(start), mi.UInt32(0))
-    if traced:
-        material = () if fresnel.mirror else (mi.Spectrum(fresnel.eta), mi.Spectrum(fresnel.k))
-        state += LoopValues.state(mf, lambda_o, *material)
-    state = dr.while_loop(state, lambda *s: s[5], body, label="msx_heitz_conductor_eval")
-    return state[4]
+    state = dict(order=mi.UInt32(1), wr=-mi.Vector3f(wi), t=mi.Float(0.0), thr=mi.Spectrum(1.0),
+                 result=dr.zeros(mi.Spectrum), active=mi.Bool(start), counter=mi.UInt32(0),
+                 piped=LoopValues.state(mf, lambda_o, *facets.values()) if piped_values else ())
+    return walk.while_loop(state, body, label=facets.eval_label)["result"]
+
+
+class ConductorFacets:
+    """What a vertex of the sampling walk does on conductor facets (Rust ``scatter`` with
+    ``Mat::Conductor``): reflect about the visible normal, weight × F."""
+
+    choice = False  # a vertex draws no reflect-or-refract number
+    sides = False  # the walk stays above the microsurface
+    label = "msx_heitz_conductor_sample"
+    eval_label = "msx_heitz_conductor_eval"
+
+    def __init__(self, fresnel):
+        self.fresnel = fresnel
+
+    def values(self):
+        """The facets' values a differentiated walk carries in its loop state (the material's η, k)."""
+        return () if self.fresnel.mirror else (mi.Spectrum(self.fresnel.eta), mi.Spectrum(self.fresnel.k))
+
+    def with_values(self, values):
+        """The facets with the values of ``values`` (as ``values`` gives them) in the loop's body."""
+        return ConductorFacets(ConductorFresnel(*values)) if values else self
+
+    def eval_vertex(self, mfa, mfs, wi_l, wo, lambda_o, t, thr, rng, traced):
+        """A vertex of the eval walk at height ``t``, the ray arriving along −``wi_l``: the next event towards
+        ω_o, F · phase · G1(ω_o, h) (times ``thr``), then reflection about a visible normal of ``wi_l`` drawn
+        from ``mfs`` (× its density ratio when ``traced``). Returns (next event, where it counts, next
+        direction, throughput, valid)."""
+        p, c, ok = conductor_phase(mfa, wi_l, wo)
+        nee = thr * (self.fresnel.eval(c) * (p * masking_at(lambda_o, t)))
+        u1, u2 = rng.next2()
+        m, cos_wm, valid = visible_normal(mfs, wi_l, u1, u2)
+        thr = thr * self.fresnel.eval(cos_wm)
+        if traced:
+            thr = thr * visible_ratio(mfa, mfs, wi_l, m)
+        return nee, ok, dr.normalize(reflect(wi_l, m)), thr, valid
+
+    def scatter(self, wi_l, m, cos_wm, outside, u_choice, thr, rng):
+        """(next direction, crossed the interface (None: never), weight)."""
+        return dr.normalize(reflect(wi_l, m)), None, thr * self.fresnel.eval(cos_wm)
+
+    def exits(self, wr, thr):
+        """A walk that leaves along ``wr`` gives a sample."""
+        return (wr[2] > 0.0) & dr.all(dr.isfinite(thr))
+
+
+class DiffuseFacets(ConductorFacets):
+    """What a vertex of the sampling walk does on Lambertian facets (``Mat::Diffuse``): a cosine lobe about
+    the visible normal (two numbers of the lane's stream), weight × albedo."""
+
+    label = "msx_heitz_diffuse_sample"
+    eval_label = "msx_heitz_diffuse_eval"
+
+    def __init__(self, albedo):
+        self.albedo = albedo
+
+    def values(self):
+        return (mi.Spectrum(self.albedo),)
+
+    def with_values(self, values):
+        return DiffuseFacets(values[0])
+
+    def eval_vertex(self, mfa, mfs, wi_l, wo, lambda_o, t, thr, rng, traced):
+        """A vertex of the eval walk: a visible normal m of ``wi_l`` (from ``mfs``, × its density ratio when
+        ``traced``) shared by the next event, (a/π)⟨ω_o, m⟩⁺·G1(ω_o, h), and the continuation, a cosine lobe
+        about m with weight a."""
+        u1, u2 = rng.next2()
+        m, _, valid = visible_normal(mfs, wi_l, u1, u2)
+        if traced:
+            thr = thr * visible_ratio(mfa, mfs, wi_l, m)
+        nee = thr * (self.albedo * (dr.maximum(dot(m, wo), 0.0) * INV_PI * masking_at(lambda_o, t)))
+        ua, ub = rng.next2()
+        return nee, valid, walk.cosine_about(m, ua, ub), thr * self.albedo, valid
+
+    def scatter(self, wi_l, m, cos_wm, outside, u_choice, thr, rng):
+        ua, ub = rng.next2()
+        return walk.cosine_about(m, ua, ub), None, thr * self.albedo
+
+
+class DielectricFacets:
+    """What a vertex of the sampling walk does on a rough dielectric (``Mat::Dielectric``): reflect or
+    refract about the visible normal (``u_choice`` < F reflects) with the relative IOR of the ray's side,
+    weight 1; a refraction switches the side."""
+
+    choice = True
+    sides = True
+    label = "msx_heitz_dielectric_sample"
+
+    def __init__(self, eta):
+        self.eta = mi.Float(eta)
+
+    def scatter(self, wi_l, m, cos_wm, outside, u_choice, thr, rng):
+        wr, crossed = scatter_unit(wi_l, m, cos_wm, eta_seen(self.eta, outside), u_choice)
+        return wr, crossed, thr
+
+    def exits(self, wr, thr):
+        return (wr[2] != 0.0) & dr.isfinite(thr)
+
+
+def sample_from(mf, facets, wr, t, outside, order, thr, active, max_bounces, key, counter, first):
+    """Heitz's sampling walk from a hit (Rust ``sample_from``, over the microsurface ``facets``): the ray
+    along ``wr`` (frame of its side, ``outside``) has hit at height ``t`` the vertex of order ``order`` + 1,
+    which scatters with the numbers ``first`` = (u1, u2) of its visible normal, preceded by its
+    reflect-or-refract number on a dielectric (``facets.choice``); the lane's stream from ``counter`` drives
+    the rest (``walk.vertex_numbers``). Each vertex scatters, plays Russian roulette (keep = 1) and draws the
+    next height; a ray that leaves the microsurface ends the walk with ω_o along it. Returns (ω_o in the macro
+    frame, weight = Π vertex weights / Π q, valid); more than ``max_bounces`` vertices is invalid."""
+    last = max_bounces
+
+    def body(order, wr, t, outside, thr, done, active, counter, u):
+        rng = Stream(key, counter)
+        order = order + 1  # the vertex at height t
+        wi_l = -wr
+        m, cos_wm, valid = visible_normal(mf, wi_l, u[-2], u[-1])
+        wr, crossed, thr = facets.scatter(wi_l, m, cos_wm, outside, u[0], thr, rng)
+        if crossed is not None:
+            outside = outside ^ crossed
+            t = dr.select(crossed, flip_height(t), t)
+        u_rr, u_h = rng.next2()
+        thr, survived = walk.russian_roulette_keep(thr, u_rr, 1.0)
+        active &= valid & survived & dr.all(dr.isfinite(wr))
+        # The next height: leaving ends the walk with ω_o = wr.
+        tn, hit = sample_height(mf, wr, t, u_h)
+        leaves = active & ~hit
+        done = leaves & facets.exits(wr, thr)
+        active &= hit & (order < last)
+        u = walk.vertex_numbers(rng) if facets.choice else rng.next2()
+        return dict(order=order, wr=wr, t=tn, outside=outside, thr=thr, done=done, active=active,
+                    counter=rng.counter, u=u)
+
+    state = dict(order=mi.UInt32(order), wr=mi.Vector3f(wr), t=mi.Float(t), outside=mi.Bool(outside), thr=thr,
+                 done=mi.Bool(False), active=mi.Bool(active & (order < last)), counter=mi.UInt32(counter),
+                 u=tuple(clean_uniform(mi.Float(x)) for x in first))
+    if not facets.sides:  # the walk stays outside: no side in the state
+        state["outside"] = True
+    out = walk.while_loop(state, body, label=facets.label)
+    return dr.select(out["outside"], out["wr"], -out["wr"]) if facets.sides else out["wr"], out["thr"], out["done"]
 
 
 def sample(mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
@@ -240,37 +377,12 @@ def sample(mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
     when a height step leaves the microsurface; more than ``max_bounces`` vertices is invalid (the same
     truncation as ``eval``). Returns (ω_o, weight, valid), weight = the product of the Fresnel terms
     divided by the roulette's survival probabilities."""
-    last = max_bounces  # a Python int, or a UInt32 per lane (model 'auto' style caps)
-    start = valid_incidence(wi) & (last > 0)
     # The first height: the entering ray −ω_i points down and always hits.
     w0 = -mi.Vector3f(wi)
     t0, hit0 = sample_height(mf, w0, mi.Float(0.0), dr.select(dr.isfinite(sample1), sample1, 0.5))
-    u1 = clean_uniform(u1)
-    u2 = clean_uniform(u2)
-
-    def body(order, wr, t, thr, done, active, counter, u1, u2):
-        rng = Stream(key, counter)
-        order = order + 1  # the vertex at height t
-        wi_l = -wr
-        m, cos_wm, valid = visible_normal(mf, wi_l, u1, u2)
-        thr = thr * fresnel.eval(cos_wm)
-        wr = dr.normalize(reflect(wi_l, m))
-        u_rr, u_h = rng.next2()
-        thr, survived = walk.russian_roulette_keep(thr, u_rr, 1.0)
-        active &= valid & survived & dr.all(dr.isfinite(wr))
-        # The next height: leaving ends the walk with ω_o = wr.
-        tn, hit = sample_height(mf, wr, t, u_h)
-        leaves = active & ~hit
-        done = leaves & (wr[2] > 0.0) & dr.all(dr.isfinite(thr))
-        active &= hit & (order < last)
-        t = tn
-        a, b = rng.next2()
-        return order, wr, t, thr, done, active, rng.counter, a, b
-
-    state = (mi.UInt32(0), w0, t0, mi.Spectrum(1.0), mi.Bool(False), mi.Bool(start & hit0), mi.UInt32(0),
-             mi.Float(u1), mi.Float(u2))
-    state = dr.while_loop(state, lambda *s: s[5], body, label="msx_heitz_conductor_sample")
-    return state[1], state[3], state[4]
+    start = valid_incidence(wi) & (max_bounces > 0) & hit0
+    return sample_from(mf, ConductorFacets(fresnel), w0, t0, True, 0, mi.Spectrum(1.0), start, max_bounces, key, 0,
+                       (u1, u2))
 
 
 # ------------------------------------------------------------------ Lambertian facets (diffuse)
@@ -282,42 +394,7 @@ def diffuse_eval(mf, albedo, wi, wo, max_bounces, key, mf_sample=None):
     hitting, a visible normal m of the incoming ray shared by the next event, (a/π)⟨ω_o, m⟩⁺·G1(ω_o, h),
     and the continuation, a cosine lobe about m with weight a; roulette after every vertex. ``mf_sample``:
     as in ``eval`` (the cosine lobe about m does not depend on the parameters)."""
-    last = max_bounces
-    lambda_o = mf.lambda_(wo)
-    start = valid_incidence(wi) & valid_incidence(wo) & (last > 0)
-    traced = mf_sample is not None
-
-    def body(order, wr, t, thr, result, active, counter, *piped):
-        # Traced, the differentiated values come through the loop's state (gradients.LoopValues).
-        mfa, mfs, lo, (a,) = LoopValues.unpack(traced, mf, lambda_o, (albedo,), piped)
-        rng = Stream(key, counter)
-        u_h, u_rr = rng.next2()
-        tn, p_hit = sample_height_hit(mfs, wr, t, u_h)
-        active &= p_hit > 0.0
-        thr = thr * p_hit
-        if traced:
-            thr = thr * height_step_ratio(mfa, mfs, wr, t, tn)
-        t = tn
-        wi_l = -wr
-        u1, u2 = rng.next2()
-        m, _, valid = visible_normal(mfs, wi_l, u1, u2)
-        if traced:
-            thr = thr * visible_ratio(mfa, mfs, wi_l, m)
-        contrib = a * (dr.maximum(dot(m, wo), 0.0) * INV_PI * masking_at(lo, t))
-        result = dr.select(active & valid, result + thr * contrib, result)
-        active &= order < last
-        ua, ub = rng.next2()
-        wr = walk.cosine_about(m, ua, ub)
-        thr, survived = walk.russian_roulette_keep(thr * a, u_rr, 1.0)
-        active &= valid & survived & dr.all(dr.isfinite(wr))
-        return (order + 1, wr, t, thr, result, active, rng.counter) + piped
-
-    state = (mi.UInt32(1), -mi.Vector3f(wi), mi.Float(0.0), mi.Spectrum(1.0), dr.zeros(mi.Spectrum),
-             mi.Bool(start), mi.UInt32(0))
-    if traced:
-        state += LoopValues.state(mf, lambda_o, mi.Spectrum(albedo))
-    state = dr.while_loop(state, lambda *s: s[5], body, label="msx_heitz_diffuse_eval")
-    return state[4]
+    return eval_from(mf, DiffuseFacets(albedo), wi, wo, max_bounces, key, mf_sample)
 
 
 def diffuse_sample(mf, albedo, wi, sample1, u1, u2, max_bounces, key):
@@ -325,33 +402,11 @@ def diffuse_sample(mf, albedo, wi, sample1, u1, u2, max_bounces, key):
     ``sample1`` drives the first height, (u1, u2) the first visible normal, the lane's stream the cosine
     lobes and the rest. Returns (ω_o, weight = Π a / Π q, valid); more than ``max_bounces`` vertices is
     invalid."""
-    last = max_bounces
-    start = valid_incidence(wi) & (last > 0)
     w0 = -mi.Vector3f(wi)
     t0, hit0 = sample_height(mf, w0, mi.Float(0.0), clean_uniform(sample1))
-
-    def body(order, wr, t, thr, done, active, counter, u1, u2):
-        rng = Stream(key, counter)
-        order = order + 1
-        wi_l = -wr
-        m, _, valid = visible_normal(mf, wi_l, u1, u2)
-        ua, ub = rng.next2()
-        wr = walk.cosine_about(m, ua, ub)
-        u_rr, u_h = rng.next2()
-        thr, survived = walk.russian_roulette_keep(thr * albedo, u_rr, 1.0)
-        active &= valid & survived & dr.all(dr.isfinite(wr))
-        tn, hit = sample_height(mf, wr, t, u_h)
-        leaves = active & ~hit
-        done = leaves & (wr[2] > 0.0) & dr.all(dr.isfinite(thr))
-        active &= hit & (order < last)
-        t = tn
-        a, b = rng.next2()
-        return order, wr, t, thr, done, active, rng.counter, a, b
-
-    state = (mi.UInt32(0), w0, t0, mi.Spectrum(1.0), mi.Bool(False), mi.Bool(start & hit0), mi.UInt32(0),
-             clean_uniform(mi.Float(u1)), clean_uniform(mi.Float(u2)))
-    state = dr.while_loop(state, lambda *s: s[5], body, label="msx_heitz_diffuse_sample")
-    return state[1], state[3], state[4]
+    start = valid_incidence(wi) & (max_bounces > 0) & hit0
+    return sample_from(mf, DiffuseFacets(albedo), w0, t0, True, 0, mi.Spectrum(1.0), start, max_bounces, key, 0,
+                       (u1, u2))
 
 
 # ------------------------------------------------------------------ dielectric
@@ -408,7 +463,7 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
     traced = mf_sample is not None
     eta_traced = traced and dr.grad_enabled(eta)  # the edge terms are derivatives in η only
 
-    def body(order, wr, t, outside, thr, result, active, counter, *piped):
+    def body(order, wr, t, outside, thr, result, active, counter, piped):
         mfa, mfs, lo, eta_a = mf, mf, lambda_o, eta
         if traced:  # the differentiated values come through the state (gradients.LoopValues)
             lv = LoopValues(mf.dist, piped)
@@ -456,14 +511,16 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
         t = dr.select(crossed, flip_height(t), t)
         thr, survived = walk.russian_roulette_keep(thr, u_rr, 1.0, RR_TRACED_FLOOR if traced else 0.0)
         active &= valid & survived & dr.all(dr.isfinite(wr))
-        return (order + 1, wr, t, outside, thr, result, active, rng.counter) + piped
+        return dict(order=order + 1, wr=wr, t=t, outside=outside, thr=thr, result=result, active=active,
+                    counter=rng.counter, piped=piped)
 
-    state = (mi.UInt32(order), mi.Vector3f(wr), mi.Float(t), mi.Bool(outside), mi.Float(thr), mi.Float(0.0),
-             mi.Bool(active & (order <= last)), mi.UInt32(counter))
+    state = dict(order=mi.UInt32(order), wr=mi.Vector3f(wr), t=mi.Float(t), outside=mi.Bool(outside),
+                 thr=mi.Float(thr), result=mi.Float(0.0), active=mi.Bool(active & (order <= last)),
+                 counter=mi.UInt32(counter), piped=())
     if traced:
-        state += LoopValues.state(mf, lambda_o, mi.Float(eta), mi.Vector3f(0.0) if tw is None else mi.Vector3f(tw))
-    state = dr.while_loop(state, lambda *s: s[6], body, label="msx_heitz_dielectric_eval")
-    return state[5]
+        state["piped"] = LoopValues.state(mf, lambda_o, mi.Float(eta),
+                                          mi.Vector3f(0.0) if tw is None else mi.Vector3f(tw))
+    return walk.while_loop(state, body, label="msx_heitz_dielectric_eval")["result"]
 
 
 def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None):
@@ -481,43 +538,6 @@ def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None)
     return v * radiance_scale(eta, radiance, wi_out, wo[2] > 0.0)
 
 
-def dielectric_sample_from(mf, eta, wr, t, outside, order, thr, active, max_bounces, key, counter, ua, u1, u2):
-    """Heitz's dielectric sampling walk from a hit (Rust ``sample_from``): the ray along ``wr`` (frame of
-    its side) has hit at height ``t`` the vertex of order ``order`` + 1, which scatters with the numbers
-    (ua: reflect/refract choice, u1, u2: visible normal); the lane's stream from ``counter`` drives the
-    rest. Returns (ω_o in the macro frame, weight without the Radiance-mode factor, valid); more than
-    ``max_bounces`` vertices is invalid. Public for the invariance model (after the first refraction)."""
-    last = max_bounces
-    eta = mi.Float(eta)
-
-    def body(order, wr, t, outside, thr, done, active, counter, ua, u1, u2):
-        rng = Stream(key, counter)
-        order = order + 1
-        wi_l = -wr
-        m, cos_wm, valid = visible_normal(mf, wi_l, u1, u2)
-        wr, crossed = scatter_unit(wi_l, m, cos_wm, eta_seen(eta, outside), ua)
-        outside = outside ^ crossed
-        t = dr.select(crossed, flip_height(t), t)
-        u_rr, u_h = rng.next2()
-        thr, survived = walk.russian_roulette_keep(thr, u_rr, 1.0)
-        active &= valid & survived & dr.all(dr.isfinite(wr))
-        tn, hit = sample_height(mf, wr, t, u_h)
-        leaves = active & ~hit
-        done = leaves & (wr[2] != 0.0) & dr.isfinite(thr)
-        active &= hit & (order < last)
-        t = tn
-        a, b = rng.next2()
-        c, _ = rng.next2()
-        return order, wr, t, outside, thr, done, active, rng.counter, c, a, b
-
-    state = (mi.UInt32(order), mi.Vector3f(wr), mi.Float(t), mi.Bool(outside), mi.Float(thr), mi.Bool(False),
-             mi.Bool(active & (order < last)), mi.UInt32(counter), clean_uniform(mi.Float(ua)),
-             clean_uniform(mi.Float(u1)), clean_uniform(mi.Float(u2)))
-    state = dr.while_loop(state, lambda *s: s[6], body, label="msx_heitz_dielectric_sample")
-    wr, outside, thr, done = state[1], state[3], state[4], state[5]
-    return dr.select(outside, wr, -wr), thr, done
-
-
 def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
     """Random-walk sampling through a rough dielectric (Rust ``sample`` with ``sample_from``): (u1, u2)
     drive the first visible normal and ``sample1`` the first reflect/refract choice; the heights and later
@@ -531,8 +551,8 @@ def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
     u_h0, _ = rng0.next2()
     w0 = -dr.select(wi_out, wi, -wi)
     t0, hit0 = sample_height(mf, w0, mi.Float(0.0), u_h0)
-    wo, thr, done = dielectric_sample_from(mf, eta, w0, t0, wi_out, mi.UInt32(0), mi.Float(1.0), start & hit0,
-                                           max_bounces, key, rng0.counter, sample1, u1, u2)
+    wo, thr, done = sample_from(mf, DielectricFacets(eta), w0, t0, wi_out, 0, mi.Float(1.0), start & hit0,
+                                max_bounces, key, rng0.counter, (sample1, u1, u2))
     return wo, thr * radiance_scale(eta, radiance, wi_out, wo[2] > 0.0), done
 
 # The conductor walk this module provides (jit/bsdf.py collects it): height-correlated order-1 exit in

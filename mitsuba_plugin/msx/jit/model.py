@@ -53,12 +53,15 @@ class DielectricAnalytic:
 
 
 class _Walk:
-    """What every walk on a non-conductor surface provides: ``eval_pt`` and ``sample_walk`` (signatures below)
-    and ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md)."""
+    """What every walk on a non-conductor surface provides: ``eval_pt`` and ``sample_walk`` (signatures below),
+    ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md), and ``needs_local_arrays``: it
+    keeps a ``dr.alloc_local`` buffer, which drjit 1.5's LLVM backend cannot compile inside a symbolic call
+    (jit/bsdf.py refuses it in scenes; docs/engines.md)."""
 
-    def __init__(self, eval_pt, sample_walk, differentiable=False):
+    def __init__(self, eval_pt, sample_walk, differentiable=False, needs_local_arrays=False):
         self.eval_pt, self.sample_walk = eval_pt, sample_walk
         self.differentiable = differentiable
+        self.needs_local_arrays = needs_local_arrays
 
 
 class DielectricWalk(_Walk):

@@ -157,7 +157,7 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
     traced = mf_sample is not None
     eta_traced = traced and dr.grad_enabled(eta)  # the edge terms are derivatives in η only
 
-    def body(j, w, l, side, eta_f, thr, result, active, counter, *piped):
+    def body(j, w, l, side, eta_f, thr, result, active, counter, piped):
         mfa, mfs, lo, efa, efs = mf, mf, lambda_o, eta_f, eta_f
         if traced:  # the differentiated values come through the state (gradients.LoopValues)
             lv = LoopValues(mf.dist, piped)
@@ -198,13 +198,14 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
         lam = mfa.abs_lambda(d)
         thr = dr.select(up, thr * continue_up(segments, refracted, l, lam), thr)
         active &= ~up | ((lam > 0.0) & (thr > 0.0))
-        return (j + 1, -d, lam, side, eta_f, thr, result, active, rng.counter) + piped
+        return dict(j=j + 1, w=-d, l=lam, side=side, eta_f=eta_f, thr=thr, result=result, active=active,
+                    counter=rng.counter, piped=piped)
 
-    state = (mi.UInt32(0), w0, l0, side0, eta_f0, mi.Float(1.0), mi.Float(0.0), mi.Bool(start), mi.UInt32(0))
-    if traced:
-        state += LoopValues.state(mf, lambda_o, mi.Float(eta), mi.Vector3f(0.0))
-    state = dr.while_loop(state, lambda *s: s[7], body, label="msx_posfree_dielectric_pt")
-    return state[6] * radiance_scale(eta, radiance, wi[2] > 0.0, wo[2] > 0.0)
+    state = dict(j=mi.UInt32(0), w=w0, l=l0, side=side0, eta_f=eta_f0, thr=mi.Float(1.0), result=mi.Float(0.0),
+                 active=mi.Bool(start), counter=mi.UInt32(0),
+                 piped=LoopValues.state(mf, lambda_o, mi.Float(eta), mi.Vector3f(0.0)) if traced else ())
+    result = walk.while_loop(state, body, label="msx_posfree_dielectric_pt")["result"]
+    return result * radiance_scale(eta, radiance, wi[2] > 0.0, wo[2] > 0.0)
 
 
 def sample_walk(segments, mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
@@ -235,12 +236,13 @@ def sample_walk(segments, mf, eta, radiance, wi, sample1, u1, u2, max_bounces, k
         leaves = up & (u_exit >= c)
         done = valid & leaves
         active = valid & ~leaves & (j + 1 < max_bounces)
-        return j + 1, -d, lam, side, eta_f, done, active, rng.counter
+        return dict(j=j + 1, w=-d, l=lam, side=side, eta_f=eta_f, done=done, active=active, counter=rng.counter)
 
-    state = (mi.UInt32(0), w0, l0, side0, eta_f0, mi.Bool(False), mi.Bool(valid_inputs(eta, wi)), mi.UInt32(0))
-    state = dr.while_loop(state, lambda *s: s[6], body, label="msx_posfree_dielectric_sample")
-    _, w, _, side, _, done, _, _ = state
-    wo = -side * w
+    state = dict(j=mi.UInt32(0), w=w0, l=l0, side=side0, eta_f=eta_f0, done=mi.Bool(False),
+                 active=mi.Bool(valid_inputs(eta, wi)), counter=mi.UInt32(0))
+    out = walk.while_loop(state, body, label="msx_posfree_dielectric_sample")
+    done = out["done"]
+    wo = -out["side"] * out["w"]
     return wo, radiance_scale(eta, radiance, wi[2] > 0.0, wo[2] > 0.0), done
 
 

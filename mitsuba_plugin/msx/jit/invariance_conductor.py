@@ -1,0 +1,284 @@
+"""The invariance principle on conductor facets (Cui et al. 2023) in the Dr.Jit engine: twin of
+``src/models/invariance/conductor.rs``. PT ``eval``/``sample`` with the incremental exit table
+``MonotoneExit`` (jit/invariance_recursion.py), and the BDPT estimator (``eval_bdpt``: the position-free
+conductor's of jit/posfree.py with the whole path's exit probability, ``WholePath``).
+
+``eval``: visible-normal walk with NEE towards ω_o weighed by the exit probability given the hits, the
+connection strategy (a one-vertex light subpath y from the side of ω_o) for orders 2 and 3 with the
+balance heuristic, Russian roulette with sure survival above ``RR_KEEP``, and the exact stop once an
+upward direction is at least as steep as ω_o. ``sample``: the same walk leaving at each upward direction
+with probability 1 − H_m/H_{m−1}; the weight is the product of the Fresnel terms.
+"""
+
+import copy
+
+import drjit as dr
+import mitsuba as mi
+
+from . import walk
+from .gradients import LoopValues
+from .invariance_recursion import MonotoneExit, run_slots
+from .microfacet import ConductorFresnel, dot, half_vector, max_channel, reflect
+from .rng import Stream
+
+# src/models/invariance/conductor.rs: the roulette's sure-survival level, and the highest order the
+# connection strategy serves.
+RR_KEEP = 0.5
+CONNECT_MAX_ORDER = 3
+
+
+def half_vector_d(mf, w, x):
+    """(D(h), w·h) for the half vector h of w and x; (0, 0) where w does not see h."""
+    h, length = half_vector(w, x)
+    c = dot(w, h)
+    ok = (length > 0.0) & (c > 0.0)
+    return dr.select(ok, mf.d(h), 0.0), dr.select(ok, c, 0.0)
+
+
+def valid_direction(w):
+    return dr.all(dr.isfinite(w)) & (w[2] > 0.0)
+
+
+class LightVertex:
+    """The connection's one-vertex light subpath: y = −(ω_o reflected about a visible normal of ω_o)
+    (twin of ``LightVertex``)."""
+
+    def __init__(self, mf, fresnel, wo, pdf_scale_o, u1, u2, mf_sample=None):
+        m, valid = (mf if mf_sample is None else mf_sample).sample_visible(wo, u1, u2)
+        cos1 = dot(wo, m)
+        y = -reflect(wo, m)
+        up = y[2] > 0.0
+        l_y = dr.select(up, mf.lambda_(y), mf.abs_lambda(y))
+        area_y = dr.abs(y[2]) * l_y
+        d_m = mf.d(m)
+        self.pdf = d_m * pdf_scale_o
+        self.phase = 0.25 * d_m / area_y
+        self.valid = (valid & (cos1 > 0.0) & (self.pdf > 0.0) & (self.phase > 0.0) & dr.isfinite(self.pdf)
+                      & dr.isfinite(self.phase) & dr.isfinite(l_y))
+        self.y, self.l_y, self.up = y, l_y, up
+        self.fresnel = fresnel.eval(dr.select(cos1 > 0.0, cos1, 1.0))
+
+    def connect(self, mf, fresnel, has_up, w, pdf_scale, via_up, column_ly_o, traced=False):
+        """The connection estimate at the vertex (w = −d_m): ``via_up`` = p_exit(.., y, ω_o)/H_m for an
+        upward y, ``column_ly_o`` = column(Λ_o) for the downward case (the caller's one pass). ``traced``
+        (y drawn with the parameters detached, docs/gradients.md): the balance weight detached, the
+        integrand over y's detached density."""
+        d_h, cos0 = half_vector_d(mf, w, self.y)
+        p_fwd = d_h * pdf_scale
+        ok = self.valid & (p_fwd > 0.0) & dr.isfinite(p_fwd)
+        via_down = dr.select(has_up, 0.0, self.l_y / (self.l_y + self.lambda_o) * column_ly_o)
+        exit = dr.select(self.up, via_up, via_down)
+        if traced:
+            value = dr.detach(self.pdf / (p_fwd + self.pdf)) * (p_fwd * self.phase * exit) / dr.detach(self.pdf)
+        else:
+            value = p_fwd * self.phase * exit / (p_fwd + self.pdf)
+        ok &= (value > 0.0) & dr.isfinite(value)
+        return dr.select(ok, fresnel.eval(cos0) * self.fresnel * value, 0.0)
+
+
+# ------------------------------------------------------------------ the walks
+
+
+def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None):
+    """One unbiased estimate of f(ω_i, ω_o)·cos θ_o, orders 1..max_bounces (Rust ``eval`` and
+    ``Walk::from``). ``mf_sample``: the statistics directions are drawn from when they are not ``mf`` (the
+    parameters detached; the estimate's derivative is then unbiased: docs/gradients.md)."""
+    last = max_bounces  # a Python int, or a UInt32 per lane
+    slots = run_slots(last)
+    lambda_o = mf.lambda_(wo)
+    start = valid_direction(wi) & valid_direction(wo) & dr.isfinite(lambda_o) & (last > 0)
+    pdf_scale_o = 0.25 / (wo[2] * (1.0 + lambda_o))
+    connects = not isinstance(last, int) or last >= 2  # per lane: masked by order < last below
+    rng0 = Stream(key)
+    light = None
+    if connects:
+        u1, u2 = rng0.next2()
+        light = LightVertex(mf, fresnel, wo, pdf_scale_o, u1, u2, mf_sample)
+        light.lambda_o = lambda_o
+    l0 = mf.abs_lambda(-wi)
+    dp0 = MonotoneExit.new(l0, slots, unrolled=mf_sample is not None)
+    return walk_from(mf, fresnel, wo, lambda_o, light, CONNECT_MAX_ORDER, mi.Vector3f(wi), 0.25 / (wi[2] * l0),
+                     mi.Spectrum(1.0), dp0, start, 0, last, key, rng0.counter, mf_sample=mf_sample)
+
+
+def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, dp0, active, first_vertex, last,
+              key, counter, label="msx_invariance_conductor_eval", mf_sample=None):
+    """The walk of ``eval`` from vertex ``first_vertex`` on (twin of ``Walk::from``), arriving there with
+    w = −d_m, ``pdf_scale`` = 1/(4 A(w)), the throughput Π F · H_m and the exit table ``dp0`` of d_0..d_m,
+    on the lanes ``active``; orders up to ``last``. ``light`` (a ``LightVertex`` with ``lambda_o`` set, or
+    None) and ``connect_max``: the connection strategy for orders 2..connect_max (none with None and 0: the
+    BDPT's tail). The lane's stream is (``key``, ``counter``). ``mf_sample``: as ``eval``'s. The call's
+    values (α, η, k, Λ(ω_o), the light vertex's) travel in the loop's state whenever they carry derivatives
+    (``walk.carries_gradients``): with ``mf_sample``, and without it when a caller differentiates the walk as
+    written (the traced ``sample``'s weight)."""
+    connects = light is not None
+    traced = mf_sample is not None
+    material = () if fresnel.mirror else (fresnel.eta, fresnel.k)
+    piped_values = traced or walk.carries_gradients(mf, lambda_o, *material)
+
+    def body(j, w, pdf_scale, pdf_walk, thr, result, active, counter, dp_state, piped):
+        mf, fresnel, lambda_o, light, mf_s = outer_mf, outer_fresnel, outer_lambda_o, outer_light, outer_mf
+        if piped_values:
+            lv = LoopValues(outer_mf.dist, piped)
+            mf, lambda_o, rest = lv.mf, lv.lambda_o, lv.rest
+            mf_s = lv.mf_sample if traced else mf
+            if connects:
+                light = copy.copy(outer_light)
+                light.l_y, light.pdf, light.phase, light.fresnel = rest[:4]
+                light.lambda_o = lambda_o
+                rest = rest[4:]
+            if not outer_fresnel.mirror:
+                fresnel = ConductorFresnel(rest[0], rest[1])
+        rng = Stream(key, counter)
+        dp = MonotoneExit.from_state(dp_state, dp0.unrolled)
+        order = j + 1
+        # NEE: D(h)/(4 A(w)) · F · p_exit(d_0..d_m, ω_o)/H_m, with the balance heuristic against the
+        # connection for orders 2..connect_max.
+        d_h, cos_wh = half_vector_d(mf, w, wo)
+        value = d_h * pdf_scale
+        lambda_y = light.l_y if connects else mi.Float(0.0)
+        col_o, via_up = dp.columns(lambda_o, lambda_y)
+        if connects:
+            mis_w = (j > 0) & (order <= connect_max) & (value > 0.0)
+            p_rev = d_h * (0.25 / (wo[2] * (1.0 + lambda_o)))
+            balance = pdf_walk / (pdf_walk + p_rev)
+            value = dr.select(mis_w, value * (dr.detach(balance) if traced else balance), value)
+        ok = (value > 0.0) & dr.isfinite(value)
+        result = dr.select(active & ok, result + thr * fresnel.eval(cos_wh) * (value * col_o), result)
+        active &= order < last
+        # The connection for order + 1: d_{m+1} = y from the side of ω_o.
+        if connects:
+            conn = light.connect(mf, fresnel, dp.has_up, w, pdf_scale, via_up, col_o, traced)
+            conn_on = active & (order < connect_max)
+            result = dr.select(conn_on, result + thr * conn, result)
+        # Russian roulette on Π F · H_m, after the vertex's estimates.
+        u_rr, _ = rng.next2()
+        thr, alive = walk.roulette_from(j >= walk.RR_START, thr, u_rr, RR_KEEP)
+        active &= alive
+        # The next direction.
+        u1, u2 = rng.next2()
+        m, valid = mf_s.sample_visible(w, u1, u2)
+        cos_wm = dot(w, m)
+        active &= valid & (cos_wm > 0.0)
+        d_next = reflect(w, m)
+        up = d_next[2] > 0.0
+        # Along the upward run z only grows: once an upward d.z ≥ ω_o.z no later vertex reaches ω_o.
+        active &= ~(up & (d_next[2] >= wo[2]))
+        thr = thr * fresnel.eval(cos_wm)
+        if traced:  # the step's density D(m)/(4 A(w)) over its detached value
+            thr = thr * ((mf.d(m) * pdf_scale) / (mf_s.d(m) * dr.detach(pdf_scale)))
+        if connects:
+            pdf_walk = dr.select(order < connect_max, mf.d(m) * pdf_scale, pdf_walk)
+        l_up = mf.lambda_(d_next)
+        l_down = mf.abs_lambda(d_next)
+        l_next = dr.select(up, l_up, l_down)
+        active &= dr.isfinite(l_next)
+        cont = dp.push_up(l_up, active & up)
+        thr = dr.select(up, thr * cont, thr)
+        active &= ~up | ((cont > 0.0) & (max_channel(thr) > 0.0))
+        pushed = dp.push_down(l_down, active & ~up)
+        active &= up | pushed
+        w = -d_next
+        pdf_scale = 0.25 / (dr.abs(d_next[2]) * l_next)
+        return dict(j=j + 1, w=w, pdf_scale=pdf_scale, pdf_walk=pdf_walk, thr=thr, result=result, active=active,
+                    counter=rng.counter, dp_state=dp.state(), piped=piped)
+
+    outer_mf, outer_fresnel, outer_lambda_o, outer_light = mf, fresnel, lambda_o, light
+    width = dr.width(w)
+    piped = ()
+    if piped_values:
+        piped += (mi.Float(mf.alpha_u), mi.Float(mf.alpha_v), mi.Float(lambda_o))
+        if connects:
+            piped += (mi.Float(light.l_y), mi.Float(light.pdf), mi.Float(light.phase), mi.Spectrum(light.fresnel))
+        if not fresnel.mirror:
+            piped += (mi.Spectrum(fresnel.eta), mi.Spectrum(fresnel.k))
+    state = dict(j=mi.UInt32(first_vertex), w=mi.Vector3f(w), pdf_scale=mi.Float(pdf_scale), pdf_walk=mi.Float(0.0),
+                 thr=mi.Spectrum(thr), result=dr.zeros(mi.Spectrum, width), active=mi.Bool(active),
+                 counter=mi.UInt32(counter), dp_state=dp0.state(), piped=piped)
+    return walk.while_loop(state, body, label=label)["result"]
+
+# ------------------------------------------------------------------ the bidirectional estimator
+# Cui 2023: "the bidirectional estimator is the same as Wang et al. except for the segment term" — the
+# position-free conductor's (jit/posfree.py ``Bidirectional`` on jit/bdpt.py) with ``WholePath`` as its
+# segment term (twin of ``WholePath`` in conductor.rs): bare pair factors 1/L_j, the exit probability of the
+# whole path d_0..d_s, e_t..e_1, ω_o at each connection, this model's walk above K_b.
+
+
+class WholePath:
+    """The segment term of the invariance model for jit/posfree.py's ``Bidirectional``."""
+
+    def cont(self, l, nxt, l_next):
+        return mi.Float(1.0)
+
+    def last(self, l, lambda_o):
+        return 1.0 / l
+
+    def whole_path(self, surface, cam, light):
+        """(p_exit of d_0..d_s, e_t, …, e_1, ω_o, monotone) (``exit_table`` + ``exit_probability``)."""
+        dirs = [(c.l, c.d) for c in cam] + [(v.l, v.e) for v in reversed(light[1:])]
+        dp = MonotoneExit.new(dirs[0][0], len(dirs))
+        ok = mi.Bool(True)
+        for l, d in dirs[1:]:
+            up = d[2] > 0.0
+            dp.push_up(l, up)
+            ok &= up | dp.push_down(l, ~up)
+        return dp.exit_probability(surface.lambda_o), ok
+
+    def pt_tail(self, surface, cam, ready, kb, orders, rng):
+        """Orders above K_b: the walk of ``eval`` without its connection strategy from camera vertex K_b,
+        with the exit table of d_0..d_{K_b} and the throughput Π F · H_{K_b}."""
+        last = orders[1]
+        # Differentiated (the sample weight's derivative), the run's passes are unrolled: drjit 1.5's forward
+        # mode fails on their branch inside the loop (``over_run``).
+        material = () if surface.fresnel.mirror else (surface.fresnel.eta, surface.fresnel.k)
+        dp = MonotoneExit.new(cam[0].l, run_slots(last),
+                              unrolled=walk.carries_gradients(surface.mf, surface.lambda_o, *material))
+        hit, ok = mi.Float(1.0), mi.Bool(ready)
+        for c in cam[1 : kb + 1]:
+            up = c.d[2] > 0.0
+            cont = dp.push_up(c.l, ok & up)
+            hit = dr.select(up, hit * cont, hit)
+            ok &= up | dp.push_down(c.l, ok & ~up)
+        cv = cam[kb]
+        return walk_from(surface.mf, surface.fresnel, surface.wo, surface.lambda_o, None, 0, -cv.d,
+                         0.25 / cv.area_back, cv.thr * hit, dp, ok, kb, last, rng.key, rng.counter,
+                         label="msx_invariance_conductor_bdpt_tail")
+
+
+def eval_bdpt(mf, fresnel, wi, wo, max_bounces, key):
+    """BDPT estimate of f(ω_i, ω_o)·cos θ_o of the invariance model (twin of ``eval_bdpt``): orders up to
+    K_b = ``bdpt.DEFAULT_BDPT_ORDERS`` bidirectionally, higher ones by the walk of ``eval`` (without its
+    connection strategy). ``max_bounces``: a Python int."""
+    from .posfree import estimate_bdpt_above
+
+    active = valid_direction(wi) & valid_direction(wo) & dr.isfinite(mf.lambda_(wo))
+    return estimate_bdpt_above(mf, fresnel, WholePath(), wi, wo, active, max_bounces, key)
+
+
+def sample(mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
+    """Random-walk sampling (Rust ``sample``): reflect about visible normals and, at each upward
+    direction, leave with probability 1 − H_m/H_{m−1}. (sample1, u1, u2) drive the first vertex, the
+    lane's stream the rest. Returns (ω_o, weight = Π F, valid); more than max_bounces vertices is invalid."""
+    start = valid_direction(wi) & (max_bounces > 0)
+
+    def vertex(w, weight, u, dp_state, rng, active):
+        u_exit, u1, u2 = u
+        dp = MonotoneExit.from_state(dp_state)
+        m, valid = mf.sample_visible(w, u1, u2)
+        cos_wm = dot(w, m)
+        active &= valid & (cos_wm > 0.0)
+        d_next = reflect(w, m)
+        weight = weight * fresnel.eval(cos_wm)
+        up = d_next[2] > 0.0
+        l_up = mf.lambda_(d_next)
+        l_down = mf.abs_lambda(d_next)
+        active &= dr.isfinite(dr.select(up, l_up, l_down))
+        cont = dp.push_up(l_up, active & up)
+        leaves = active & up & (u_exit >= cont)
+        pushed = dp.push_down(l_down, active & ~up)
+        active &= (up & ~leaves) | pushed
+        return d_next, weight, leaves & dr.all(dr.isfinite(d_next)), active, dp.state()
+
+    dp0 = MonotoneExit.new(mf.abs_lambda(-wi), run_slots(max_bounces))
+    return walk.sample_walk(wi, (sample1, u1, u2), start, dp0.state(), vertex, max_bounces, key, mi.Spectrum(1.0),
+                            label="msx_invariance_conductor_sample")

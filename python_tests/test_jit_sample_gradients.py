@@ -6,7 +6,8 @@ written (``prb`` does not use it: it replays ``eval``). A walk's loop must take 
 through its state: read from outside the loop inside a symbolic call, drjit 1.5 either refuses them
 (``conductor invariance`` with ``estimator="bdpt"``: ``ad_traverse … isolate_grad`` when ``dr.forward``
 reached the weight) or drops their derivative (the weight's derivative in a conductor's η was 0 on every
-lane of ``heitz`` and ``invariance``). Checked through a symbolic call, as a render calls the BSDF:
+lane of ``heitz``, ``invariance`` and the position-free walks, whose ``sample`` now weighs by ``eval``'s
+differentiable estimate). Checked through a symbolic call, as a render calls the BSDF:
 
 - forward mode runs, and the derivative is finite and not all zero, for every model the engine runs with
   ``estimator="bdpt"``, in α and in η;
@@ -34,8 +35,8 @@ import jit_support  # noqa: E402
 from msx.jit import bsdf as engine  # noqa: E402
 
 LANES = 1 << 14
-# Šidák: a family-wise false-alarm rate of 1e-3 over the 3 × 3 z-tests of this file.
-Z = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / 9)) / 2.0)
+# Šidák: a family-wise false-alarm rate of 1e-3 over the 6 × 3 z-tests of this file.
+Z = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / 18)) / 2.0)
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -82,7 +83,11 @@ def test_bdpt_sample_weight_differentiates_forward(model, key):
     assert np.any(fwd != 0.0), "no derivative"
 
 
-@pytest.mark.parametrize("model, estimator", [("heitz", "pt"), ("invariance", "pt"), ("invariance", "bdpt")])
+ETA_CASES = [("heitz", "pt"), ("invariance", "pt"), ("invariance", "bdpt"), ("correlated", "pt"),
+             ("correlated", "bdpt"), ("uncorrelated", "pt")]
+
+
+@pytest.mark.parametrize("model, estimator", ETA_CASES)
 def test_sample_weight_derivative_in_eta_equals_finite_differences(model, estimator):
     at = calls(model, estimator, "eta.value")
     h = 1e-2

@@ -344,15 +344,15 @@ class ConductorModel:
 
     def sample_traced(self, call, wi, s1, u1, u2, eval_key):
         """``sample`` while differentiated: ω_o from the proposal, weighed by the walk's estimate there (the
-        one ``eval`` gives, lane key ``eval_key(ω_o)``) over the proposal's density. ω_o is drawn with ω_i
-        detached; where ω_i carries a gradient, the weight is the differentiable estimate over the detached
-        density (the derivative of ∫ f·L dω_o by a detached draw; docs/gradients.md)."""
+        one ``eval`` gives, lane key ``eval_key(ω_o)``) over the proposal's density. ω_o is drawn with ω_i and
+        the parameters detached, and the weight is ``eval``'s differentiable estimate over that detached
+        density: its derivative is that of ∫ f·L dω_o by a detached draw (docs/gradients.md), in the
+        parameters and in ω_i. (The walk as written, read inside a symbolic call, would drop its parameters'
+        derivatives: they come from outside its loop.)"""
         walk, mf = self.walk, call.mf
         wo, pdf, valid = gradients.proposal_sample(walk.exit, mf, dr.detach(wi), s1, u1, u2)
-        if dr.grad_enabled(wi):
-            value = self.differentiable_estimate(call, wi, wo, eval_key(wo))
-        else:
-            value = self.estimate(mf, call.fresnel, wi, wo, self.bounces(call, wi), eval_key(wo))
+        pdf = dr.detach(pdf)
+        value = self.differentiable_estimate(call, wi, wo, eval_key(wo))
         weight = dr.select(valid & (pdf > 0.0), value / pdf, 0.0)
         return wo, pdf, weight * call.tint_r, valid
 

@@ -113,6 +113,18 @@ def test_closed_form_derivative_through_directions(table, surface, model, transm
     assert abs(ad - fd) <= bound, (surface, model, ad, fd, bound)
 
 
+def _tilting_interaction(n=16):
+    """16 lanes of an interaction whose shading frame tilts with a differentiated angle: its ω_i carries a
+    gradient, as under a differentiated normal map."""
+    angle = mi.Float(ANGLE)
+    dr.enable_grad(angle)
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    frame = mi.Frame3f(mi.Vector3f(dr.sin(angle), 0.0 * angle, dr.cos(angle)))
+    si.sh_frame = frame
+    si.wi = frame.to_local(mi.Vector3f(0.3, 0.1, 0.9))
+    return si
+
+
 def walk_cases():
     mi.set_variant("llvm_ad_rgb")
     import jit_support
@@ -123,12 +135,7 @@ def walk_cases():
 @pytest.mark.parametrize("surface,model", walk_cases())
 def test_walk_refuses_directions_with_gradients(table, surface, model):
     bsdf = mi.load_dict(_params(surface, model))
-    angle = mi.Float(ANGLE)
-    dr.enable_grad(angle)
-    si = dr.zeros(mi.SurfaceInteraction3f, 16)
-    frame = mi.Frame3f(mi.Vector3f(dr.sin(angle), 0.0 * angle, dr.cos(angle)))
-    si.sh_frame = frame
-    si.wi = frame.to_local(mi.Vector3f(0.3, 0.1, 0.9))
+    si = _tilting_interaction()
     wo = mi.Vector3f(-0.2, 0.1, 0.95)
     ctx = mi.BSDFContext()
     for call in (lambda: bsdf.eval(ctx, si, wo), lambda: bsdf.eval_pdf(ctx, si, wo),
@@ -389,12 +396,7 @@ def test_walk_asks_for_differentiate_directions(table):
     p = _walk_params("correlated", 0.5, "Cu")
     del p["differentiate_directions"]
     bsdf = mi.load_dict(p)
-    angle = mi.Float(ANGLE)
-    dr.enable_grad(angle)
-    si = dr.zeros(mi.SurfaceInteraction3f, 16)
-    frame = mi.Frame3f(mi.Vector3f(dr.sin(angle), 0.0 * angle, dr.cos(angle)))
-    si.sh_frame = frame
-    si.wi = frame.to_local(mi.Vector3f(0.3, 0.1, 0.9))
+    si = _tilting_interaction()
     with pytest.raises(ValueError) as e:
         bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(-0.2, 0.1, 0.95))
     assert "differentiate_directions" in str(e.value) and "\n" not in str(e.value)

@@ -14,15 +14,21 @@ from llvm_support import llvm_unusable_reason  # noqa: E402  (sets DRJIT_LIBLLVM
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_fit_roughness_quick(tmp_path):
+def run_quick(example, out):
+    """``examples/<example> --quick --out <out>`` as a user runs it: (its last line, the run)."""
     reason = llvm_unusable_reason()
     if reason:
         pytest.skip(reason)
-    r = subprocess.run([sys.executable, str(ROOT / "examples" / "fit_roughness.py"), "--quick", "--out",
-                        str(tmp_path)], capture_output=True, text=True, timeout=1200)
+    r = subprocess.run([sys.executable, str(ROOT / "examples" / example), "--quick", "--out", str(out)],
+                       capture_output=True, text=True, timeout=1200)
     assert r.returncode == 0, r.stderr[-3000:]
     last = r.stdout.strip().splitlines()[-1]
     print(last)
+    return last, r
+
+
+def test_fit_roughness_quick(tmp_path):
+    last, r = run_quick("fit_roughness.py", tmp_path)
     m = re.fullmatch(r"fitted alpha: msx-correlated ([0-9.]+), msx-invariance ([0-9.]+), "
                      r"roughconductor ([0-9.]+) \(true 0\.8\)", last)
     assert m, last
@@ -40,14 +46,7 @@ def test_fit_normal_map_quick(tmp_path):
     map tilts) recovers the map as the built-in does on its own target. The renders are reproducible (fixed
     seeds and lane keys), so the result is deterministic; measured 2.69° (msx) and 1.96° (roughconductor) from
     15.45°, and the goal stated in the README is under 4° for both."""
-    reason = llvm_unusable_reason()
-    if reason:
-        pytest.skip(reason)
-    r = subprocess.run([sys.executable, str(ROOT / "examples" / "fit_normal_map.py"), "--quick", "--out",
-                        str(tmp_path)], capture_output=True, text=True, timeout=1200)
-    assert r.returncode == 0, r.stderr[-3000:]
-    last = r.stdout.strip().splitlines()[-1]
-    print(last)
+    last, _ = run_quick("fit_normal_map.py", tmp_path)
     m = re.fullmatch(r"mean normal error \(degrees\): msx-correlated ([0-9.]+), roughconductor ([0-9.]+) "
                      r"\(start ([0-9.]+)\)", last)
     assert m, last

@@ -107,8 +107,8 @@ fn cell(w: DVec3) -> usize {
     iz * NP + ip
 }
 
-/// (χ² statistic, degrees of freedom, largest |O − E|/√E) of the sampler against `Bsdf::pdf`.
-fn chi2(b: &Bsdf, mat: &Material, wi: DVec3, seed: u64) -> (f64, usize, f64) {
+/// (χ² statistic, degrees of freedom, largest |O − E|/√E) of `n` draws of `sampler` against `density`'s pdf.
+fn chi2_of(sampler: &Bsdf, density: &Bsdf, mat: &Material, wi: DVec3, seed: u64, n: usize) -> (f64, usize, f64) {
     let (dz, dp) = (2.0 / NZ as f64, 2.0 * PI / NP as f64);
     let sub_area = (dz / SUB as f64) * (dp / SUB as f64); // the solid angle of a sub-cell (z, φ are equal-area)
     let mut expected = vec![0.0; NZ * NP + 1];
@@ -120,20 +120,20 @@ fn chi2(b: &Bsdf, mat: &Material, wi: DVec3, seed: u64) -> (f64, usize, f64) {
                 let r = (1.0 - z * z).max(0.0).sqrt();
                 for c in 0..SUB {
                     let phi = dp * (ip as f64 + (c as f64 + 0.5) / SUB as f64);
-                    sum += b.pdf(mat, wi, DVec3::new(r * phi.cos(), r * phi.sin(), z));
+                    sum += density.pdf(mat, wi, DVec3::new(r * phi.cos(), r * phi.sin(), z));
                 }
             }
-            expected[iz * NP + ip] = sum * sub_area * SAMPLES as f64;
+            expected[iz * NP + ip] = sum * sub_area * n as f64;
         }
     }
     let inside: f64 = expected[..NZ * NP].iter().sum();
-    expected[NZ * NP] = (SAMPLES as f64 - inside).max(0.0);
+    expected[NZ * NP] = (n as f64 - inside).max(0.0);
     let mut observed = vec![0.0; NZ * NP + 1];
     let mut rng = Sampler::new(seed + seed_offset());
-    for _ in 0..SAMPLES {
+    for _ in 0..n {
         let s1 = rng.next();
         let (u1, u2) = rng.next2();
-        match b.sample(mat, wi, s1, (u1, u2)) {
+        match sampler.sample(mat, wi, s1, (u1, u2)) {
             // As mi.chi2's BSDFAdapter: a sample of weight 0 is not counted (ω_o on the wrong side of its facet).
             Some(s) if s.pdf > 0.0 && s.weight.0[..3].iter().any(|&w| w != 0.0) => observed[cell(s.wo)] += 1.0,
             _ => observed[NZ * NP] += 1.0,
@@ -161,6 +161,11 @@ fn chi2(b: &Bsdf, mat: &Material, wi: DVec3, seed: u64) -> (f64, usize, f64) {
         cells += 1;
     }
     (stat, cells - 1, worst)
+}
+
+/// (χ² statistic, degrees of freedom, largest |O − E|/√E) of the sampler against `Bsdf::pdf`.
+fn chi2(b: &Bsdf, mat: &Material, wi: DVec3, seed: u64) -> (f64, usize, f64) {
+    chi2_of(b, b, mat, wi, seed, SAMPLES)
 }
 
 /// (surface, distribution, α_u, α_v, ω_i, label): the configurations of the χ² and albedo tests.
@@ -226,49 +231,8 @@ struct Mixed<'a> {
 impl Mixed<'_> {
     fn chi2(&self, mat: &Material, wi: DVec3, seed: u64) -> (f64, usize) {
         // The same statistic as `chi2`, with a smaller sample (the difference is large).
-        let n = 200_000usize;
-        let (dz, dp) = (2.0 / NZ as f64, 2.0 * PI / NP as f64);
-        let sub_area = (dz / SUB as f64) * (dp / SUB as f64);
-        let mut expected = vec![0.0; NZ * NP + 1];
-        for iz in 0..NZ {
-            for ip in 0..NP {
-                let mut sum = 0.0;
-                for a in 0..SUB {
-                    let z = -1.0 + dz * (iz as f64 + (a as f64 + 0.5) / SUB as f64);
-                    let r = (1.0 - z * z).max(0.0).sqrt();
-                    for c in 0..SUB {
-                        let phi = dp * (ip as f64 + (c as f64 + 0.5) / SUB as f64);
-                        sum += self.pdf.pdf(mat, wi, DVec3::new(r * phi.cos(), r * phi.sin(), z));
-                    }
-                }
-                expected[iz * NP + ip] = sum * sub_area * n as f64;
-            }
-        }
-        let inside: f64 = expected[..NZ * NP].iter().sum();
-        expected[NZ * NP] = (n as f64 - inside).max(0.0);
-        let mut observed = vec![0.0; NZ * NP + 1];
-        let mut rng = Sampler::new(seed + seed_offset());
-        for _ in 0..n {
-            let s1 = rng.next();
-            let (u1, u2) = rng.next2();
-            match self.sample.sample(mat, wi, s1, (u1, u2)) {
-                // As mi.chi2's BSDFAdapter: a sample of weight 0 is not counted (ω_o on the wrong side of its facet).
-                Some(s) if s.pdf > 0.0 && s.weight.0[..3].iter().any(|&w| w != 0.0) => observed[cell(s.wo)] += 1.0,
-                _ => observed[NZ * NP] += 1.0,
-            }
-        }
-        let (mut stat, mut cells, mut pool_o, mut pool_e) = (0.0, 0usize, 0.0, 0.0);
-        for (o, e) in observed.iter().zip(&expected) {
-            if *e < 5.0 {
-                pool_o += o;
-                pool_e += e;
-            } else {
-                stat += (o - e) * (o - e) / e;
-                cells += 1;
-            }
-        }
-        stat += (pool_o - pool_e) * (pool_o - pool_e) / pool_e.max(1.0);
-        (stat, cells)
+        let (stat, dof, _) = chi2_of(self.sample, self.pdf, mat, wi, seed, 200_000);
+        (stat, dof)
     }
 }
 

@@ -11,8 +11,9 @@ A path is d_0 = −ω_i, …, d_k = ω_o; with L_j = |Λ(d_j)| the pair factors 
 | middle, d_{j+1} upward   | Λ/(1+Λ)      | Λ/(L_j+Λ)  |
 | last (ω_o upward)        | 1/(L_j(1+Λ_o)) | 1/(L_j+Λ_o) |
 
-The walks are ``dr.while_loop``s whose state is the vertex index, the direction the light comes from,
-L_j, the throughput, the estimate and the lane's random stream (key, counter).
+The walks are ``dr.while_loop``s over named state (``walk.while_loop``): the vertex index, the direction the
+light comes from, L_j, the throughput, the estimate, the lane's random stream (key, counter) and, while
+differentiated, the values the loop must carry (``piped``: gradients.LoopValues).
 """
 
 import math
@@ -131,7 +132,7 @@ def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex
     traced = mf_sample is not None
     edges = traced and direction_tangent is not None and mf.dist != BECKMANN
 
-    def body(j, w, l, thr, result, active, counter, *piped):
+    def body(j, w, l, thr, result, active, counter, piped):
         # Traced, the differentiated values come through the loop's state (gradients.LoopValues): the
         # material, then ω_o (which carries the derivative in the directions, if any).
         mfa, mfs, lo, rest = LoopValues.unpack(traced, mf, lambda_o, (), piped)
@@ -193,28 +194,30 @@ def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex
             # a symbolic if_stmt branches per packet. An ended lane's state is never read again.
             w, l, thr, active, counter = dr.if_stmt(step, active, lambda *a: next_vertex(*a)[:5], lambda *a: a,
                                                     label="msx_posfree_next_vertex")
-        return (j + 1, w, l, thr, result, active, counter) + piped
+        return dict(j=j + 1, w=w, l=l, thr=thr, result=result, active=active, counter=counter, piped=piped)
 
     width = dr.width(thr)
-    state = (mi.UInt32(first_vertex), mi.Vector3f(w), mi.Float(l), mi.Spectrum(thr),
-             dr.zeros(mi.Spectrum, width), mi.Bool(active), mi.UInt32(counter))
+    piped = ()
     if traced:
         material = () if fresnel.mirror else (mi.Spectrum(fresnel.eta), mi.Spectrum(fresnel.k))
-        state += LoopValues.state(mf, lambda_o, *material, mi.Vector3f(wo))
+        piped = LoopValues.state(mf, lambda_o, *material, mi.Vector3f(wo))
         if edges:
             s_dir, t_i, t_o = direction_tangent
-            state += (mi.Float(s_dir), mi.Vector3f(t_i), mi.Vector3f(t_o))
-    state = dr.while_loop(state, lambda *s: s[5], body, label=label)
-    return state[4]
+            piped += (mi.Float(s_dir), mi.Vector3f(t_i), mi.Vector3f(t_o))
+    state = dict(j=mi.UInt32(first_vertex), w=mi.Vector3f(w), l=mi.Float(l), thr=mi.Spectrum(thr),
+                 result=dr.zeros(mi.Spectrum, width), active=mi.Bool(active), counter=mi.UInt32(counter),
+                 piped=piped)
+    return walk.while_loop(state, body, label=label)["result"]
 
 
 def sample_walk(segments, mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
     """Random-walk sampler (Wang §4.3): at each upward direction the walk leaves with probability
     1 − continue_up, so the weight is the product of the Fresnel terms. The first vertex uses Mitsuba's
-    (sample1, sample2), later ones the lane's stream. Returns (ω_o, weight, valid)."""
+    (sample1, sample2), later ones the lane's stream (``walk.sample_walk``, whose exit state here is L_j).
+    Returns (ω_o, weight, valid)."""
 
-    def body(j, w, l, weight, done, active, counter, u_exit, u1, u2):
-        rng = Stream(key, counter)
+    def vertex(w, weight, u, l, rng, active):
+        u_exit, u1, u2 = u
         m, valid = mf.sample_visible(w, u1, u2)
         cos_wm = dot(w, m)
         valid &= cos_wm > 0.0
@@ -223,19 +226,10 @@ def sample_walk(segments, mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
         up = d_next[2] > 0.0
         lam = mf.abs_lambda(d_next)
         leaves = up & (u_exit >= continue_up(segments, l, lam))
-        done = valid & leaves
-        active = valid & ~leaves & (j + 1 < max_bounces)
-        a, b = rng.next2()
-        c, _ = rng.next2()
-        return j + 1, -d_next, lam, weight, done, active, rng.counter, c, a, b
+        return d_next, weight, valid & leaves, valid & ~leaves, lam
 
-    width = dr.width(wi)
-    state = (mi.UInt32(0), mi.Vector3f(wi), mf.abs_lambda(-wi), dr.full(mi.Spectrum, 1.0, width),
-             dr.full(mi.Bool, False, width), mi.Bool(wi[2] != 0.0), mi.UInt32(0), mi.Float(sample1),
-             mi.Float(u1), mi.Float(u2))
-    state = dr.while_loop(state, lambda *s: s[5], body, label="msx_posfree_conductor_sample")
-    wo = -state[1]
-    return wo, state[3], state[4]
+    return walk.sample_walk(wi, (sample1, u1, u2), wi[2] != 0.0, mf.abs_lambda(-wi), vertex, max_bounces, key,
+                            dr.full(mi.Spectrum, 1.0, dr.width(wi)), "msx_posfree_conductor_sample")
 
 
 # ------------------------------------------------------------------ the bidirectional estimator
@@ -458,7 +452,7 @@ def diffuse_eval_pt(segments, mf, albedo, wi, wo, max_bounces, key, mf_sample=No
     width = dr.width(wi)
     traced = mf_sample is not None
 
-    def body(j, w, l, thr, result, active, counter, *piped):
+    def body(j, w, l, thr, result, active, counter, piped):
         # Traced, the differentiated values come through the loop's state (gradients.LoopValues).
         mfa, mfs, lo, (a,) = LoopValues.unpack(traced, mf, lambda_o, (albedo,), piped)
         rng = Stream(key, counter)
@@ -480,22 +474,21 @@ def diffuse_eval_pt(segments, mf, albedo, wi, wo, max_bounces, key, mf_sample=No
         thr = dr.select(up, thr * continue_up(segments, l, lam), thr)
         thr, alive = walk.roulette_from(j + 1 >= RR_START, thr, rng.next())
         active &= alive
-        return (j + 1, -d_next, lam, thr, result, active, rng.counter) + piped
+        return dict(j=j + 1, w=-d_next, l=lam, thr=thr, result=result, active=active, counter=rng.counter,
+                    piped=piped)
 
-    state = (mi.UInt32(0), mi.Vector3f(wi), 1.0 + mf.lambda_(wi), dr.full(mi.Spectrum, 1.0, width),
-             dr.zeros(mi.Spectrum, width), mi.Bool(start), mi.UInt32(0))
-    if traced:
-        state += LoopValues.state(mf, lambda_o, mi.Spectrum(albedo))
-    return dr.while_loop(state, lambda *s: s[5], body, label="msx_posfree_diffuse_pt")[4]
+    state = dict(j=mi.UInt32(0), w=mi.Vector3f(wi), l=1.0 + mf.lambda_(wi), thr=dr.full(mi.Spectrum, 1.0, width),
+                 result=dr.zeros(mi.Spectrum, width), active=mi.Bool(start), counter=mi.UInt32(0),
+                 piped=LoopValues.state(mf, lambda_o, mi.Spectrum(albedo)) if traced else ())
+    return walk.while_loop(state, body, label="msx_posfree_diffuse_pt")["result"]
 
 
 def diffuse_sample_walk(segments, mf, albedo, wi, sample1, u1, u2, max_bounces, key):
     """Random-walk sampler on Lambertian facets (diffuse.rs ``sample_walk``): (ω_o, weight = Π albedo,
-    valid)."""
-    width = dr.width(wi)
+    valid); ``walk.sample_walk``'s exit state is L_j."""
 
-    def body(j, w, l, weight, done, active, counter, u_exit, u1, u2):
-        rng = Stream(key, counter)
+    def vertex(w, weight, u, l, rng, active):
+        u_exit, u1, u2 = u
         m, valid = mf.sample_visible(w, u1, u2)
         u3, u4 = rng.next2()
         d_next = walk.cosine_about(m, u3, u4)
@@ -503,17 +496,10 @@ def diffuse_sample_walk(segments, mf, albedo, wi, sample1, u1, u2, max_bounces, 
         up = d_next[2] > 0.0
         lam = mf.abs_lambda(d_next)
         leaves = up & (u_exit >= continue_up(segments, l, lam))
-        done = valid & leaves
-        active = valid & ~leaves & (j + 1 < max_bounces) & (lam > 0.0) & dr.isfinite(lam)
-        a, b = rng.next2()
-        c, _ = rng.next2()
-        return j + 1, -d_next, lam, weight, done, active, rng.counter, c, a, b
+        return d_next, weight, valid & leaves, valid & ~leaves & (lam > 0.0) & dr.isfinite(lam), lam
 
-    state = (mi.UInt32(0), mi.Vector3f(wi), 1.0 + mf.lambda_(wi), dr.full(mi.Spectrum, 1.0, width),
-             dr.full(mi.Bool, False, width), mi.Bool(wi[2] > 0.0), mi.UInt32(0), mi.Float(sample1),
-             mi.Float(u1), mi.Float(u2))
-    state = dr.while_loop(state, lambda *s: s[5], body, label="msx_posfree_diffuse_sample")
-    return -state[1], state[3], state[4]
+    return walk.sample_walk(wi, (sample1, u1, u2), wi[2] > 0.0, 1.0 + mf.lambda_(wi), vertex, max_bounces, key,
+                            dr.full(mi.Spectrum, 1.0, dr.width(wi)), "msx_posfree_diffuse_sample")
 
 
 # The conductor walks this module provides, by model name (jit/bsdf.py collects them).

@@ -42,50 +42,131 @@ use crate::config::{Distribution, Estimator, Surface};
 use crate::microfacet::Microsurface;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
-use std::sync::OnceLock;
-use table::{mu_cell, MsTable, ALPHA, MU};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, OnceLock};
+use table::{eta_bracket, ms_fraction_bound, ms_fraction_bound_coarse, mu_cell, ETA, LN_ALPHA_MAX, LN_ALPHA_MIN, MU};
+
+/// Cells of the rule: one α threshold per μ cell.
+pub const CELLS: usize = MU.n - 1;
+
+/// Scan step in ln α of the search from below (a factor of 2; module docs).
+const SCAN_STEP: f64 = std::f64::consts::LN_2;
+/// False-position steps after the scan (α* to within ≈ 1 %, measured: module docs).
+const NARROWINGS: usize = 6;
+
+/// The thresholds of one (surface, distribution, tolerance, IOR node), built
+/// once per process and shared by every rule (tests and scenes build many).
+type RowCache = Mutex<HashMap<(u32, u32, u64, usize), Arc<OnceLock<[f64; CELLS]>>>>;
+
+fn cached_row(surface: Surface, dist: Distribution, tolerance: f64, e: usize) -> [f64; CELLS] {
+    static CACHE: OnceLock<RowCache> = OnceLock::new();
+    let slot = {
+        let mut map = CACHE.get_or_init(Default::default).lock().unwrap_or_else(|p| p.into_inner());
+        map.entry((surface as u32, dist as u32, tolerance.to_bits(), e)).or_default().clone()
+    };
+    *slot.get_or_init(|| build_row(surface, dist, tolerance, e))
+}
+
+/// The largest α* in [0.005, 4] whose T₁ bound at (α*, μ) is within the
+/// tolerance, with every scan point below it also within (0: not even α =
+/// 0.005 is; 4: the whole searched range is): scan up from 0.005 in factors of
+/// 2 to the first point above the tolerance, then narrow the bracket between it
+/// and the last point within by safeguarded false position in ln α (T₁ is
+/// smooth there). The scan, a guard against T₁ crossing the tolerance more than
+/// once (near grazing T₁ peaks in α; module docs), passes a point on a quarter
+/// of the samples ([`ms_fraction_bound_coarse`]) or, where that fails, on the
+/// full [`ms_fraction_bound`]; α* itself is a point where the full bound was
+/// computed and found within the tolerance.
+pub fn largest_alpha(surface: Surface, dist: Distribution, eta: f64, mu: f64, tolerance: f64) -> f64 {
+    let full = |ln_alpha: f64| ms_fraction_bound(surface, dist, eta, ln_alpha.exp(), mu);
+    // The scan's test: (within, the bound computed last).
+    let scan = |ln_alpha: f64| {
+        let coarse = ms_fraction_bound_coarse(surface, dist, eta, ln_alpha.exp(), mu);
+        if coarse <= tolerance {
+            return (true, coarse);
+        }
+        let b = full(ln_alpha);
+        (b <= tolerance, b)
+    };
+    let mut lo = LN_ALPHA_MIN;
+    if !scan(lo).0 {
+        return 0.0;
+    }
+    let mut hi = loop {
+        let next = (lo + SCAN_STEP).min(LN_ALPHA_MAX);
+        let (ok, b) = scan(next);
+        if !ok {
+            break Some((next, b));
+        }
+        if next >= LN_ALPHA_MAX {
+            break None;
+        }
+        lo = next;
+    };
+    // lo with the full estimator; where it disagrees with the coarse one, step down.
+    let mut b_lo = full(lo);
+    while b_lo > tolerance {
+        hi = Some((lo, b_lo));
+        if lo <= LN_ALPHA_MIN {
+            return 0.0;
+        }
+        lo = (lo - SCAN_STEP).max(LN_ALPHA_MIN);
+        b_lo = full(lo);
+    }
+    let Some((mut hi, mut b_hi)) = hi else { return lo.exp() };
+    for _ in 0..NARROWINGS {
+        // False position, kept within the middle 80 % of the bracket.
+        let t = ((tolerance - b_lo) / (b_hi - b_lo)).clamp(0.1, 0.9);
+        let x = lo + t * (hi - lo);
+        let b = full(x);
+        if b <= tolerance {
+            (lo, b_lo) = (x, b);
+        } else {
+            (hi, b_hi) = (x, b);
+        }
+    }
+    lo.exp()
+}
+
+/// The thresholds of IOR node `e`: α* at every μ node (over the available
+/// threads), each cell's threshold the smaller of its two ends' (module docs).
+fn build_row(surface: Surface, dist: Distribution, tolerance: f64, e: usize) -> [f64; CELLS] {
+    let eta = if surface == Surface::Dielectric { ETA.node(e) } else { 1.0 };
+    let at_nodes: Vec<f64> = crate::tables::build(MU.n, 1, |i, out: &mut [f64]| out[0] = largest_alpha(surface, dist, eta, MU.node(i), tolerance));
+    std::array::from_fn(|i| at_nodes[i].min(at_nodes[i + 1]))
+}
 
 /// The order-1 thresholds of one tolerance: per IOR node and μ cell, the α
 /// below which order 1 alone omits at most `tolerance` (module docs).
 pub struct OrderOneRule {
-    table: &'static MsTable,
+    surface: Surface,
+    dist: Distribution,
     tolerance: f64,
-    /// Per IOR node: [mu cell] α threshold (0: never).
-    rows: Vec<OnceLock<[f64; MU.n - 1]>>,
+    /// Per IOR node: [mu cell] α threshold (0: never), from the process-wide cache.
+    rows: Vec<OnceLock<[f64; CELLS]>>,
 }
 
 impl std::fmt::Debug for OrderOneRule {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "OrderOneRule({:?} {:?}, tolerance {})", self.table.surface, self.table.dist, self.tolerance)
+        write!(f, "OrderOneRule({:?} {:?}, tolerance {})", self.surface, self.dist, self.tolerance)
     }
 }
 
 impl OrderOneRule {
     pub fn new(surface: Surface, dist: Distribution, tolerance: f64) -> Self {
-        let table = MsTable::get(surface, dist);
-        OrderOneRule { table, tolerance, rows: (0..table.eta_rows()).map(|_| OnceLock::new()).collect() }
+        let n_eta = if surface == Surface::Dielectric { ETA.n } else { 1 };
+        OrderOneRule { surface, dist, tolerance, rows: (0..n_eta).map(|_| OnceLock::new()).collect() }
     }
 
-    fn row(&self, e: usize) -> &[f64; MU.n - 1] {
-        self.rows[e].get_or_init(|| {
-            std::array::from_fn(|i| {
-                // Leading α cells [α_a, α_{a+1}] whose four corners are within tolerance.
-                let ok = |a: usize| (a..=a + 1).all(|aa| (i..=i + 1).all(|ii| self.table.node(e, aa, ii) <= self.tolerance));
-                let cells = (0..ALPHA.n - 1).take_while(|&a| ok(a)).count();
-                if cells == 0 {
-                    0.0
-                } else {
-                    ALPHA.node(cells)
-                }
-            })
-        })
+    fn row(&self, e: usize) -> &[f64; CELLS] {
+        self.rows[e].get_or_init(|| cached_row(self.surface, self.dist, self.tolerance, e))
     }
 
     /// Whether order 1 alone omits at most the tolerance at (α, μ_i, relative IOR).
     #[inline]
     pub fn order_one_suffices(&self, alpha: f64, mu: f64, eta: f64) -> bool {
         let Some(i) = mu_cell(mu) else { return false };
-        let Some((e0, e1)) = self.table.eta_bracket(eta) else { return false };
+        let Some((e0, e1)) = eta_bracket(self.surface, eta) else { return false };
         alpha <= self.row(e0)[i] && alpha <= self.row(e1)[i]
     }
 
@@ -93,10 +174,10 @@ impl OrderOneRule {
     /// two bracketing IOR rows), 0 where order 1 never suffices (IOR off the
     /// grid): what [`Self::order_one_suffices`] compares α with, for the C ABI
     /// (`msx_auto_rule`, read by the Dr.Jit engine).
-    pub fn thresholds(&self, eta: f64) -> [f64; MU.n - 1] {
-        match self.table.eta_bracket(eta) {
+    pub fn thresholds(&self, eta: f64) -> [f64; CELLS] {
+        match eta_bracket(self.surface, eta) {
             Some((e0, e1)) => std::array::from_fn(|i| self.row(e0)[i].min(self.row(e1)[i])),
-            None => [0.0; MU.n - 1],
+            None => [0.0; CELLS],
         }
     }
 

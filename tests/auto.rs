@@ -256,7 +256,8 @@ fn rule_is_a_bound_at_random_points() {
     for tol in [0.01, 0.05] {
         for surface in SURFACES {
             for dist in DISTS {
-                let etas: &[f64] = if surface == Surface::Dielectric { &[1.5, 1.0 / 1.5] } else { &[1.0] };
+                // 1/1.33: water seen from inside, near total internal reflection.
+                let etas: &[f64] = if surface == Surface::Dielectric { &[1.5, 1.0 / 1.5, 1.0 / 1.33] } else { &[1.0] };
                 for &eta in etas {
                     let rule = auto::OrderOneRule::new(surface, dist, tol);
                     let thresholds = rule.thresholds(eta);
@@ -314,8 +315,9 @@ fn measure_t1_monotonicity() {
     for d in [Distribution::Beckmann, Distribution::Ggx] {
         rows.push((Surface::Conductor, d, 1.0));
         rows.push((Surface::Diffuse, d, 1.0));
-        for e in 0..auto::table::ETA.n {
-            rows.push((Surface::Dielectric, d, auto::table::ETA.node(e)));
+        for k in -6..=6 {
+            rows.push((Surface::Dielectric, d, (3f64.ln() * k as f64 / 6.0).exp()));
+            // 1/3 … 3
         }
         for eta in [1.5, 1.0 / 1.5, 1.33, 1.0 / 1.33] {
             rows.push((Surface::Dielectric, d, eta));
@@ -390,6 +392,7 @@ fn measure_every_cell_at_its_threshold() {
             (Surface::Dielectric, Distribution::Beckmann, 1.0 / 1.5),
             (Surface::Dielectric, Distribution::Ggx, 1.5),
             (Surface::Dielectric, Distribution::Ggx, 1.0 / 1.5),
+            (Surface::Dielectric, Distribution::Beckmann, 1.0 / 1.33),
         ] {
             let th = auto::OrderOneRule::new(s, d, tol).thresholds(eta);
             let (mut n, mut over2, mut over3, mut worst) = (0, 0, 0, (f64::NEG_INFINITY, String::new()));

@@ -29,17 +29,16 @@
 //! albedo 0.5). Tints scale all orders alike.
 //!
 //! **Rule.** For a tolerance, at each of 65 μ nodes μ_k (uniform in μ² over
-//! 0.02² … 1; per IOR node for dielectrics: 13 log-uniform over 1/3 … 3) the
-//! largest α*_k in [0.005, 4] whose bound at exactly (α*_k, μ_k) is within the
-//! tolerance: a scan up from 0.005 in factors of 2 to the first point above it,
+//! 0.02² … 1; for dielectrics at the call's own relative IOR, rounded to f32)
+//! the largest α*_k in [0.005, 4] whose bound at exactly (α*_k, μ_k) is within
+//! the tolerance: a scan up from 0.005 in factors of 2 to the first point above it,
 //! then six false-position steps in ln α between that point and the last one
 //! within. Each of the 64 μ cells [μ_k, μ_k+1] accepts α ≤ min(α*_k, α*_k+1).
-//! A call compares max(α_u, α_v) with the threshold of its μ cell (of both
-//! bracketing IOR rows for dielectrics). Off the grid (μ < 0.02, IOR ratio
-//! beyond 1/3 … 3): the full model. Built per (surface, distribution,
-//! tolerance, IOR node) once per process, on first use, over the available
-//! threads; the same thresholds reach the Dr.Jit engine through the C ABI
-//! (`msx_auto_rule`).
+//! A call compares max(α_u, α_v) with the threshold of its μ cell. Off the
+//! grid (μ < 0.02, IOR ratio beyond 1/3 … 3): the full model. Built per
+//! (surface, distribution, tolerance, IOR) once per process, on first use, over
+//! the available threads (a glass needs two: η and 1/η); the same thresholds
+//! reach the Dr.Jit engine through the C ABI (`msx_auto_rule`).
 //!
 //! **Why this is a bound, and where T₁ is not monotone (measured:
 //! `measure_t1_monotonicity` in tests/auto.rs, a 48 × 48 log grid per surface,
@@ -54,11 +53,18 @@
 //! smaller α* of a cell's two ends (T₁ may rise with μ inside a cell). Checked
 //! independently: `rule_is_a_bound_at_random_points` (asserted) and
 //! `measure_every_cell_at_its_threshold` (every cell at its threshold and
-//! 0.7 × it, ends and three interior μ, tolerances 1, 5 and 20 %: none of
-//! 15 340 independent estimates above the tolerance by more than 2σ). Between
-//! IOR nodes the rule takes the stricter of the two rows, which the checks at
-//! IOR 1.5 and 1/1.5 (between nodes) cover but no monotonicity in the IOR
-//! guarantees.
+//! 0.7 × it, ends and three interior μ, tolerances 1, 5 and 20 %; in the run
+//! quoted, eight cases — conductor and diffuse, glass 1.5 and 1/1.5, both
+//! distributions — 15 340 independent estimates, none above the tolerance by
+//! more than 2σ).
+//!
+//! **Why at the exact IOR.** T₁ is not monotone in the IOR either: seen from
+//! inside, a feature near the critical angle moves with η. Rows at 13 IOR
+//! nodes, a call taking the stricter of the two around its IOR (the first
+//! version of this rule, as the one before), failed the cell check at η =
+//! 1/1.33 (water from inside): at Beckmann α = 0.137, μ = 0.549, T₁ = 0.019 ±
+//! 0.0014 against a tolerance of 1 % (16 of 640 points beyond 3σ); at the
+//! exact IOR, none beyond 2σ (also at 1.33, 2.4, 1/2.4, 1/1.1, 1/1.2).
 //!
 //! **Less conservative than the rule before** (four corners of cells of a 24 ×
 //! 16 node table, each query bounded by the node above in α and below in μ):
@@ -75,8 +81,9 @@ use crate::microfacet::Microsurface;
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 use std::collections::HashMap;
-use std::sync::{Arc, Mutex, OnceLock};
-use table::{eta_bracket, ms_fraction_bound, ms_fraction_bound_coarse, mu_cell, ETA, LN_ALPHA_MAX, LN_ALPHA_MIN, MU};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Mutex, OnceLock};
+use table::{eta_covered, eta_key, ms_fraction_bound, ms_fraction_bound_coarse, mu_cell, LN_ALPHA_MAX, LN_ALPHA_MIN, MU};
 
 /// Cells of the rule: one α threshold per μ cell.
 pub const CELLS: usize = MU.n - 1;
@@ -86,17 +93,19 @@ const SCAN_STEP: f64 = std::f64::consts::LN_2;
 /// False-position steps after the scan (α* to within ≈ 1 %, measured: module docs).
 const NARROWINGS: usize = 6;
 
-/// The thresholds of one (surface, distribution, tolerance, IOR node), built
-/// once per process and shared by every rule (tests and scenes build many).
-type RowCache = Mutex<HashMap<(u32, u32, u64, usize), Arc<OnceLock<[f64; CELLS]>>>>;
+/// The thresholds of one (surface, distribution, tolerance, relative IOR),
+/// built once per process and shared by every rule (tests and scenes build
+/// many); kept for the process (a row is 512 bytes).
+type Row = [f64; CELLS];
+type RowCache = Mutex<HashMap<(u32, u32, u64, u64), &'static OnceLock<Row>>>;
 
-fn cached_row(surface: Surface, dist: Distribution, tolerance: f64, e: usize) -> [f64; CELLS] {
+fn cached_row(surface: Surface, dist: Distribution, tolerance: f64, eta: f64) -> &'static Row {
     static CACHE: OnceLock<RowCache> = OnceLock::new();
-    let slot = {
+    let slot: &'static OnceLock<Row> = {
         let mut map = CACHE.get_or_init(Default::default).lock().unwrap_or_else(|p| p.into_inner());
-        map.entry((surface as u32, dist as u32, tolerance.to_bits(), e)).or_default().clone()
+        map.entry((surface as u32, dist as u32, tolerance.to_bits(), eta.to_bits())).or_insert_with(|| Box::leak(Box::new(OnceLock::new())))
     };
-    *slot.get_or_init(|| build_row(surface, dist, tolerance, e))
+    slot.get_or_init(|| build_row(surface, dist, tolerance, eta))
 }
 
 /// The largest α* in [0.005, 4] whose T₁ bound at (α*, μ) is within the
@@ -160,22 +169,30 @@ pub fn largest_alpha(surface: Surface, dist: Distribution, eta: f64, mu: f64, to
     lo.exp()
 }
 
-/// The thresholds of IOR node `e`: α* at every μ node (over the available
-/// threads), each cell's threshold the smaller of its two ends' (module docs).
-fn build_row(surface: Surface, dist: Distribution, tolerance: f64, e: usize) -> [f64; CELLS] {
-    let eta = if surface == Surface::Dielectric { ETA.node(e) } else { 1.0 };
+/// The thresholds at relative IOR `eta`: α* at every μ node (over the
+/// available threads), each cell's threshold the smaller of its two ends'
+/// (module docs).
+fn build_row(surface: Surface, dist: Distribution, tolerance: f64, eta: f64) -> Row {
     let at_nodes: Vec<f64> = crate::tables::build(MU.n, 1, |i, out: &mut [f64]| out[0] = largest_alpha(surface, dist, eta, MU.node(i), tolerance));
     std::array::from_fn(|i| at_nodes[i].min(at_nodes[i + 1]))
 }
 
-/// The order-1 thresholds of one tolerance: per IOR node and μ cell, the α
-/// below which order 1 alone omits at most `tolerance` (module docs).
+/// Dielectric rules remember the rows of this many relative IORs (a scene's
+/// glass needs two: η and 1/η) without a lock; further IORs are looked up in
+/// the process-wide cache.
+const SEEN: usize = 4;
+
+/// The order-1 thresholds of one tolerance: per μ cell (and relative IOR for
+/// dielectrics), the α below which order 1 alone omits at most `tolerance`
+/// (module docs).
 pub struct OrderOneRule {
     surface: Surface,
     dist: Distribution,
     tolerance: f64,
-    /// Per IOR node: [mu cell] α threshold (0: never), from the process-wide cache.
-    rows: Vec<OnceLock<[f64; CELLS]>>,
+    /// Conductors and diffuse microsurfaces: the one row.
+    fixed: OnceLock<&'static Row>,
+    /// Dielectrics: (f32-rounded IOR bits, 0 = free; its row) of the IORs seen.
+    seen: [(AtomicU64, OnceLock<&'static Row>); SEEN],
 }
 
 impl std::fmt::Debug for OrderOneRule {
@@ -186,31 +203,54 @@ impl std::fmt::Debug for OrderOneRule {
 
 impl OrderOneRule {
     pub fn new(surface: Surface, dist: Distribution, tolerance: f64) -> Self {
-        let n_eta = if surface == Surface::Dielectric { ETA.n } else { 1 };
-        OrderOneRule { surface, dist, tolerance, rows: (0..n_eta).map(|_| OnceLock::new()).collect() }
+        OrderOneRule { surface, dist, tolerance, fixed: OnceLock::new(), seen: std::array::from_fn(|_| (AtomicU64::new(0), OnceLock::new())) }
     }
 
-    fn row(&self, e: usize) -> &[f64; CELLS] {
-        self.rows[e].get_or_init(|| cached_row(self.surface, self.dist, self.tolerance, e))
+    /// The thresholds at relative IOR `eta` (ignored but for dielectrics);
+    /// None where the rule does not cover it.
+    fn row(&self, eta: f64) -> Option<&'static Row> {
+        if self.surface != Surface::Dielectric {
+            return Some(self.fixed.get_or_init(|| cached_row(self.surface, self.dist, self.tolerance, 1.0)));
+        }
+        if !eta_covered(self.surface, eta) {
+            return None;
+        }
+        let eta = eta_key(eta);
+        let bits = eta.to_bits();
+        for (key, row) in &self.seen {
+            if key.load(Ordering::Acquire) == bits {
+                if let Some(r) = row.get() {
+                    return Some(r);
+                }
+            }
+        }
+        let r = cached_row(self.surface, self.dist, self.tolerance, eta);
+        // Remember it in a free slot (a slot another thread is filling reads as absent until set).
+        if !self.seen.iter().any(|(key, _)| key.load(Ordering::Acquire) == bits) {
+            for (key, row) in &self.seen {
+                if key.compare_exchange(0, bits, Ordering::AcqRel, Ordering::Acquire).is_ok() {
+                    let _ = row.set(r);
+                    break;
+                }
+            }
+        }
+        Some(r)
     }
 
     /// Whether order 1 alone omits at most the tolerance at (α, μ_i, relative IOR).
     #[inline]
     pub fn order_one_suffices(&self, alpha: f64, mu: f64, eta: f64) -> bool {
         let Some(i) = mu_cell(mu) else { return false };
-        let Some((e0, e1)) = eta_bracket(self.surface, eta) else { return false };
-        alpha <= self.row(e0)[i] && alpha <= self.row(e1)[i]
+        let Some(row) = self.row(eta) else { return false };
+        alpha <= row[i]
     }
 
-    /// The α thresholds of every μ cell at a relative IOR (the smaller of the
-    /// two bracketing IOR rows), 0 where order 1 never suffices (IOR off the
-    /// grid): what [`Self::order_one_suffices`] compares α with, for the C ABI
-    /// (`msx_auto_rule`, read by the Dr.Jit engine).
+    /// The α thresholds of every μ cell at a relative IOR, 0 where order 1
+    /// never suffices (IOR outside 1/3 … 3): what [`Self::order_one_suffices`]
+    /// compares α with, for the C ABI (`msx_auto_rule`, read by the Dr.Jit
+    /// engine).
     pub fn thresholds(&self, eta: f64) -> [f64; CELLS] {
-        match eta_bracket(self.surface, eta) {
-            Some((e0, e1)) => std::array::from_fn(|i| self.row(e0)[i].min(self.row(e1)[i])),
-            None => [0.0; CELLS],
-        }
+        self.row(eta).copied().unwrap_or([0.0; CELLS])
     }
 
     /// The bounce cap `auto` runs `correlated` with: 1 or `max_bounces`.

@@ -4,8 +4,7 @@
 //! the full model's albedo is exactly 1, and the grids of `auto`'s rule
 //! (`mod.rs` here, which explains why F = 1 bounds every material): μ_i =
 //! |cos θ_i| nodes uniform in μ² over 0.02² … 1, α searched over 0.005 … 4
-//! and, for dielectrics, the relative IOR seen from ω_i at log-uniform nodes
-//! over 1/3 … 3. [`ms_fraction_bound`] is the rule's estimator: T₁ + 2
+//! and, for dielectrics, the relative IOR seen from ω_i itself (1/3 … 3). [`ms_fraction_bound`] is the rule's estimator: T₁ + 2
 //! standard errors at one exact point (α, μ_i, IOR), E₁ the expectation of the
 //! first vertex's exit probability over the visible normals (jittered 32 × 32
 //! grid, 64 × 64 for the diffuse microsurface's extra cosine direction, seeded
@@ -20,39 +19,34 @@ use crate::rng::{hash_words, Sampler};
 use crate::tables::{Axis, Warp};
 use crate::walk::cosine_about;
 use glam::DVec3;
-use std::sync::OnceLock;
 
 /// ln of the smallest and largest roughness the rule searches, 0.005 and 4.
 pub const LN_ALPHA_MIN: f64 = -5.298_317_366_548_036;
 pub const LN_ALPHA_MAX: f64 = 1.386_294_361_119_890_6;
-/// ln 3: relative IORs from 1/3 to 3.
-const LN_ETA_MAX: f64 = 1.098_612_288_668_109_8;
 /// Smallest μ_i of the rule; below it (grazing) `auto` runs the full model.
 pub const MU_MIN: f64 = 0.02;
 
 /// The rule's μ nodes, uniform in μ² over [MU_MIN², 1]: 65 nodes, the ends of
 /// 64 cells (the most the C ABI's `msx_auto_rule` hands over).
 pub const MU: Axis = Axis::ends(Warp::Square, MU_MIN * MU_MIN, 1.0, 65);
-/// Relative-IOR nodes, log-uniform over [1/3, 3] (dielectrics only).
-pub const ETA: Axis = Axis::ends(Warp::Ln, -LN_ETA_MAX, LN_ETA_MAX, 13);
+/// The relative IORs (seen from ω_i) the rule covers, 1/3 … 3; outside,
+/// `auto` runs the full model.
+pub const ETA_MIN: f64 = 1.0 / 3.0;
+pub const ETA_MAX: f64 = 3.0;
 
-/// The one or two IOR nodes bracketing `eta` for `surface` (0 for
-/// non-dielectrics); None off the grid.
-pub fn eta_bracket(surface: Surface, eta: f64) -> Option<(usize, usize)> {
-    if surface != Surface::Dielectric {
-        return Some((0, 0));
-    }
-    static NODES: OnceLock<[f64; ETA.n]> = OnceLock::new();
-    let nodes = NODES.get_or_init(|| std::array::from_fn(|e| ETA.node(e)));
-    if !(eta >= nodes[0] && eta <= nodes[ETA.n - 1]) {
-        return None;
-    }
-    let above = nodes.partition_point(|&v| v < eta).min(ETA.n - 1); // first node ≥ eta
-    if above == 0 || nodes[above] == eta {
-        Some((above, above))
-    } else {
-        Some((above - 1, above))
-    }
+/// Whether the rule covers the relative IOR `eta` (always, for conductors and
+/// diffuse microsurfaces, which have none).
+#[inline]
+pub fn eta_covered(surface: Surface, eta: f64) -> bool {
+    surface != Surface::Dielectric || (ETA_MIN..=ETA_MAX).contains(&eta)
+}
+
+/// The relative IOR a dielectric rule is built at and cached by: `eta`
+/// rounded to f32, so that both engines, which may compute it in different
+/// precisions (η and 1/η of the scene's IORs), reach the same rule.
+#[inline]
+pub fn eta_key(eta: f64) -> f64 {
+    eta as f32 as f64
 }
 
 /// Index of the μ cell (between nodes i and i+1 of [`MU`]) holding μ; None
@@ -145,6 +139,5 @@ mod tests {
     fn axis_bounds_are_the_logs_of_the_ranges() {
         assert_eq!(LN_ALPHA_MIN, 0.005f64.ln());
         assert_eq!(LN_ALPHA_MAX, 4f64.ln());
-        assert_eq!(LN_ETA_MAX, 3f64.ln());
     }
 }

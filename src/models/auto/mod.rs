@@ -59,12 +59,14 @@
 //! more than 2σ).
 //!
 //! **Why at the exact IOR.** T₁ is not monotone in the IOR either: seen from
-//! inside, a feature near the critical angle moves with η. Rows at 13 IOR
-//! nodes, a call taking the stricter of the two around its IOR (the first
-//! version of this rule, as the one before), failed the cell check at η =
-//! 1/1.33 (water from inside): at Beckmann α = 0.137, μ = 0.549, T₁ = 0.019 ±
-//! 0.0014 against a tolerance of 1 % (16 of 640 points beyond 3σ); at the
-//! exact IOR, none beyond 2σ (also at 1.33, 2.4, 1/2.4, 1/1.1, 1/1.2).
+//! inside, a feature near the critical angle moves with η. The first version
+//! of this rule kept the rule before's scheme for the IOR — rows at 13 nodes
+//! (log-uniform over 1/3 … 3), a call taking the stricter of the two around its
+//! IOR — and failed the cell check at η = 1/1.33 (water from inside): Beckmann
+//! α = 0.137, μ = 0.549, T₁ = 0.019 ± 0.0014 at a 1 % tolerance (16 of 640
+//! points beyond 3σ); the rule before, coarser, passed it (none of 986 beyond
+//! 3σ). At the exact IOR, none beyond 2σ (also at 1.33, 2.4, 1/2.4, 1/1.1,
+//! 1/1.2), and a glass builds two rows (η, 1/η) instead of four.
 //!
 //! **Less conservative than the rule before** (four corners of cells of a 24 ×
 //! 16 node table, each query bounded by the node above in α and below in μ):

@@ -290,13 +290,13 @@ fn rule_is_a_bound_at_random_points() {
     }
     println!("largest T₁ − tolerance: {:.2e} ({})", worst.0, worst.1);
     // Beckmann α = 0.1, copper, tolerance 1 %: the share of μ_i ∈ [0, 1] where order 1 alone is
-    // accepted, measured 0.625 (μ_i ≥ 0.375; the rule before, four-corner cells of a 24 × 16 grid:
+    // accepted, measured 0.646 (μ_i ≥ 0.354; the rule before, four-corner cells of a 24 × 16 grid:
     // 0.483, μ_i ≥ 0.517). T₁ itself reaches 1 % at μ_i ≈ 0.32 (no rule can accept more than ≈ 0.68).
     let rule = auto::OrderOneRule::new(Surface::Conductor, Distribution::Beckmann, 0.01);
     let n = 100_000;
     let accepted = (0..n).filter(|&k| rule.order_one_suffices(0.1, (k as f64 + 0.5) / n as f64, 1.0)).count() as f64 / n as f64;
     println!("Beckmann α 0.1 conductor, tolerance 1 %: order 1 accepted for {:.1} % of μ_i ∈ [0, 1]", 100.0 * accepted);
-    ck.assert(&format!("Beckmann α 0.1: accepted share of μ_i {accepted:.3} ≥ 0.62 (measured 0.625)"), accepted >= 0.62);
+    ck.assert(&format!("Beckmann α 0.1: accepted share of μ_i {accepted:.3} ≥ 0.64 (measured 0.646)"), accepted >= 0.64);
     ck.finish();
 }
 
@@ -373,7 +373,7 @@ fn measure_t1_monotonicity() {
     }
 }
 
-/// Measurement (run with `--ignored --nocapture`; ≈ 1 minute): every cell of the rule at its threshold
+/// Measurement (run with `--ignored --nocapture`; ≈ 20 s): every cell of the rule at its threshold
 /// and at 0.7 × it, at both ends and three interior μ, for three tolerances: an independent T₁
 /// (64 × 64 visible normals, other random numbers) against the tolerance, printed with the counts above
 /// it by more than 2σ and 3σ.

@@ -32,8 +32,7 @@
 //! 0.02² … 1; for dielectrics at the call's own relative IOR, rounded to f32)
 //! the largest α*_k in [0.005, 4] whose bound at exactly (α*_k, μ_k) is within
 //! the tolerance: a scan up from 0.005 in factors of 2 to the first point above it,
-//! then six false-position steps in ln α between that point and the last one
-//! within. Each of the 64 μ cells [μ_k, μ_k+1] accepts α ≤ min(α*_k, α*_k+1).
+//! then six bisections in ln α between that point and the last one within. Each of the 64 μ cells [μ_k, μ_k+1] accepts α ≤ min(α*_k, α*_k+1).
 //! A call compares max(α_u, α_v) with the threshold of its μ cell. Off the
 //! grid (μ < 0.02, IOR ratio beyond 1/3 … 3): the full model. Built per
 //! (surface, distribution, tolerance, IOR) once per process, on first use, over
@@ -53,10 +52,10 @@
 //! smaller α* of a cell's two ends (T₁ may rise with μ inside a cell). Checked
 //! independently: `rule_is_a_bound_at_random_points` (asserted) and
 //! `measure_every_cell_at_its_threshold` (every cell at its threshold and
-//! 0.7 × it, ends and three interior μ, tolerances 1, 5 and 20 %; in the run
-//! quoted, eight cases — conductor and diffuse, glass 1.5 and 1/1.5, both
-//! distributions — 15 340 independent estimates, none above the tolerance by
-//! more than 2σ).
+//! 0.7 × it, ends and three interior μ, tolerances 1, 5 and 20 %; nine cases —
+//! conductor, diffuse, glass 1.5 and 1/1.5 with both distributions, glass
+//! 1/1.33 with Beckmann — 17 250 independent estimates, none above the
+//! tolerance by more than 2σ).
 //!
 //! **Why at the exact IOR.** T₁ is not monotone in the IOR either: seen from
 //! inside, a feature near the critical angle moves with η. The first version
@@ -71,7 +70,7 @@
 //! **Less conservative than the rule before** (four corners of cells of a 24 ×
 //! 16 node table, each query bounded by the node above in α and below in μ):
 //! Beckmann α = 0.1 (Mitsuba's material-preview copper), tolerance 1 %: order 1
-//! alone from μ_i ≥ 0.375 (before: 0.517; T₁ itself reaches 1 % at ≈ 0.32);
+//! alone from μ_i ≥ 0.354 (before: 0.517; T₁ itself reaches 1 % at ≈ 0.32);
 //! the walk fractions in scenes are in benches/README.md.
 
 pub mod table;
@@ -92,8 +91,11 @@ pub const CELLS: usize = MU.n - 1;
 
 /// Scan step in ln α of the search from below (a factor of 2; module docs).
 const SCAN_STEP: f64 = std::f64::consts::LN_2;
-/// False-position steps after the scan (α* to within ≈ 1 %, measured: module docs).
-const NARROWINGS: usize = 6;
+/// Bisections in ln α after the scan: α* to within a factor 2^(1/64), 1.1 %.
+/// Measured on Beckmann α = 0.1, tolerance 1 % (the share of μ_i ∈ [0, 1] where
+/// order 1 alone is accepted): 0.646; false position in place of bisection
+/// gave 0.604 with four steps and 0.625 with six.
+const BISECTIONS: usize = 6;
 
 /// The thresholds of one (surface, distribution, tolerance, relative IOR),
 /// built once per process and shared by every rule (tests and scenes build
@@ -113,33 +115,24 @@ fn cached_row(surface: Surface, dist: Distribution, tolerance: f64, eta: f64) ->
 /// The largest α* in [0.005, 4] whose T₁ bound at (α*, μ) is within the
 /// tolerance, with every scan point below it also within (0: not even α =
 /// 0.005 is; 4: the whole searched range is): scan up from 0.005 in factors of
-/// 2 to the first point above the tolerance, then narrow the bracket between it
-/// and the last point within by safeguarded false position in ln α (T₁ is
-/// smooth there). The scan, a guard against T₁ crossing the tolerance more than
+/// 2 to the first point above the tolerance, then bisect in ln α between it
+/// and the last point within. The scan, a guard against T₁ crossing the tolerance more than
 /// once (near grazing T₁ peaks in α; module docs), passes a point on a quarter
 /// of the samples ([`ms_fraction_bound_coarse`]) or, where that fails, on the
 /// full [`ms_fraction_bound`]; α* itself is a point where the full bound was
 /// computed and found within the tolerance.
 pub fn largest_alpha(surface: Surface, dist: Distribution, eta: f64, mu: f64, tolerance: f64) -> f64 {
     let full = |ln_alpha: f64| ms_fraction_bound(surface, dist, eta, ln_alpha.exp(), mu);
-    // The scan's test: (within, the bound computed last).
-    let scan = |ln_alpha: f64| {
-        let coarse = ms_fraction_bound_coarse(surface, dist, eta, ln_alpha.exp(), mu);
-        if coarse <= tolerance {
-            return (true, coarse);
-        }
-        let b = full(ln_alpha);
-        (b <= tolerance, b)
-    };
+    // The scan's test: within on the coarse estimate, or else on the full one.
+    let scan = |ln_alpha: f64| ms_fraction_bound_coarse(surface, dist, eta, ln_alpha.exp(), mu) <= tolerance || full(ln_alpha) <= tolerance;
     let mut lo = LN_ALPHA_MIN;
-    if !scan(lo).0 {
+    if !scan(lo) {
         return 0.0;
     }
     let mut hi = loop {
         let next = (lo + SCAN_STEP).min(LN_ALPHA_MAX);
-        let (ok, b) = scan(next);
-        if !ok {
-            break Some((next, b));
+        if !scan(next) {
+            break Some(next);
         }
         if next >= LN_ALPHA_MAX {
             break None;
@@ -147,25 +140,20 @@ pub fn largest_alpha(surface: Surface, dist: Distribution, eta: f64, mu: f64, to
         lo = next;
     };
     // lo with the full estimator; where it disagrees with the coarse one, step down.
-    let mut b_lo = full(lo);
-    while b_lo > tolerance {
-        hi = Some((lo, b_lo));
+    while full(lo) > tolerance {
+        hi = Some(lo);
         if lo <= LN_ALPHA_MIN {
             return 0.0;
         }
         lo = (lo - SCAN_STEP).max(LN_ALPHA_MIN);
-        b_lo = full(lo);
     }
-    let Some((mut hi, mut b_hi)) = hi else { return lo.exp() };
-    for _ in 0..NARROWINGS {
-        // False position, kept within the middle 80 % of the bracket.
-        let t = ((tolerance - b_lo) / (b_hi - b_lo)).clamp(0.1, 0.9);
-        let x = lo + t * (hi - lo);
-        let b = full(x);
-        if b <= tolerance {
-            (lo, b_lo) = (x, b);
+    let Some(mut hi) = hi else { return lo.exp() };
+    for _ in 0..BISECTIONS {
+        let mid = 0.5 * (lo + hi);
+        if full(mid) <= tolerance {
+            lo = mid;
         } else {
-            (hi, b_hi) = (x, b);
+            hi = mid;
         }
     }
     lo.exp()

@@ -261,8 +261,9 @@ fn rule_is_a_bound_at_random_points() {
                 for &eta in etas {
                     let rule = auto::OrderOneRule::new(surface, dist, tol);
                     let thresholds = rule.thresholds(eta);
-                    let mut points = 0;
-                    while points < 12 {
+                    let (mut points, mut tries) = (0, 0);
+                    while points < 12 && tries < 100_000 {
+                        tries += 1;
                         let mu = rng.gen_range(MU.node(0), 1.0);
                         let Some(cell) = auto::table::mu_cell(mu) else { continue };
                         let t = thresholds[cell];
@@ -284,6 +285,7 @@ fn rule_is_a_bound_at_random_points() {
                         ck.at_most(&tag, (t1, se), tol);
                         points += 1;
                     }
+                    ck.assert(&format!("{surface:?} {dist:?} tol {tol} η {eta:.3}: 12 accepted points found"), points == 12);
                 }
             }
         }

@@ -103,13 +103,25 @@ const BISECTIONS: usize = 6;
 type Row = [f64; CELLS];
 type RowCache = Mutex<HashMap<(u32, u32, u64, u64), &'static OnceLock<Row>>>;
 
-fn cached_row(surface: Surface, dist: Distribution, tolerance: f64, eta: f64) -> &'static Row {
+/// At most this many rows per process (each costs 0.03–0.8 s to build): a
+/// process asking for more distinct (surface, distribution, tolerance, IOR)
+/// — a fuzz test, an IOR per call — gets the full model for the rest, which is
+/// never wrong, only slower. A scene needs one row per rough material (two
+/// per glass); tests/auto.rs needs 20.
+const MAX_ROWS: usize = 32;
+
+fn cached_row(surface: Surface, dist: Distribution, tolerance: f64, eta: f64) -> Option<&'static Row> {
     static CACHE: OnceLock<RowCache> = OnceLock::new();
     let slot: &'static OnceLock<Row> = {
         let mut map = CACHE.get_or_init(Default::default).lock().unwrap_or_else(|p| p.into_inner());
-        map.entry((surface as u32, dist as u32, tolerance.to_bits(), eta.to_bits())).or_insert_with(|| Box::leak(Box::new(OnceLock::new())))
+        let key = (surface as u32, dist as u32, tolerance.to_bits(), eta.to_bits());
+        match map.get(&key) {
+            Some(slot) => slot,
+            None if map.len() >= MAX_ROWS => return None,
+            None => map.entry(key).or_insert_with(|| Box::leak(Box::new(OnceLock::new()))),
+        }
     };
-    slot.get_or_init(|| build_row(surface, dist, tolerance, eta))
+    Some(slot.get_or_init(|| build_row(surface, dist, tolerance, eta)))
 }
 
 /// The largest α* in [0.005, 4] whose T₁ bound at (α*, μ) is within the
@@ -179,8 +191,8 @@ pub struct OrderOneRule {
     surface: Surface,
     dist: Distribution,
     tolerance: f64,
-    /// Conductors and diffuse microsurfaces: the one row.
-    fixed: OnceLock<&'static Row>,
+    /// Conductors and diffuse microsurfaces: the one row (None: over MAX_ROWS).
+    fixed: OnceLock<Option<&'static Row>>,
     /// Dielectrics: (f32-rounded IOR bits, 0 = free; its row) of the IORs seen.
     seen: [(AtomicU64, OnceLock<&'static Row>); SEEN],
 }
@@ -197,10 +209,11 @@ impl OrderOneRule {
     }
 
     /// The thresholds at relative IOR `eta` (ignored but for dielectrics);
-    /// None where the rule does not cover it.
+    /// None where the rule does not cover it (or the process has built
+    /// MAX_ROWS rows already).
     fn row(&self, eta: f64) -> Option<&'static Row> {
         if self.surface != Surface::Dielectric {
-            return Some(self.fixed.get_or_init(|| cached_row(self.surface, self.dist, self.tolerance, 1.0)));
+            return *self.fixed.get_or_init(|| cached_row(self.surface, self.dist, self.tolerance, 1.0));
         }
         if !eta_covered(self.surface, eta) {
             return None;
@@ -214,7 +227,7 @@ impl OrderOneRule {
                 }
             }
         }
-        let r = cached_row(self.surface, self.dist, self.tolerance, eta);
+        let r = cached_row(self.surface, self.dist, self.tolerance, eta)?;
         // Remember it in a free slot (a slot another thread is filling reads as absent until set).
         if !self.seen.iter().any(|(key, _)| key.load(Ordering::Acquire) == bits) {
             for (key, row) in &self.seen {

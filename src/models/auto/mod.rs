@@ -36,8 +36,9 @@
 //! A call compares max(α_u, α_v) with the threshold of its μ cell. Off the
 //! grid (μ < 0.02, IOR ratio beyond 1/3 … 3): the full model. Built per
 //! (surface, distribution, tolerance, IOR) once per process, on first use, over
-//! the available threads (a glass needs two: η and 1/η); the same thresholds
-//! reach the Dr.Jit engine through the C ABI (`msx_auto_rule`).
+//! the available threads (a glass needs two: η and 1/η), at most 32 per process
+//! (beyond them the full model, never wrong); the same thresholds reach the
+//! Dr.Jit engine through the C ABI (`msx_auto_rule`).
 //!
 //! **Why this is a bound, and where T₁ is not monotone (measured:
 //! `measure_t1_monotonicity` in tests/auto.rs, a 48 × 48 log grid per surface,

@@ -728,7 +728,8 @@ int32_t msx_table(uint32_t kind,
  full model) and, when `len` ≥ n − 1, each cell's α threshold to
  `thresholds`: order 1 alone suffices where max(α_u, α_v) ≤ the threshold of
  the cell of |cos θ_i|, the cell i = ⌊(μ² − lo)(n − 1)/(hi − lo)⌋ clamped to
- [0, n − 2]. Computes the table on first use.
+ [0, n − 2] (64 cells: the most a caller needs room for). Computes the rule
+ on first use (once per process and IOR; src/models/auto/).
  */
 int32_t msx_auto_rule(uint32_t surface,
                       uint32_t distribution,

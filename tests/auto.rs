@@ -1,9 +1,9 @@
 //! `model="auto"` (src/models/auto/, README.md, model table): it is exactly `correlated`,
-//! with one bounce where the table finds order 1 alone within the tolerance;
+//! with one bounce where its rule finds order 1 alone within the tolerance;
 //! the energy it omits stays within the tolerance, measured independently
 //! (full random walks, off-grid points, real materials: copper, albedo 0.5,
 //! glass from both sides); smooth surfaces get the deterministic order-1
-//! model; parameter errors.
+//! model; the rule is a bound at random points it accepts; parameter errors.
 //!
 //! Statistical checks: |estimate − expected| ≤ z·σ (+ stated allowance), σ the
 //! Monte Carlo standard error, z the family-wise 3σ level of
@@ -238,4 +238,195 @@ fn tolerance_is_validated() {
     ck.assert("auto with auto_tolerance 0.05 accepted", rc == msx::ffi::MSX_OK && !out.is_null());
     msx::ffi::msx_bsdf_free(out);
     ck.finish();
+}
+
+/// The rule is a bound: at random (α, μ_i) it accepts — α drawn near its
+/// threshold, where a violation would show, IORs between the rule's nodes —
+/// an independent estimate of the multiply scattered fraction T₁ (F = 1) with
+/// more samples than the rule's own (128 × 128 jittered visible normals, other
+/// random numbers) is at most the tolerance (one-sided, z·σ of its own standard
+/// error). And the rule is no more conservative than measured on the case
+/// issue 31 names (Beckmann α = 0.1, the copper of Mitsuba's material preview).
+#[test]
+fn rule_is_a_bound_at_random_points() {
+    use auto::table::{ms_fraction, MU};
+    let mut ck = Checker::new("auto's rule: independent T₁ ≤ tolerance where it accepts");
+    let mut rng = Sampler::new(31);
+    let mut stream = 1000u64;
+    let mut worst = (f64::NEG_INFINITY, String::new());
+    for tol in [0.01, 0.05] {
+        for surface in SURFACES {
+            for dist in DISTS {
+                // 1/1.33: water seen from inside, near total internal reflection.
+                let etas: &[f64] = if surface == Surface::Dielectric { &[1.5, 1.0 / 1.5, 1.0 / 1.33] } else { &[1.0] };
+                for &eta in etas {
+                    let rule = auto::OrderOneRule::new(surface, dist, tol);
+                    let thresholds = rule.thresholds(eta);
+                    let (mut points, mut tries) = (0, 0);
+                    while points < 12 && tries < 100_000 {
+                        tries += 1;
+                        let mu = rng.gen_range(MU.node(0), 1.0);
+                        let Some(cell) = auto::table::mu_cell(mu) else { continue };
+                        let t = thresholds[cell];
+                        if !(t > 0.0) {
+                            continue;
+                        }
+                        // α log-uniform over [t/4, t]: mostly near the threshold.
+                        let alpha = t * 4f64.powf(-rng.next());
+                        ck.assert(
+                            &format!("{surface:?} {dist:?} η {eta:.3} α {alpha:.4} μ {mu:.4}: accepted"),
+                            rule.order_one_suffices(alpha, mu, eta),
+                        );
+                        stream += 1;
+                        let (t1, se) = ms_fraction(surface, dist, eta, alpha, mu, 128, stream);
+                        let tag = format!("{surface:?} {dist:?} tol {tol} η {eta:.3} α {alpha:.4} (threshold {t:.4}) μ {mu:.4}");
+                        if t1 - tol > worst.0 {
+                            worst = (t1 - tol, tag.clone());
+                        }
+                        ck.at_most(&tag, (t1, se), tol);
+                        points += 1;
+                    }
+                    ck.assert(&format!("{surface:?} {dist:?} tol {tol} η {eta:.3}: 12 accepted points found"), points == 12);
+                }
+            }
+        }
+    }
+    println!("largest T₁ − tolerance: {:.2e} ({})", worst.0, worst.1);
+    // Beckmann α = 0.1, copper, tolerance 1 %: the share of μ_i ∈ [0, 1] where order 1 alone is
+    // accepted, measured 0.646 (μ_i ≥ 0.354; the rule before, four-corner cells of a 24 × 16 grid:
+    // 0.483, μ_i ≥ 0.517). T₁ itself reaches 1 % at μ_i ≈ 0.32 (no rule can accept more than ≈ 0.68).
+    let rule = auto::OrderOneRule::new(Surface::Conductor, Distribution::Beckmann, 0.01);
+    let n = 100_000;
+    let accepted = (0..n).filter(|&k| rule.order_one_suffices(0.1, (k as f64 + 0.5) / n as f64, 1.0)).count() as f64 / n as f64;
+    println!("Beckmann α 0.1 conductor, tolerance 1 %: order 1 accepted for {:.1} % of μ_i ∈ [0, 1]", 100.0 * accepted);
+    ck.assert(&format!("Beckmann α 0.1: accepted share of μ_i {accepted:.3} ≥ 0.64 (measured 0.646)"), accepted >= 0.64);
+    ck.finish();
+}
+
+/// Measurement behind the rule's design (module docs; run with `--ignored --nocapture`),
+/// printed, not asserted. Per row: α log grid 0.005…4 (48), μ log grid 0.02…1 (48). A decrease in α = T(α_k) below the running
+/// max over α_j < α_k by > 3σ (combined SE); an increase in μ = T(μ_k) above the running min over μ_j < μ_k
+/// by > 3σ. Only cells with T ≤ 0.3 counted.
+#[test]
+#[ignore]
+#[allow(clippy::needless_range_loop)] // indices are grid coordinates here
+fn measure_t1_monotonicity() {
+    let n = 48;
+    let alpha = |a: usize| (0.005f64.ln() + (4f64.ln() - 0.005f64.ln()) * a as f64 / (n - 1) as f64).exp();
+    let mu = |i: usize| (0.02f64.ln() * (1.0 - i as f64 / (n - 1) as f64)).exp();
+    let mut rows: Vec<(Surface, Distribution, f64)> = vec![];
+    for d in [Distribution::Beckmann, Distribution::Ggx] {
+        rows.push((Surface::Conductor, d, 1.0));
+        rows.push((Surface::Diffuse, d, 1.0));
+        for k in -6..=6 {
+            rows.push((Surface::Dielectric, d, (3f64.ln() * k as f64 / 6.0).exp()));
+            // 1/3 … 3
+        }
+        for eta in [1.5, 1.0 / 1.5, 1.33, 1.0 / 1.33] {
+            rows.push((Surface::Dielectric, d, eta));
+        }
+    }
+    for (s, d, eta) in rows {
+        let side = if s == Surface::Diffuse { 64 } else { 32 };
+        let v: Vec<Vec<(f64, f64)>> =
+            (0..n).map(|a| (0..n).map(|i| auto::table::ms_fraction(s, d, eta, alpha(a), mu(i), side, 0)).collect()).collect();
+        // α direction, per μ.
+        let (mut na, mut mu_hi_a, mut worst_a) = (0, 0.0f64, (0.0f64, String::new()));
+        for i in 0..n {
+            let mut best = v[0][i];
+            for a in 1..n {
+                let (t, se) = v[a][i];
+                if t <= 0.3 {
+                    let z = (best.0 - t) / best.1.hypot(se).max(1e-12);
+                    if best.0 - t > 1e-9 && z > 3.0 {
+                        na += 1;
+                        mu_hi_a = mu_hi_a.max(mu(i));
+                        if best.0 - t > worst_a.0 {
+                            worst_a = (best.0 - t, format!("μ {:.3}: α {:.3} {:.4} < max below {:.4}", mu(i), alpha(a), t, best.0));
+                        }
+                    }
+                }
+                if t > best.0 {
+                    best = (t, se);
+                }
+            }
+        }
+        // μ direction, per α.
+        let (mut nm, mut mu_hi_m, mut worst_m) = (0, 0.0f64, (0.0f64, String::new()));
+        for a in 0..n {
+            let mut low = v[a][0];
+            for i in 1..n {
+                let (t, se) = v[a][i];
+                if low.0 <= 0.3 {
+                    let z = (t - low.0) / low.1.hypot(se).max(1e-12);
+                    if t - low.0 > 1e-9 && z > 3.0 {
+                        nm += 1;
+                        mu_hi_m = mu_hi_m.max(mu(i));
+                        if t - low.0 > worst_m.0 {
+                            worst_m = (t - low.0, format!("α {:.3}: μ {:.3} {:.4} > min at smaller μ {:.4}", alpha(a), mu(i), t, low.0));
+                        }
+                    }
+                }
+                if t < low.0 {
+                    low = (t, se);
+                }
+            }
+        }
+        println!("{s:?} {d:?} η {eta:.3}: α-decreases {na} (up to μ {mu_hi_a:.3}; largest {:.3} {}) | μ-increases {nm} (up to μ {mu_hi_m:.3}; largest {:.3} {})", worst_a.0, worst_a.1, worst_m.0, worst_m.1);
+    }
+}
+
+/// Measurement (run with `--ignored --nocapture`; ≈ 20 s): every cell of the rule at its threshold
+/// and at 0.7 × it, at both ends and three interior μ, for three tolerances: an independent T₁
+/// (64 × 64 visible normals, other random numbers) against the tolerance, printed with the counts above
+/// it by more than 2σ and 3σ.
+#[test]
+#[ignore]
+#[allow(clippy::needless_range_loop)] // indices are grid coordinates here
+fn measure_every_cell_at_its_threshold() {
+    let mut stream = 50_000u64;
+    for tol in [0.01, 0.05, 0.2] {
+        for (s, d, eta) in [
+            (Surface::Conductor, Distribution::Beckmann, 1.0),
+            (Surface::Conductor, Distribution::Ggx, 1.0),
+            (Surface::Diffuse, Distribution::Beckmann, 1.0),
+            (Surface::Diffuse, Distribution::Ggx, 1.0),
+            (Surface::Dielectric, Distribution::Beckmann, 1.5),
+            (Surface::Dielectric, Distribution::Beckmann, 1.0 / 1.5),
+            (Surface::Dielectric, Distribution::Ggx, 1.5),
+            (Surface::Dielectric, Distribution::Ggx, 1.0 / 1.5),
+            (Surface::Dielectric, Distribution::Beckmann, 1.0 / 1.33),
+        ] {
+            let th = auto::OrderOneRule::new(s, d, tol).thresholds(eta);
+            let (mut n, mut over2, mut over3, mut worst) = (0, 0, 0, (f64::NEG_INFINITY, String::new()));
+            for c in 0..64 {
+                if th[c] <= 0.0 {
+                    continue;
+                }
+                let (x0, x1) = (auto::table::MU.node(c).powi(2), auto::table::MU.node(c + 1).powi(2));
+                for k in 0..5 {
+                    let mu = (x0 + (x1 - x0) * k as f64 / 4.0).sqrt();
+                    for alpha in [th[c], th[c] * 0.7] {
+                        stream += 1;
+                        let (t, se) = auto::table::ms_fraction(s, d, eta, alpha, mu, 64, stream);
+                        let z = (t - tol) / se.max(1e-12);
+                        n += 1;
+                        if z > 2.0 {
+                            over2 += 1;
+                        }
+                        if z > 3.0 {
+                            over3 += 1;
+                        }
+                        if t - tol > worst.0 {
+                            worst = (t - tol, format!("cell {c} μ {mu:.3} α {alpha:.4}: {t:.4} ± {se:.4}"));
+                        }
+                    }
+                }
+            }
+            println!(
+                "tol {tol} {s:?} {d:?} η {eta:.3}: {n} points, {over2} above tol by > 2σ, {over3} by > 3σ; largest T₁ − tol {:.4} ({})",
+                worst.0, worst.1
+            );
+        }
+    }
 }

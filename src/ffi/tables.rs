@@ -120,7 +120,8 @@ pub extern "C" fn msx_table(
 /// full model) and, when `len` ≥ n − 1, each cell's α threshold to
 /// `thresholds`: order 1 alone suffices where max(α_u, α_v) ≤ the threshold of
 /// the cell of |cos θ_i|, the cell i = ⌊(μ² − lo)(n − 1)/(hi − lo)⌋ clamped to
-/// [0, n − 2]. Computes the table on first use.
+/// [0, n − 2] (64 cells: the most a caller needs room for). Computes the rule
+/// on first use (once per process and IOR; src/models/auto/).
 #[no_mangle]
 pub extern "C" fn msx_auto_rule(
     surface: u32,

@@ -120,10 +120,11 @@ def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex
     the bidirectional estimator. Returns the estimate (mi.Spectrum).
 
     ``mf_sample`` (docs/gradients.md): the microfacet statistics the directions are drawn from, when they
-    are not ``mf`` — the parameters with their derivatives detached. Each step's throughput then carries the
-    ratio of its density under ``mf`` to its density under ``mf_sample``, D(m)/L_j over the same with
-    ``mf_sample`` (value 1 where the two are equal, the score as derivative), and the roulette's survival
-    probability is detached: the estimate's derivative is then an unbiased estimate of the derivative of f.
+    are not ``mf`` — the parameters with their derivatives detached. The normal is drawn with w detached too
+    and the attached w reflected about it; each step's throughput carries the ratio of the visible-normal
+    density ⟨w·m⟩·D(m)/(|w_z|·L_j) under the attached values to the same detached (value 1, the score as
+    derivative), and the roulette's survival probability is detached: the estimate's derivative is then an
+    unbiased estimate of the derivative of f, in the parameters and in ω_i, ω_o (docs/gradients.md).
 
     ``direction_tangent`` (traced only): (s, t_i, t_o) while one coordinate s of the directions is
     differentiated (gradients.TangentCoordinates), t_i and t_o the tangents of ω_i and ω_o in s. Where the
@@ -146,8 +147,10 @@ def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex
         # Traced, the uncorrelated last factor 1/(L_j(1 + Λ_o)) takes L_j ≥ TRACED_L_MIN: after an upward step
         # with a tiny Λ its derivative, ∝ 1/L_j², overflows and makes the whole lane's derivative NaN (which
         # gradients.attach then drops: measured, a 0.4 % bias at Beckmann α = 0.3). Such a vertex is reached
-        # from a direction within a few degrees of the normal, so its next-event half vector towards any ω_o
-        # above lies at or below the horizon, where D is 0: the value does not change.
+        # going up close to the normal (Λ falls as e^{−1/(α tan θ)²}: within ~10–20° for Beckmann α ≤ 1, a
+        # hair's breadth for GGX), so its next-event half vector towards ω_o lies below or nearly at the
+        # horizon, where D vanishes in float32 (Beckmann), or is below it unless ω_o is closer still to the
+        # normal (GGX): the value does not change.
         last_factor = last(segments, dr.maximum(l, TRACED_L_MIN) if traced and segments == UNCORRELATED else l, lo)
         cos_wh, nee, nee_ok = nee_term(mfa, w, wo_, last_factor)
         u_rr, u_edge = rng.next2()

@@ -462,15 +462,23 @@ def run(args):
                 _say(f"msx: material {m.key}: not evaluated: {one_line(e)}")
                 results.append(dict(material=m, problem=one_line(e)))
             renderer.release()
-        written = None
-        if args.write_scene:
-            written = write_scene(scene, results, args.write_scene, renderer)
-        total = time.perf_counter() - t_start
-        notes = list(scene.notes) + [f"material {m.key}: {'; '.join(f'{k} left out ({v})' for k, v in m.refused.items())}"
-                                     for m in materials if m.refused and not m.problem]
-        notes += [f"material {m.key} does not load as written: the other materials' renders use its built-in twin"
-                  for m in scene.materials if not m.loads]
-        _write_outputs(stage, out, scene, results, st, variant, total, written, notes)
+        written, written_files = None, []
+        try:
+            if args.write_scene:
+                written = write_scene(scene, results, args.write_scene, renderer, written_files)
+            total = time.perf_counter() - t_start
+            notes = list(scene.notes) + [
+                f"material {m.key}: {'; '.join(f'{k} left out ({v})' for k, v in m.refused.items())}"
+                for m in materials if m.refused and not m.problem]
+            notes += [f"material {m.key} does not load as written: the other materials' renders use its built-in "
+                      "twin" for m in scene.materials if not m.loads]
+            _write_outputs(stage, out, scene, results, st, variant, total, written, notes)
+        except BaseException:
+            # Stopped (Ctrl-C) or failed after the scene was written but before the report was: the scene
+            # goes too, so that a run leaves all of its outputs or none.
+            for f in written_files:
+                Path(f).unlink(missing_ok=True)
+            raise
     finally:
         shutil.rmtree(stage, ignore_errors=True)
         shutil.rmtree(work, ignore_errors=True)
@@ -526,11 +534,13 @@ def summary_line(r):
 # ---------------------------------------------------------------- --write-scene
 
 
-def write_scene(scene, results, target, renderer=None):
+def write_scene(scene, results, target, renderer=None, written_files=None):
     """The scene file with each evaluated material set to its recommended model (scene_xml.set_model: only
     that BSDF element's type and parameters change), written atomically; checked by loading it. A material in
     an included file is written into a copy of that file beside the target, ``<target stem>.<its name>``,
-    which the target's <include> names instead."""
+    which the target's <include> names instead. ``written_files`` (a list), if given, receives every file
+    written under its final name, as it is written."""
+    written_files = [] if written_files is None else written_files
     edits = scene_xml.Edits()
     for r in results:
         m, model = r["material"], r.get("recommended")
@@ -558,6 +568,7 @@ def write_scene(scene, results, target, renderer=None):
                 renderer.mi.Thread.thread().file_resolver().prepend(str(target.resolve().parent))
             for path, tmp in tmps.items():  # loaded under their final names
                 if path != target:
+                    written_files.append(path)
                     os.replace(tmp, path)
             used = set().union(*(scene_xml._REF.findall(d.decode(errors="replace")) for d in scene.files.values()))
             try:
@@ -571,6 +582,7 @@ def write_scene(scene, results, target, renderer=None):
                      f"{', '.join(unloadable)} left as written): {one_line(e)}")
         for path, tmp in tmps.items():
             if tmp.exists():
+                written_files.append(path)
                 os.replace(tmp, path)
     except BaseException as e:
         for path, tmp in tmps.items():

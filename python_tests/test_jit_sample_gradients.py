@@ -13,7 +13,8 @@ differentiable estimate). Checked through a symbolic call, as a render calls the
   ``estimator="bdpt"``, in α and in η;
 - in η, which moves no direction (only the Fresnel terms), the mean of the weight's derivative equals the
   central difference of the mean weight (a z-test over 2¹⁴ lanes; the proposal's directions do not depend
-  on η, and the roulette's survival probability is detached, so the derivative is unbiased).
+  on η, and the roulette's survival probability is detached, so the derivative is unbiased);
+- the same in the albedo of the diffuse microsurface's walks.
 """
 
 import math
@@ -35,8 +36,8 @@ import jit_support  # noqa: E402
 from msx.jit import bsdf as engine  # noqa: E402
 
 LANES = 1 << 14
-# Šidák: a family-wise false-alarm rate of 1e-3 over the 6 × 3 z-tests of this file.
-Z = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / 18)) / 2.0)
+# Šidák: a family-wise false-alarm rate of 1e-3 over the (6 + 3) × 3 z-tests of this file.
+Z = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / 27)) / 2.0)
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -45,11 +46,13 @@ def llvm():
         yield
 
 
-def calls(model, estimator, key):
-    """The differentiated ``sample`` of a copper conductor at fixed lanes: a function of the step t along
-    ``key`` that returns (weight, forward derivative)."""
-    b = mi.load_dict({"type": "msx_posfree", "material": "Cu", "model": model, "estimator": estimator,
-                      "distribution": "ggx", "alpha": 0.5})
+def calls(model, estimator, key, surface="conductor"):
+    """The differentiated ``sample`` of a copper conductor (or of a diffuse microsurface of albedo (0.8, 0.6,
+    0.4)) at fixed lanes: a function of the step t along ``key`` that returns (weight, forward derivative)."""
+    material = {"material": "Cu"} if surface == "conductor" else {
+        "surface": "diffuse", "reflectance": {"type": "rgb", "value": [0.8, 0.6, 0.4]}}
+    b = mi.load_dict({"type": "msx_posfree", "model": model, "estimator": estimator,
+                      "distribution": "ggx", "alpha": 0.5, **material})
     p = mi.traverse(b)
     x0 = type(p[key])(p[key])
     rng = np.random.default_rng(3)
@@ -89,7 +92,18 @@ ETA_CASES = [("heitz", "pt"), ("invariance", "pt"), ("invariance", "bdpt"), ("co
 
 @pytest.mark.parametrize("model, estimator", ETA_CASES)
 def test_sample_weight_derivative_in_eta_equals_finite_differences(model, estimator):
-    at = calls(model, estimator, "eta.value")
+    _check_against_finite_differences(calls(model, estimator, "eta.value"), model, estimator)
+
+
+@pytest.mark.parametrize("model", ("uncorrelated", "correlated", "heitz"))
+def test_diffuse_sample_weight_derivative_in_albedo_equals_finite_differences(model):
+    """The albedo moves no direction either (the cosine proposal does not depend on it). The position-free
+    diffuse walks' weight used to take the walk as written, whose derivative in the albedo drjit dropped (0
+    on every lane); it now weighs by ``eval``'s differentiable estimate, as the conductors do."""
+    _check_against_finite_differences(calls(model, "pt", "reflectance.value", "diffuse"), model, "pt")
+
+
+def _check_against_finite_differences(at, model, estimator):
     h = 1e-2
     _, fwd = at(0.0)
     fd = (at(h)[0] - at(-h)[0]) / (2.0 * h)

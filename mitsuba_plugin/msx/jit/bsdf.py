@@ -478,20 +478,25 @@ class DiffuseModel:
         return value, (mis.diffuse_pdf(wi, wo) if want_pdf else None)
 
     def differentiable_estimate(self, call, wi, wo, key):
-        """The walk's PT estimate with its derivative in α and the albedo (jit/gradients.py)."""
-        bounces = self.bounces(call, wi)
+        """The walk's PT estimate with its derivative in α and the albedo (jit/gradients.py), and in the
+        components of ω_i and ω_o where they carry gradients (as ``ConductorModel.differentiable_estimate``)."""
+        bounces = self.bounces(dr.detach(call), dr.detach(wi))
+        moving = gradients.TangentCoordinates(wi, wo)
 
-        def run(m, m_sample, albedo):
-            return self.walk.eval_pt(m, albedo, wi, wo, bounces, key, mf_sample=m_sample)
+        def run(m, m_sample, albedo, *coords):
+            wi_, wo_ = moving.directions(coords)
+            return self.walk.eval_pt(m, albedo, wi_, wo_, bounces, key, mf_sample=m_sample)
 
-        return gradients.attach_walk(call, [call.albedo], run)
+        return gradients.attach_walk(call, [call.albedo] + moving.values, run)
 
     def sample_traced(self, call, wi, s1, u1, u2, eval_key):
-        """``sample`` while differentiated: ω_o from the cosine lobe (the MIS density, exact), weighed by the
-        walk's estimate there (the one ``eval`` gives, lane key ``eval_key(ω_o)``) over that density."""
+        """``sample`` while differentiated: ω_o from the cosine lobe (the MIS density, exact; it depends on
+        neither ω_i nor the parameters), weighed by ``eval``'s differentiable estimate there (lane key
+        ``eval_key(ω_o)``) over that density: its derivative is that of ∫ f·L dω_o, in the parameters and in
+        ω_i (``ConductorModel.sample_traced``)."""
         wo = mi.warp.square_to_cosine_hemisphere(mi.Point2f(u1, u2))
-        pdf = mis.diffuse_pdf(wi, wo)
-        value = self.walk.eval_pt(call.mf, call.albedo, wi, wo, self.bounces(call, wi), eval_key(wo))
+        pdf = mis.diffuse_pdf(dr.detach(wi), wo)
+        value = self.differentiable_estimate(call, wi, wo, eval_key(wo))
         valid = (wi[2] > 0.0) & (pdf > 0.0)
         return wo, pdf, dr.select(valid, value / pdf, 0.0), valid
 

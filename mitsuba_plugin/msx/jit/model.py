@@ -56,12 +56,14 @@ class _Walk:
     """What every walk on a non-conductor surface provides: ``eval_pt`` and ``sample_walk`` (signatures below),
     ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md), and ``needs_local_arrays``: it
     keeps a ``dr.alloc_local`` buffer, which drjit 1.5's LLVM backend cannot compile inside a symbolic call
-    (jit/bsdf.py refuses it in scenes; docs/engines.md)."""
+    (jit/bsdf.py refuses it in scenes; docs/engines.md); ``direction_distributions``: as ``ConductorWalk``'s."""
 
-    def __init__(self, eval_pt, sample_walk, differentiable=False, needs_local_arrays=False):
+    def __init__(self, eval_pt, sample_walk, differentiable=False, needs_local_arrays=False,
+                 direction_distributions=()):
         self.eval_pt, self.sample_walk = eval_pt, sample_walk
         self.differentiable = differentiable
         self.needs_local_arrays = needs_local_arrays
+        self.direction_distributions = tuple(direction_distributions)
 
 
 class DielectricWalk(_Walk):
@@ -89,5 +91,6 @@ class DiffuseWalk(_Walk):
     - ``sample_walk(mf, albedo, wi, sample1, u1, u2, max_bounces, key)`` → (ω_o, weight, valid).
 
     Its MIS density is a cosine lobe.
-    - ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md).
+    - ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md);
+    - ``direction_distributions``: as ``ConductorWalk``'s.
     """

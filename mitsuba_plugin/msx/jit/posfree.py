@@ -448,24 +448,35 @@ def diffuse_eval_pt(segments, mf, albedo, wi, wo, max_bounces, key, mf_sample=No
     """PT estimate of f(ω_i, ω_o)·cos θ_o on Lambertian facets of albedo ``albedo`` (diffuse.rs
     ``eval_pt``): per vertex a visible normal m serves the next event, L_j·(a/π)⟨ω_o, m⟩⁺·last, and the
     Lambertian continuation about m; roulette after every vertex. ``mf_sample``: as in ``pt_walk`` (the
-    visible normals drawn from the detached statistics, each weighted by its density ratio; the cosine lobe
-    about m does not depend on the parameters)."""
+    visible normals drawn from the detached statistics and the detached direction, each weighted by its
+    density ratio; the cosine lobe about m depends on neither the parameters nor the directions).
+
+    Traced, ω_i and ω_o may carry a derivative (docs/gradients.md, "Directions through the walks"): ω_i
+    enters the first vertex alone, through its visible-normal density ⟨w·m⟩⁺·D(m)/(|w_z|·L_0) (later
+    directions are cosine draws about detached normals), and ω_o the next events, whose value
+    (a/π)⟨ω_o, m⟩⁺·L_j·last is continuous where ⟨ω_o, m⟩ changes sign: no edge term, on either distribution."""
     lambda_o = mf.lambda_(wo)
     start = (wi[2] > 0.0) & (wo[2] > 0.0)
     width = dr.width(wi)
     traced = mf_sample is not None
 
     def body(j, w, l, thr, result, active, counter, piped):
-        # Traced, the differentiated values come through the loop's state (gradients.LoopValues).
-        mfa, mfs, lo, (a,) = LoopValues.unpack(traced, mf, lambda_o, (albedo,), piped)
+        # Traced, the differentiated values come through the loop's state (gradients.LoopValues): the
+        # albedo, then ω_o.
+        mfa, mfs, lo, (a, wo_) = LoopValues.unpack(traced, mf, lambda_o, (albedo, wo), piped)
         rng = Stream(key, counter)
         active &= (l > 0.0) & dr.isfinite(l) & (max_channel(thr) > 0.0)
         u1, u2 = rng.next2()
-        m, valid = mfs.sample_visible(w, u1, u2)
+        m, valid = mfs.sample_visible(dr.detach(w) if traced else w, u1, u2)
         active &= valid
         if traced:
+            # The visible-normal density ⟨w·m⟩·D(m)/(|w_z|·L_j) under the attached values over the same
+            # detached (``pt_walk``), written as the ratio of D's and L's times that of the direction's part,
+            # ⟨w·m⟩/|w_z|, which is 1 with no derivative unless w moves (the first vertex under moving ω_i).
+            cos_ratio = dot(w, m) / dr.abs(w[2])
             thr = thr * ((mfa.d(m) * dr.detach(l)) / (mfs.d(m) * l))
-        c = dot(wo, m)
+            thr = thr * dr.select(dr.detach(cos_ratio) > 0.0, cos_ratio / dr.detach(cos_ratio), 0.0)
+        c = dot(wo_, m)
         nee = a * (c * INV_PI * l * last(segments, l, lo))
         result = dr.select(active & (c > 0.0), result + thr * nee, result)
         active &= j + 1 < max_bounces
@@ -482,7 +493,7 @@ def diffuse_eval_pt(segments, mf, albedo, wi, wo, max_bounces, key, mf_sample=No
 
     state = dict(j=mi.UInt32(0), w=mi.Vector3f(wi), l=1.0 + mf.lambda_(wi), thr=dr.full(mi.Spectrum, 1.0, width),
                  result=dr.zeros(mi.Spectrum, width), active=mi.Bool(start), counter=mi.UInt32(0),
-                 piped=LoopValues.state(mf, lambda_o, mi.Spectrum(albedo)) if traced else ())
+                 piped=LoopValues.state(mf, lambda_o, mi.Spectrum(albedo), mi.Vector3f(wo)) if traced else ())
     return walk.while_loop(state, body, label="msx_posfree_diffuse_pt")["result"]
 
 
@@ -513,5 +524,5 @@ CONDUCTOR_WALKS = {
     for name, exit in ((UNCORRELATED, mis.SEPARABLE), (CORRELATED, mis.HEIGHT_CORRELATED))
 }
 DIFFUSE_WALKS = {name: DiffuseWalk(partial(diffuse_eval_pt, name), partial(diffuse_sample_walk, name),
-                                   differentiable=True)
+                                   differentiable=True, direction_distributions=(BECKMANN, GGX))
                  for name in (UNCORRELATED, CORRELATED)}

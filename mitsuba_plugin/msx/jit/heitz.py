@@ -41,7 +41,7 @@ from . import mis, walk
 from .dielectric import eta_seen, fresnel_dielectric, radiance_scale, scatter_unit, transmit_half_vector
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
 from .gradients import LoopValues
-from .microfacet import INV_PI, ConductorFresnel, dot, half_vector, normalized, reflect
+from .microfacet import BECKMANN, GGX, INV_PI, ConductorFresnel, dot, half_vector, normalized, reflect
 from .model import ConductorWalk, DielectricWalk, DiffuseWalk
 from .rng import ONE_MINUS_EPS, Stream, clean_uniform
 from .special import expm1, log1p, optical_depth
@@ -163,24 +163,27 @@ def height_step_ratio(mfa, mfs, w, t, tn):
     """The density of the height step t → ``tn`` along ``w`` under the attached statistics ``mfa`` over its
     density under the detached ``mfs`` it was drawn from (``sample_height_hit`` before its conditioning on a
     hit): Λ e^{−Λ|t' − t|} with |Λ| of the direction, so the ratio is (Λ_a/Λ_s)·e^{−(Λ_a − Λ_s)|t' − t|} —
-    value 1, derivative the score. 1 where a density is not finite (a horizontal ray: no step is drawn)."""
+    value 1, derivative the score. 1 where a density is not finite (a horizontal ray: no step is drawn).
+    ``w`` attached (it may carry a derivative in the directions; the step was drawn along its detached
+    value)."""
     up = w[2] > 0.0
+    ws = dr.detach(w)
     lam_a = dr.select(up, mfa.lambda_(w), mfa.abs_lambda(w))
-    lam_s = dr.select(up, mfs.lambda_(w), mfs.abs_lambda(w))
+    lam_s = dr.select(up, mfs.lambda_(ws), mfs.abs_lambda(ws))
     r = (lam_a / lam_s) * dr.exp(-(lam_a - lam_s) * dr.abs(tn - t))
     ok = (lam_s > 0.0) & dr.isfinite(lam_s) & dr.isfinite(r)
     return dr.select(ok, r, 1.0)
 
 
 def visible_ratio(mfa, mfs, w, m):
-    """D_ω(m) under ``mfa`` over D_ω(m) under ``mfs`` (m drawn from the latter): value 1, derivative the
-    score; 1 where the drawn normal has no finite positive density."""
-    ds = mfs.d_visible(w, m)
+    """D_ω(m) under ``mfa`` with ω = ``w`` attached over D_ω(m) under ``mfs`` with ω detached (m drawn from
+    the latter): value 1, derivative the score; 1 where the drawn normal has no finite positive density."""
+    ds = mfs.d_visible(dr.detach(w), m)
     ok = (ds > 0.0) & dr.isfinite(ds)
     return dr.select(ok, mfa.d_visible(w, m) / dr.select(ok, ds, 1.0), 1.0)
 
 
-def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None):
+def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None, direction_tangent=None):
     """One unbiased estimate of f(ω_i, ω_o)·cos θ_o, orders 1..max_bounces (Rust ``eval`` with
     ``eval_from``): the walk enters from ω_i at t = 0; at each vertex the height step is conditioned on
     hitting (the throughput carries P_hit), the path is closed towards ω_o (F · phase · G1(ω_o, h)), then
@@ -190,7 +193,14 @@ def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None):
     visible normals are then drawn from them, and each draw's throughput carries the ratio of its density
     under ``mf`` to its density under ``mf_sample`` (value 1, derivative the score); the roulette is
     detached (``walk.russian_roulette_keep``). The estimate's derivative is then an unbiased estimate of
-    the derivative of f. The differentiated values travel in the loop's state."""
+    the derivative of f. The differentiated values travel in the loop's state.
+
+    With ``mf_sample``, ω_i and ω_o may carry a derivative (docs/gradients.md, "Directions through the
+    walks"): every draw — height steps and visible normals — is made along the detached direction and the
+    attached direction is reflected about the drawn normal, each draw weighed by its density ratio. This is
+    unbiased but not usable on conductor facets: the score of a height step along a moving direction is
+    heavy-tailed (``CONDUCTOR_WALKS``), so the model refuses directions (``direction_distributions`` empty)
+    and ``direction_tangent`` is ignored; the Lambertian facets' walk (``diffuse_eval``) takes them."""
     return eval_from(mf, ConductorFacets(fresnel), wi, wo, max_bounces, key, mf_sample)
 
 
@@ -212,16 +222,19 @@ def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None):
     def body(order, wr, t, thr, result, active, counter, piped):
         mfa, mfs, lo, values = LoopValues.unpack(piped_values, mf, lambda_o, (), piped)
         mfs = mfs if traced else mfa  # the walk as written draws from the statistics it evaluates
+        # Traced, ω_o travels in the state too, after the facets' values (it may carry a derivative).
+        values, wo_ = (values[:-1], values[-1]) if traced else (values, wo)
         f = facets.with_values(values) if piped_values else facets
         rng = Stream(key, counter)
         u_h, u_rr = rng.next2()
-        tn, p_hit = sample_height_hit(mfs, wr, t, u_h)
+        # Traced, the height is drawn along the detached direction (``height_step_ratio`` weighs it).
+        tn, p_hit = sample_height_hit(mfs, dr.detach(wr) if traced else wr, t, u_h)
         active &= p_hit > 0.0
         thr = thr * p_hit
         if traced:
             thr = thr * height_step_ratio(mfa, mfs, wr, t, tn)
         t = tn
-        nee, nee_ok, wr, thr, valid = f.eval_vertex(mfa, mfs, -wr, wo, lo, t, thr, rng, traced)
+        nee, nee_ok, wr, thr, valid = f.eval_vertex(mfa, mfs, -wr, wo_, lo, t, thr, rng, traced)
         result = dr.select(active & nee_ok, result + nee, result)
         active &= order < last
         thr, survived = walk.russian_roulette_keep(thr, u_rr, 1.0)
@@ -231,7 +244,8 @@ def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None):
 
     state = dict(order=mi.UInt32(1), wr=-mi.Vector3f(wi), t=mi.Float(0.0), thr=mi.Spectrum(1.0),
                  result=dr.zeros(mi.Spectrum), active=mi.Bool(start), counter=mi.UInt32(0),
-                 piped=LoopValues.state(mf, lambda_o, *facets.values()) if piped_values else ())
+                 piped=LoopValues.state(mf, lambda_o, *facets.values(), *((mi.Vector3f(wo),) if traced else ()))
+                 if piped_values else ())
     return walk.while_loop(state, body, label=facets.eval_label)["result"]
 
 
@@ -263,7 +277,10 @@ class ConductorFacets:
         p, c, ok = conductor_phase(mfa, wi_l, wo)
         nee = thr * (self.fresnel.eval(c) * (p * masking_at(lambda_o, t)))
         u1, u2 = rng.next2()
-        m, cos_wm, valid = visible_normal(mfs, wi_l, u1, u2)
+        # Traced, the normal is drawn for the detached direction and the attached one reflects about it.
+        m, cos_wm, valid = visible_normal(mfs, dr.detach(wi_l) if traced else wi_l, u1, u2)
+        if traced:
+            cos_wm = dot(wi_l, m)
         thr = thr * self.fresnel.eval(cos_wm)
         if traced:
             thr = thr * visible_ratio(mfa, mfs, wi_l, m)
@@ -299,7 +316,7 @@ class DiffuseFacets(ConductorFacets):
         ``traced``) shared by the next event, (a/π)⟨ω_o, m⟩⁺·G1(ω_o, h), and the continuation, a cosine lobe
         about m with weight a."""
         u1, u2 = rng.next2()
-        m, _, valid = visible_normal(mfs, wi_l, u1, u2)
+        m, _, valid = visible_normal(mfs, dr.detach(wi_l) if traced else wi_l, u1, u2)
         if traced:
             thr = thr * visible_ratio(mfa, mfs, wi_l, m)
         nee = thr * (self.albedo * (dr.maximum(dot(m, wo), 0.0) * INV_PI * masking_at(lambda_o, t)))
@@ -388,12 +405,14 @@ def sample(mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
 # ------------------------------------------------------------------ Lambertian facets (diffuse)
 
 
-def diffuse_eval(mf, albedo, wi, wo, max_bounces, key, mf_sample=None):
+def diffuse_eval(mf, albedo, wi, wo, max_bounces, key, mf_sample=None, direction_tangent=None):
     """One unbiased estimate of f(ω_i, ω_o)·cos θ_o on Lambertian facets of albedo ``albedo``, orders
     1..max_bounces (Rust ``eval_from`` with ``Mat::Diffuse``): per vertex the height step conditioned on
     hitting, a visible normal m of the incoming ray shared by the next event, (a/π)⟨ω_o, m⟩⁺·G1(ω_o, h),
     and the continuation, a cosine lobe about m with weight a; roulette after every vertex. ``mf_sample``:
-    as in ``eval`` (the cosine lobe about m does not depend on the parameters)."""
+    as in ``eval`` (the cosine lobe about m does not depend on the parameters). Traced, ω_i and ω_o may carry
+    a derivative as in ``eval``; the next event, (a/π)⟨ω_o, m⟩⁺·G1(ω_o, h), is continuous on both distributions
+    (no edge term)."""
     return eval_from(mf, DiffuseFacets(albedo), wi, wo, max_bounces, key, mf_sample)
 
 
@@ -557,10 +576,15 @@ def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
 
 # The conductor walk this module provides (jit/bsdf.py collects it): height-correlated order-1 exit in
 # the MIS density, and no walk from below the macro surface.
+# Directions: the Lambertian facets' walk only. On conductor facets every direction of the walk moves with ω_i,
+# and the score of a height step along a moving upward direction, Λ'(1/Λ − Δt), is heavy-tailed (measured,
+# Beckmann α 0.6, 2²⁰ lanes: per-lane derivatives up to 1.6·10⁵ from order 2 on, AD −0.013 against the
+# central difference's −0.168; docs/gradients.md), so the conductor walk refuses directions.
 CONDUCTOR_WALKS = {"heitz": ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, below=False, differentiable=True)}
 
 # The walks on the other microsurfaces (jit/bsdf.py collects them; their MIS densities are
 # ``mis.dielectric_pdf`` and ``mis.diffuse_pdf``).
 DIELECTRIC_WALKS = {"heitz": DielectricWalk(dielectric_eval, dielectric_sample, differentiable=True,
                                             eta_differentiable=True)}
-DIFFUSE_WALKS = {"heitz": DiffuseWalk(diffuse_eval, diffuse_sample, differentiable=True)}
+DIFFUSE_WALKS = {"heitz": DiffuseWalk(diffuse_eval, diffuse_sample, differentiable=True,
+                                        direction_distributions=(BECKMANN, GGX))}

@@ -159,22 +159,6 @@ def valid_incidence_dielectric(w, eta):
 # ------------------------------------------------------------------ the walks
 
 
-def height_step_ratio(mfa, mfs, w, t, tn):
-    """The density of the height step t → ``tn`` along ``w`` under the attached statistics ``mfa`` over its
-    density under the detached ``mfs`` it was drawn from (``sample_height_hit`` before its conditioning on a
-    hit): Λ e^{−Λ|t' − t|} with |Λ| of the direction, so the ratio is (Λ_a/Λ_s)·e^{−(Λ_a − Λ_s)|t' − t|} —
-    value 1, derivative the score. 1 where a density is not finite (a horizontal ray: no step is drawn).
-    ``w`` attached (it may carry a derivative in the directions; the step was drawn along its detached
-    value)."""
-    up = w[2] > 0.0
-    ws = dr.detach(w)
-    lam_a = dr.select(up, mfa.lambda_(w), mfa.abs_lambda(w))
-    lam_s = dr.select(up, mfs.lambda_(ws), mfs.abs_lambda(ws))
-    r = (lam_a / lam_s) * dr.exp(-(lam_a - lam_s) * dr.abs(tn - t))
-    ok = (lam_s > 0.0) & dr.isfinite(lam_s) & dr.isfinite(r)
-    return dr.select(ok, r, 1.0)
-
-
 def visible_ratio(mfa, mfs, w, m):
     """D_ω(m) under ``mfa`` with ω = ``w`` attached over D_ω(m) under ``mfs`` with ω detached (m drawn from
     the latter): value 1, derivative the score; 1 where the drawn normal has no finite positive density."""
@@ -189,18 +173,18 @@ def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None, direction_tangen
     hitting (the throughput carries P_hit), the path is closed towards ω_o (F · phase · G1(ω_o, h)), then
     the walk reflects about a visible normal and plays Russian roulette.
 
-    ``mf_sample`` (docs/gradients.md): the statistics with their derivatives detached. The heights and the
-    visible normals are then drawn from them, and each draw's throughput carries the ratio of its density
-    under ``mf`` to its density under ``mf_sample`` (value 1, derivative the score); the roulette is
-    detached (``walk.russian_roulette_keep``). The estimate's derivative is then an unbiased estimate of
-    the derivative of f. The differentiated values travel in the loop's state.
+    ``mf_sample`` (docs/gradients.md): the statistics with their derivatives detached. The visible normals
+    are then drawn from them, each draw's throughput carrying the ratio of its density under ``mf`` to its
+    density under ``mf_sample`` (value 1, derivative the score); the heights are reparameterized (the step's
+    uniform number held, t' and P_hit from the attached Λ); the roulette is detached
+    (``walk.russian_roulette_keep``). The estimate's derivative is then an unbiased estimate of the
+    derivative of f. The differentiated values travel in the loop's state.
 
     With ``mf_sample``, ω_i and ω_o may carry a derivative (docs/gradients.md, "Directions through the
-    walks"): every draw — height steps and visible normals — is made along the detached direction and the
-    attached direction is reflected about the drawn normal, each draw weighed by its density ratio. This is
-    unbiased but not usable on conductor facets: the score of a height step along a moving direction is
-    heavy-tailed (``CONDUCTOR_WALKS``), so the model refuses directions (``direction_distributions`` empty)
-    and ``direction_tangent`` is ignored; the Lambertian facets' walk (``diffuse_eval``) takes them."""
+    walks"): the normals are drawn for the detached direction and the attached direction is reflected about
+    them, each weighed by its density ratio, and the heights move with the attached direction. On Beckmann nothing jumps where the directions move (its D is 0 at a
+    horizontal half vector); GGX's next event would need an edge term, which this walk does not have, so it
+    refuses directions there (``direction_distributions``) and ignores ``direction_tangent``."""
     return eval_from(mf, ConductorFacets(fresnel), wi, wo, max_bounces, key, mf_sample)
 
 
@@ -227,12 +211,13 @@ def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None):
         f = facets.with_values(values) if piped_values else facets
         rng = Stream(key, counter)
         u_h, u_rr = rng.next2()
-        # Traced, the height is drawn along the detached direction (``height_step_ratio`` weighs it).
-        tn, p_hit = sample_height_hit(mfs, dr.detach(wr) if traced else wr, t, u_h)
+        # Traced, the height is reparameterized, as on glass (``dielectric_eval_from``): the step's uniform
+        # number is held and the attached Λ of the attached direction maps it to t' (and gives P_hit). A
+        # density ratio of the height held fixed would carry the score Λ′(1/Λ − Δt), of infinite variance where the direction turns horizontal (Λ ~ 1/w_z): measured on conductor facets
+        # with moving directions, per-lane derivatives up to 1.6·10⁵ (docs/gradients.md).
+        tn, p_hit = sample_height_hit(mfa if traced else mfs, wr, t, u_h)
         active &= p_hit > 0.0
         thr = thr * p_hit
-        if traced:
-            thr = thr * height_step_ratio(mfa, mfs, wr, t, tn)
         t = tn
         nee, nee_ok, wr, thr, valid = f.eval_vertex(mfa, mfs, -wr, wo_, lo, t, thr, rng, traced)
         result = dr.select(active & nee_ok, result + nee, result)
@@ -576,11 +561,8 @@ def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
 
 # The conductor walk this module provides (jit/bsdf.py collects it): height-correlated order-1 exit in
 # the MIS density, and no walk from below the macro surface.
-# Directions: the Lambertian facets' walk only. On conductor facets every direction of the walk moves with ω_i,
-# and the score of a height step along a moving upward direction, Λ'(1/Λ − Δt), is heavy-tailed (measured,
-# Beckmann α 0.6, 2²⁰ lanes: per-lane derivatives up to 1.6·10⁵ from order 2 on, AD −0.013 against the
-# central difference's −0.168; docs/gradients.md), so the conductor walk refuses directions.
-CONDUCTOR_WALKS = {"heitz": ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, below=False, differentiable=True)}
+CONDUCTOR_WALKS = {"heitz": ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, below=False, differentiable=True,
+                                          direction_distributions=(BECKMANN,))}
 
 # The walks on the other microsurfaces (jit/bsdf.py collects them; their MIS densities are
 # ``mis.dielectric_pdf`` and ``mis.diffuse_pdf``).

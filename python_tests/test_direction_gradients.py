@@ -221,7 +221,9 @@ DIRECTION_CASES = [("correlated", "beckmann", 0.6, 0.5, "none", "pt"), ("correla
                    ("correlated", "beckmann", 0.6, 0.5, "Cu", "bdpt"), ("correlated", "ggx", 0.6, 0.9, "none", "pt"),
                    ("uncorrelated", "ggx", 0.6, 0.9, "none", "pt"), ("correlated", "ggx", 0.8, 1.9, "none", "pt"),
                    ("correlated", "ggx", 0.6, 0.9, "none", "bdpt"),
-                   ("heitz", "beckmann", 0.6, 0.5, "Cu", "pt"), ("heitz", "beckmann", 1.0, 1.3, "none", "pt")]
+                   ("heitz", "beckmann", 0.6, 0.5, "Cu", "pt"), ("heitz", "beckmann", 1.0, 1.3, "none", "pt"),
+                   ("invariance", "beckmann", 0.6, 0.5, "Cu", "pt"), ("invariance", "beckmann", 1.0, 1.3, "none", "pt"),
+                   ("invariance", "beckmann", 0.6, 0.5, "none", "bdpt")]
 # GGX's per-lane differences are noisier (its next-event value jumps at the horizon on some lanes between θ ± h):
 # four times the lanes, in batches of independent keys, resolve it to the same 2 %.
 DIRECTION_BATCHES = {"beckmann": 1, "ggx": 4}

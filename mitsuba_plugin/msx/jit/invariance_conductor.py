@@ -44,8 +44,13 @@ class LightVertex:
     (twin of ``LightVertex``)."""
 
     def __init__(self, mf, fresnel, wo, pdf_scale_o, u1, u2, mf_sample=None):
-        m, valid = (mf if mf_sample is None else mf_sample).sample_visible(wo, u1, u2)
+        # Drawn with ``mf_sample``, the normal is drawn for the detached ω_o and the attached ω_o reflects about
+        # it (docs/gradients.md, "Directions through the walks"); ``jacobian`` is then ⟨ω_o·m⟩ over its
+        # detached value, the change of the reflection's Jacobian 4⟨ω_o·m⟩ from the space of normals to y's.
+        traced = mf_sample is not None
+        m, valid = (mf if mf_sample is None else mf_sample).sample_visible(dr.detach(wo) if traced else wo, u1, u2)
         cos1 = dot(wo, m)
+        self.jacobian = cos1 / dr.detach(cos1) if traced else None
         y = -reflect(wo, m)
         up = y[2] > 0.0
         l_y = dr.select(up, mf.lambda_(y), mf.abs_lambda(y))
@@ -58,18 +63,20 @@ class LightVertex:
         self.y, self.l_y, self.up = y, l_y, up
         self.fresnel = fresnel.eval(dr.select(cos1 > 0.0, cos1, 1.0))
 
-    def connect(self, mf, fresnel, has_up, w, pdf_scale, via_up, column_ly_o, traced=False):
+    def connect(self, mf, fresnel, has_up, w, pdf_scale, via_up, column_ly_o, traced=False, attached_mis=False):
         """The connection estimate at the vertex (w = −d_m): ``via_up`` = p_exit(.., y, ω_o)/H_m for an
         upward y, ``column_ly_o`` = column(Λ_o) for the downward case (the caller's one pass). ``traced``
-        (y drawn with the parameters detached, docs/gradients.md): the balance weight detached, the
-        integrand over y's detached density."""
+        (y drawn with the parameters detached, docs/gradients.md): the balance weight detached (attached with
+        ``attached_mis``: ``walk_from``), the integrand over y's detached density."""
         d_h, cos0 = half_vector_d(mf, w, self.y)
         p_fwd = d_h * pdf_scale
         ok = self.valid & (p_fwd > 0.0) & dr.isfinite(p_fwd)
         via_down = dr.select(has_up, 0.0, self.l_y / (self.l_y + self.lambda_o) * column_ly_o)
         exit = dr.select(self.up, via_up, via_down)
         if traced:
-            value = dr.detach(self.pdf / (p_fwd + self.pdf)) * (p_fwd * self.phase * exit) / dr.detach(self.pdf)
+            balance = self.pdf / (p_fwd + self.pdf)
+            value = (balance if attached_mis else dr.detach(balance)) * (p_fwd * self.phase * exit) / dr.detach(self.pdf)
+            value = value * dr.select(dr.detach(self.jacobian) > 0.0, self.jacobian, 0.0)
         else:
             value = p_fwd * self.phase * exit / (p_fwd + self.pdf)
         ok &= (value > 0.0) & dr.isfinite(value)
@@ -79,10 +86,14 @@ class LightVertex:
 # ------------------------------------------------------------------ the walks
 
 
-def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None):
+def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None, direction_tangent=None):
     """One unbiased estimate of f(ω_i, ω_o)·cos θ_o, orders 1..max_bounces (Rust ``eval`` and
     ``Walk::from``). ``mf_sample``: the statistics directions are drawn from when they are not ``mf`` (the
-    parameters detached; the estimate's derivative is then unbiased: docs/gradients.md)."""
+    parameters detached; the estimate's derivative is then unbiased: docs/gradients.md). With it, ω_i and ω_o
+    may carry a derivative (docs/gradients.md, "Directions through the walks"): every normal is drawn for the
+    detached direction and the attached one reflects about it, weighed by the ratio of its density in the
+    space of normals; on Beckmann nothing jumps where the directions move. GGX's next events would need edge
+    terms: directions are refused there (``direction_distributions``), and ``direction_tangent`` is ignored."""
     last = max_bounces  # a Python int, or a UInt32 per lane
     slots = run_slots(last)
     lambda_o = mf.lambda_(wo)
@@ -98,11 +109,12 @@ def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None):
     l0 = mf.abs_lambda(-wi)
     dp0 = MonotoneExit.new(l0, slots, unrolled=mf_sample is not None)
     return walk_from(mf, fresnel, wo, lambda_o, light, CONNECT_MAX_ORDER, mi.Vector3f(wi), 0.25 / (wi[2] * l0),
-                     mi.Spectrum(1.0), dp0, start, 0, last, key, rng0.counter, mf_sample=mf_sample)
+                     mi.Spectrum(1.0), dp0, start, 0, last, key, rng0.counter, mf_sample=mf_sample,
+                     attached_mis=direction_tangent is not None)
 
 
 def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, dp0, active, first_vertex, last,
-              key, counter, label="msx_invariance_conductor_eval", mf_sample=None):
+              key, counter, label="msx_invariance_conductor_eval", mf_sample=None, attached_mis=False):
     """The walk of ``eval`` from vertex ``first_vertex`` on (twin of ``Walk::from``), arriving there with
     w = −d_m, ``pdf_scale`` = 1/(4 A(w)), the throughput Π F · H_m and the exit table ``dp0`` of d_0..d_m,
     on the lanes ``active``; orders up to ``last``. ``light`` (a ``LightVertex`` with ``lambda_o`` set, or
@@ -110,7 +122,15 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
     BDPT's tail). The lane's stream is (``key``, ``counter``). ``mf_sample``: as ``eval``'s. The call's
     values (α, η, k, Λ(ω_o), the light vertex's) travel in the loop's state whenever they carry derivatives
     (``walk.carries_gradients``): with ``mf_sample``, and without it when a caller differentiates the walk as
-    written (the traced ``sample``'s weight)."""
+    written (the traced ``sample``'s weight).
+
+    ``attached_mis`` (traced, while a direction is differentiated): the balance heuristic's weights of the
+    next event and the connection keep their derivative. Detached weights are unbiased only where the two
+    strategies' paths stay put as θ moves (the parameters: every direction is drawn detached); with ω_i or
+    ω_o moving, the next event's intermediate direction moves with ω_i and the connection's with ω_o, and the
+    weights' derivatives along those two flows do not cancel (measured: ∂/∂ω_i −0.210 against the central
+    difference's −0.174 at order 2, docs/gradients.md). Attached, each strategy's term is the derivative of
+    its own weighted integral, and the weights sum to 1 at every θ."""
     connects = light is not None
     traced = mf_sample is not None
     material = () if fresnel.mirror else (fresnel.eta, fresnel.k)
@@ -118,6 +138,7 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
 
     def body(j, w, pdf_scale, pdf_walk, thr, result, active, counter, dp_state, piped):
         mf, fresnel, lambda_o, light, mf_s = outer_mf, outer_fresnel, outer_lambda_o, outer_light, outer_mf
+        wo = outer_wo
         if piped_values:
             lv = LoopValues(outer_mf.dist, piped)
             mf, lambda_o, rest = lv.mf, lv.lambda_o, lv.rest
@@ -127,8 +148,14 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
                 light.l_y, light.pdf, light.phase, light.fresnel = rest[:4]
                 light.lambda_o = lambda_o
                 rest = rest[4:]
+                if traced:  # the light vertex's direction and Jacobian (they move with ω_o)
+                    light.y, light.jacobian = rest[:2]
+                    rest = rest[2:]
             if not outer_fresnel.mirror:
                 fresnel = ConductorFresnel(rest[0], rest[1])
+                rest = rest[2:]
+            if traced:  # ω_o, which may carry a derivative
+                wo = rest[0]
         rng = Stream(key, counter)
         dp = MonotoneExit.from_state(dp_state, dp0.unrolled)
         order = j + 1
@@ -142,13 +169,13 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
             mis_w = (j > 0) & (order <= connect_max) & (value > 0.0)
             p_rev = d_h * (0.25 / (wo[2] * (1.0 + lambda_o)))
             balance = pdf_walk / (pdf_walk + p_rev)
-            value = dr.select(mis_w, value * (dr.detach(balance) if traced else balance), value)
+            value = dr.select(mis_w, value * (dr.detach(balance) if traced and not attached_mis else balance), value)
         ok = (value > 0.0) & dr.isfinite(value)
         result = dr.select(active & ok, result + thr * fresnel.eval(cos_wh) * (value * col_o), result)
         active &= order < last
         # The connection for order + 1: d_{m+1} = y from the side of ω_o.
         if connects:
-            conn = light.connect(mf, fresnel, dp.has_up, w, pdf_scale, via_up, col_o, traced)
+            conn = light.connect(mf, fresnel, dp.has_up, w, pdf_scale, via_up, col_o, traced, attached_mis)
             conn_on = active & (order < connect_max)
             result = dr.select(conn_on, result + thr * conn, result)
         # Russian roulette on Π F · H_m, after the vertex's estimates.
@@ -157,7 +184,8 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
         active &= alive
         # The next direction.
         u1, u2 = rng.next2()
-        m, valid = mf_s.sample_visible(w, u1, u2)
+        # Traced, the normal is drawn for the detached w, and the attached w reflects about it.
+        m, valid = mf_s.sample_visible(dr.detach(w) if traced else w, u1, u2)
         cos_wm = dot(w, m)
         active &= valid & (cos_wm > 0.0)
         d_next = reflect(w, m)
@@ -165,8 +193,11 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
         # Along the upward run z only grows: once an upward d.z ≥ ω_o.z no later vertex reaches ω_o.
         active &= ~(up & (d_next[2] >= wo[2]))
         thr = thr * fresnel.eval(cos_wm)
-        if traced:  # the step's density D(m)/(4 A(w)) over its detached value
+        if traced:
+            # The step's density in the space of normals, ⟨w·m⟩·D(m)/A(w), over its detached value: D(m)/(4A(w))
+            # over its detached value, times ⟨w·m⟩ over its detached value (1 with no derivative unless w moves).
             thr = thr * ((mf.d(m) * pdf_scale) / (mf_s.d(m) * dr.detach(pdf_scale)))
+            thr = thr * dr.select(dr.detach(cos_wm) > 0.0, cos_wm / dr.detach(cos_wm), 0.0)
         if connects:
             pdf_walk = dr.select(order < connect_max, mf.d(m) * pdf_scale, pdf_walk)
         l_up = mf.lambda_(d_next)
@@ -183,15 +214,19 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
         return dict(j=j + 1, w=w, pdf_scale=pdf_scale, pdf_walk=pdf_walk, thr=thr, result=result, active=active,
                     counter=rng.counter, dp_state=dp.state(), piped=piped)
 
-    outer_mf, outer_fresnel, outer_lambda_o, outer_light = mf, fresnel, lambda_o, light
+    outer_mf, outer_fresnel, outer_lambda_o, outer_light, outer_wo = mf, fresnel, lambda_o, light, wo
     width = dr.width(w)
     piped = ()
     if piped_values:
         piped += (mi.Float(mf.alpha_u), mi.Float(mf.alpha_v), mi.Float(lambda_o))
         if connects:
             piped += (mi.Float(light.l_y), mi.Float(light.pdf), mi.Float(light.phase), mi.Spectrum(light.fresnel))
+            if traced:
+                piped += (mi.Vector3f(light.y), mi.Float(light.jacobian))
         if not fresnel.mirror:
             piped += (mi.Spectrum(fresnel.eta), mi.Spectrum(fresnel.k))
+        if traced:
+            piped += (mi.Vector3f(wo),)
     state = dict(j=mi.UInt32(first_vertex), w=mi.Vector3f(w), pdf_scale=mi.Float(pdf_scale), pdf_walk=mi.Float(0.0),
                  thr=mi.Spectrum(thr), result=dr.zeros(mi.Spectrum, width), active=mi.Bool(active),
                  counter=mi.UInt32(counter), dp_state=dp0.state(), piped=piped)

@@ -415,6 +415,11 @@ class DielectricModel:
         """The walk's PT estimate with its derivative in α and η (jit/gradients.py), and in ω_i and ω_o where
         they carry gradients (as ``ConductorModel.differentiable_estimate``)."""
         bounces = self.bounces(call, dr.detach(wi))
+        if not (dr.grad_enabled(wi) or dr.grad_enabled(wo)):  # the walk as it was without moving directions
+            def run(m, m_sample, eta):
+                return self.walk.eval_pt(m, eta, call.radiance, wi, wo, bounces, key, mf_sample=m_sample)
+
+            return gradients.attach_walk(call, [call.eta], run)
         moving = gradients.TangentCoordinates(wi, wo)
 
         def run(m, m_sample, eta, *coords):

@@ -53,8 +53,8 @@ def scatter_traced(mfa, mfs, w, side, eta_a, u_choice, u1, u2, u_mix, times_area
 
     ``times_area``: the weight times L_w = A(w)/|w_z| (the state's L of w), computed without it: D_w(m)·L_w =
     ⟨w·m⟩·D(m)/|w_z|. After a step going up near the normal L_w is tiny (< 10⁻¹⁵), and the derivative of a
-    factor 1/L_w, −dL_w/L_w², overflows in float32; a walk that carries its throughput over L
-    (``posfree_dielectric.eval_pt`` while directions move) never forms that factor."""
+    factor 1/L_w, −dL_w/L_w², overflows in float32; a walk that carries its throughput in logs
+    (``posfree_dielectric.eval_pt`` while directions move) subtracts ln L_w instead."""
     ws, es = dr.detach(w), dr.detach(eta_a)
     c_crit = dr.safe_sqrt(1.0 - es * es)
     width = dr.minimum(CRITICAL_WIDTH, 1.0 - c_crit)

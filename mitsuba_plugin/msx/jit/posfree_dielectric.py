@@ -235,12 +235,13 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
     ``direction_tangent`` (traced only; docs/gradients.md, "Directions through the walks"): (s, t_i, t_o)
     while one coordinate s of ω_i, ω_o is differentiated (gradients.TangentCoordinates). ω_i enters the
     first state attached, ω_o and its tangent travel in the loop's state, and the normals are drawn as above
-    (the draw's weight D_w(m)/p(m) is the density ratio in w too). The throughput is then carried over the L
-    of the state (thr/L): a step going up near the normal has a tiny Λ, its continue factor c ~ Λ and the
-    next vertex's last factor ~ 1/Λ, whose derivative −dΛ/Λ² overflows in float32 although the product is
-    O(1); carried over L, the walk multiplies c/Λ' (``continue_over_lambda``), L·D_w(m) and L·last
-    (``last_times_l``) and never forms 1/Λ. On GGX each vertex adds the next vertex's edge term along s
-    (``eta_edge_term`` with the tangent of ω_o), the tangent of w carried in the state."""
+    (the draw's weight D_w(m)/p(m) is the density ratio in w too). The throughput is then carried in logs: a
+    step going up near the normal has a tiny Λ, its continue factor c ~ Λ and the next vertex's last factor
+    ~ 1/Λ, whose derivative −dΛ/Λ² overflows in float32 although the product is O(1); in logs the walk adds
+    ln c (``log_continue_up``), ln of the draw's weight times L over L (``scatter_traced(times_area=True)``)
+    and ln last (``log_last``), whose derivatives are relative ones (dΛ/Λ), and never forms 1/Λ. On GGX each
+    vertex adds the next vertex's edge terms along s (``eta_edge_term`` with the tangent of ω_o), the tangent
+    of w carried in the state."""
     eta = mi.Float(eta)
     wi, wo = mi.Vector3f(wi), mi.Vector3f(wo)
     start = valid_inputs(eta, wi) & (wo[2] != 0.0) & dr.all(dr.isfinite(wo))
@@ -266,9 +267,9 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
         rng = Stream(key, counter)
         o = side * wo_  # ω_o in the current frame
         transmit = o[2] < 0.0
-        vertex = dr.select(transmit, vertex_transmit(mfa, efa, w, o), vertex_reflect(mfa, efa, w, o))
         u_rr, u_choice = rng.next2()
         if dirs:
+            vertex = dr.select(transmit, vertex_transmit(mfa, efa, w, o), vertex_reflect(mfa, efa, w, o))
             # thr is ln of the throughput: the next event is e^{thr + ln last}·vertex; the roulette's survival
             # probability (detached) divides the throughput, i.e. its log subtracts from thr.
             log_lst, lst_ok = log_last(segments, transmit, l, log_l, lo)
@@ -286,7 +287,7 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
             result = dr.select(active, result + v, result)
         else:
             lst = last(segments, transmit, l, lo)
-            v = lst * vertex
+            v = lst * dr.select(transmit, vertex_transmit(mfa, efa, w, o), vertex_reflect(mfa, efa, w, o))
             thr, alive = walk.roulette_from(j >= RR_START, thr, u_rr,
                                             1.0 / roulette_importance(v, lst, RR_NEE_GAIN),
                                             RR_TRACED_FLOOR if traced else 0.0)
@@ -299,20 +300,22 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
             # enters as (η − η̄)·term, a derivative only).
             ws = dr.detach(w)
             teta = dr.select(side > 0.0, 1.0, -efs * efs) if not dirs else dr.zeros(mi.Float, dr.width(efs))
-            thr_d = dr.detach(dr.exp(thr)) if dirs else dr.detach(thr)  # the throughput itself
             u_e1, u_e2 = rng.next2()  # drawn in every traced call: the same stream with η differentiated or not
             u_mix = rng.next()
             if eta_traced:
                 edge = sum(eta_edge_term(segments, mfs, ws, tw, dr.detach(l), side, efs, teta, wo, dr.detach(lo),
                                          b, u_e) for b, u_e in ((False, u_e1), (True, u_e2)))
-                result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * thr_d * edge, result)
+                result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
             if dir_edges:  # the same circles, moving with ω_o and with w along s
                 edge = sum(eta_edge_term(segments, mfs, ws, tw, dr.detach(l), side, efs, teta, dr.detach(wo_),
                                          dr.detach(lo), b, u_e, two) for b, u_e in ((False, u_e1), (True, u_e2)))
+                thr_d = dr.detach(dr.exp(thr))  # the throughput itself
                 result = dr.select(active, result + (s_dir - dr.detach(s_dir)) * thr_d * edge, result)
             d, refracted, side, valid, weight, m = scatter_traced(mfa, mfs, w, side, efa, u_choice, u1, u2, u_mix,
                                                                   times_area=dirs)
             tw = eta_tangent_step(ws, tw, m, efs, teta, refracted)
+            if not dirs:  # (along moving directions the state's ln L joins below)
+                piped = lv.piped(eta_a, tw)
             eta_f = dr.select(refracted, 1.0 / eta_f, eta_f)
             if dirs:  # the weight times L (``times_area``), over L in logs
                 log_weight, weight_ok = _log_pos(weight)
@@ -334,8 +337,6 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
         else:
             thr = dr.select(up, thr * continue_up(segments, refracted, l, lam), thr)
             active &= ~up | ((lam > 0.0) & (thr > 0.0))
-            if traced:
-                piped = lv.piped(eta_a, tw)
         return dict(j=j + 1, w=-d, l=lam, side=side, eta_f=eta_f, thr=thr, result=result, active=active,
                     counter=rng.counter, piped=piped)
 

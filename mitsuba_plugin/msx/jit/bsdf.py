@@ -412,19 +412,30 @@ class DielectricModel:
         return value, pdf
 
     def differentiable_estimate(self, call, wi, wo, key):
-        """The walk's PT estimate with its derivative in α and η (jit/gradients.py)."""
-        bounces = self.bounces(call, wi)
+        """The walk's PT estimate with its derivative in α and η (jit/gradients.py), and in ω_i and ω_o where
+        they carry gradients (as ``ConductorModel.differentiable_estimate``)."""
+        bounces = self.bounces(call, dr.detach(wi))
+        if not (dr.grad_enabled(wi) or dr.grad_enabled(wo)):  # the walk as it was without moving directions
+            def run(m, m_sample, eta):
+                return self.walk.eval_pt(m, eta, call.radiance, wi, wo, bounces, key, mf_sample=m_sample)
 
-        def run(m, m_sample, eta):
-            return self.walk.eval_pt(m, eta, call.radiance, wi, wo, bounces, key, mf_sample=m_sample)
+            return gradients.attach_walk(call, [call.eta], run)
+        moving = gradients.TangentCoordinates(wi, wo)
 
-        return gradients.attach_walk(call, [call.eta], run)
+        def run(m, m_sample, eta, *coords):
+            wi_, wo_ = moving.directions(coords)
+            tangent = moving.tangent(coords)
+            return self.walk.eval_pt(m, eta, call.radiance, wi_, wo_, bounces, key, mf_sample=m_sample,
+                                     **({"direction_tangent": tangent} if tangent is not None else {}))
+
+        return gradients.attach_walk(call, [call.eta] + moving.values, run)
 
     def sample_traced(self, call, wi, s1, u1, u2, eval_key):
         """``sample`` while differentiated: ω_o from the MIS density (single scattering mixed with a cosine
         lobe on both sides, drawn exactly), weighed by the walk's estimate there (the one ``eval`` gives,
-        lane key ``eval_key(ω_o)``) over that density."""
-        mf, eta = gradients.detached(call.mf), dr.detach(call.eta)
+        lane key ``eval_key(ω_o)``) over that density. Drawn and weighed with the parameters and ω_i detached:
+        this weight carries no derivative (``prb`` takes its derivatives from ``eval``)."""
+        mf, eta, wi = gradients.detached(call.mf), dr.detach(call.eta), dr.detach(wi)
         k = mis.diffuse_fraction(mf)
         cosine = s1 < k
         # s1 rescaled within its branch: the cosine lobe's side, or the single sampler's own choice.

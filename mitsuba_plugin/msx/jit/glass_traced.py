@@ -37,7 +37,7 @@ def cone_density(x, width):
     return dr.select((x > 0.0) & (x < width), 1.0 / (4.0 * math.pi * dr.sqrt(width * x)), 0.0)
 
 
-def scatter_traced(mfa, mfs, w, side, eta_a, u_choice, u1, u2, u_mix):
+def scatter_traced(mfa, mfs, w, side, eta_a, u_choice, u1, u2, u_mix, times_area=False):
     """``scatter`` for a differentiated walk, in the space of microfacet normals, whose support does not move
     with the parameters (docs/gradients.md, "The IOR of the glass walks"): m is drawn with the detached
     parameters from a mixture of the visible normals of the detached w, a density ∝ 1/√(w·m) at their edge
@@ -49,7 +49,12 @@ def scatter_traced(mfa, mfs, w, side, eta_a, u_choice, u1, u2, u_mix):
     side, valid, weight, m), the weight D_w(m)/p(m) × (1 − F)/q_t or F/(1 − q_t), p the mixture's detached
     density. Near the critical cone 1 − F ~ cos θ_t and its derivative in η ~ 1/cos θ_t: the floor and the
     mixture bound what the choice's and the normal's weights make of it; at the edge of the visible normals,
-    w·m → 0, the edge's share makes D_w(m)/p(m) vanish as √(w·m), so its derivative stays bounded."""
+    w·m → 0, the edge's share makes D_w(m)/p(m) vanish as √(w·m), so its derivative stays bounded.
+
+    ``times_area``: the weight times L_w = A(w)/|w_z| (the state's L of w), computed without it: D_w(m)·L_w =
+    ⟨w·m⟩·D(m)/|w_z|. After a step going up near the normal L_w is tiny (< 10⁻¹⁵), and the derivative of a
+    factor 1/L_w, −dL_w/L_w², overflows in float32; a walk that carries its throughput in logs
+    (``posfree_dielectric.eval_pt`` while directions move) subtracts ln L_w instead."""
     ws, es = dr.detach(w), dr.detach(eta_a)
     c_crit = dr.safe_sqrt(1.0 - es * es)
     width = dr.minimum(CRITICAL_WIDTH, 1.0 - c_crit)
@@ -83,7 +88,12 @@ def scatter_traced(mfa, mfs, w, side, eta_a, u_choice, u1, u2, u_mix):
     d = dr.select(refracted, mi.refract(w, m, cos_t, eta_ti), reflect(w, m))
     choice = dr.select(refracted, (1.0 - f) / dr.select(refracted, q_t, 1.0),
                        f / dr.select(refracted, 1.0, 1.0 - q_t))
-    weight = choice * mfa.d_visible(w, m) / dr.select(p_m > 0.0, p_m, 1.0)
+    if times_area:
+        cos_a = dot(w, m)
+        visible = dr.select((cos_a > 0.0) & (w[2] != 0.0), cos_a * mfa.d(m) / dr.abs(w[2]), 0.0)
+    else:
+        visible = mfa.d_visible(w, m)
+    weight = choice * visible / dr.select(p_m > 0.0, p_m, 1.0)
     weight = dr.select(valid & (p_m > 0.0) & dr.isfinite(weight), weight, 0.0)
     d = dr.select(refracted, -d, d)
     side = dr.select(refracted, -side, side)
@@ -159,7 +169,7 @@ def step_density(mf, eta_f, w, d, refracted):
     return dr.select(ok & dr.isfinite(p), p, 0.0)
 
 
-def edge_point(mf, w, tw, o, eta_f, teta_f, refracted, u):
+def edge_point(mf, w, tw, o, eta_f, teta_f, refracted, u, to=None):
     """One point of the circle where the next vertex's next-event value jumps (docs/gradients.md, "The IOR of
     the glass walks"), for the event ``refracted`` (a Python bool) of the vertex at w: in the space of normals
     that value towards ω_o (``o``, in the next vertex's frame) jumps to 0 where its half-vector turns
@@ -170,12 +180,18 @@ def edge_point(mf, w, tw, o, eta_f, teta_f, refracted, u):
     speed ±(u_z − ∂z*/∂η) of the next direction across the circle, u_z the speed of w'_z at the fixed normal
     that maps w to w' (``eta_tangent_step``, from the tangent ``tw`` of w and ``teta_f`` of η_f). Returns
     (w', transmit, density, value, speed, ok); a walk's edge term is 2π × their product × its own next-vertex
-    factors (one uniform azimuth estimates the integral over the circle, dz dφ being the solid angle)."""
+    factors (one uniform azimuth estimates the integral over the circle, dz dφ being the solid angle).
+
+    ``to``: the tangent of o itself (in the same frame), when the derivative is along moving directions
+    (docs/gradients.md, "Directions through the walks"): the circle then moves with o_z too, and ``tw`` is the
+    tangent of w in that coordinate (``teta_f`` 0)."""
     eta_b = 1.0 / eta_f if refracted else eta_f
     teta_b = -teta_f / (eta_f * eta_f) if refracted else teta_f
     transmit = o[2] < 0.0
     z_star = dr.select(transmit, -eta_b * o[2], -o[2])
     dz_star = dr.select(transmit, -o[2] * teta_b, 0.0)
+    if to is not None:
+        dz_star = dz_star - dr.select(transmit, eta_b, 1.0) * to[2]
     ok = dr.abs(z_star) < 1.0
     r = dr.safe_sqrt(1.0 - z_star * z_star)
     phi = 2.0 * math.pi * u

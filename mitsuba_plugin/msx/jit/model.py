@@ -76,11 +76,14 @@ class DielectricWalk(_Walk):
     Its MIS density is ``mis.dielectric_pdf`` (the single-scattering density mixed with a cosine lobe).
     - ``differentiable``: ``eval_pt`` accepts ``mf_sample=`` (docs/gradients.md);
     - ``eta_differentiable``: its derivative in ``eta`` is unbiased too (docs/gradients.md, "The IOR of the
-      glass walks"); otherwise a call with ``eta`` differentiated refuses.
+      glass walks"); otherwise a call with ``eta`` differentiated refuses;
+    - ``direction_distributions``: the distributions for which that traced ``eval_pt`` also differentiates
+      through ω_i and ω_o (it accepts ``direction_tangent=``; docs/gradients.md, "Directions through the walks").
     """
 
-    def __init__(self, eval_pt, sample_walk, differentiable=False, eta_differentiable=False):
-        super().__init__(eval_pt, sample_walk, differentiable)
+    def __init__(self, eval_pt, sample_walk, differentiable=False, eta_differentiable=False,
+                 direction_distributions=()):
+        super().__init__(eval_pt, sample_walk, differentiable, direction_distributions=direction_distributions)
         self.eta_differentiable = eta_differentiable
 
 

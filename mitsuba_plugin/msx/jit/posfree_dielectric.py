@@ -36,11 +36,11 @@ from . import walk
 from .dielectric import eta_seen, radiance_scale, reflect_or_refract, transmit_half_vector
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
 from .gradients import LoopValues
-from .microfacet import dot, half_vector, normalized
+from .microfacet import BECKMANN, GGX, dot, half_vector, normalized
 from .model import DielectricWalk
-from .posfree import CORRELATED, RR_START, UNCORRELATED, roulette_importance
+from .posfree import CORRELATED, RR_LAST_WEIGHT, RR_START, UNCORRELATED, roulette_importance
 from .rng import ONE_MINUS_EPS, Stream
-from .special import expm1_ratio, l_beta, ln_l_beta
+from .special import erfcx_deficit, expm1_ratio, l_beta, ln_l_beta, log1p
 
 # dielectric.rs: the gain of the next-event value in the roulette's importance (measured there for
 # dielectrics; larger than the conductors' 30).
@@ -66,6 +66,85 @@ def last(segments, refracted, l, lambda_o):
     else:
         v = dr.select(refracted, l_beta(l, lambda_o) / l, 1.0 / (l + lambda_o))
     return dr.select(dr.isfinite(v), dr.maximum(v, 0.0), 0.0)
+
+
+# The log domain of a traced walk along moving directions (``eval_pt`` with ``direction_tangent``). After a
+# step going up near the normal, Λ is tiny (Beckmann α 0.5: below 10⁻¹⁵ within ~20° of the normal, subnormal
+# near 11°); its continue factor c ~ Λ and the next vertex's last factor ~ 1/Λ make an O(1) product, but AD of
+# 1/Λ forms −dΛ/Λ², which overflows in float32 (NaN lanes: docs/gradients.md). In logs every derivative is a
+# relative one, d ln Λ = dΛ/Λ, finite as long as Λ is a normal float: ``log_abs_lambda`` writes Beckmann's
+# ln Λ from its formula where Λ is below LOG_LAMBDA_FORMULA (its subnormals included).
+LOG_LAMBDA_FORMULA = 1e-30
+# Below this Λ, x/Λ (x = ln(L·B(L, 1+Λ)) = O(Λ)) of a correlated refraction's continue factor is taken at
+# this Λ: x/Λ = −(ψ(L+1) − ψ(1))·(1 + O(Λ)), equal to float32's last bit, and its quotient's derivative,
+# which divides by Λ², stays finite.
+LAMBDA_RATIO_MIN = 1e-15
+LOG_SQRT_PI_2 = math.log(0.5 / math.sqrt(math.pi))
+
+
+def _log_pos(x):
+    """(ln x, x > 0) with a finite derivative where x is not positive (those lanes are masked by the caller)."""
+    ok = x > 0.0
+    return dr.log(dr.select(ok, x, 1.0)), ok
+
+
+def log_abs_lambda(mf, d, lam):
+    """ln |Λ(d)| (``lam`` = ``mf.abs_lambda(d)``, its value): ln of it where it is ≥ LOG_LAMBDA_FORMULA or
+    downward (1 + Λ ≥ 1); Beckmann's tiny upward Λ = e^{−a²}·(1 − a²ε)·d(a)/(2√π a) (beckmann.lambda_up,
+    a = 1/(α tan θ)) in logs, −a² + ln(1 − a²ε) + ln d(a) − ln a + ln(1/(2√π)), whose derivative is finite
+    where Λ itself is subnormal."""
+    log_lam, _ = _log_pos(lam)
+    if mf.dist != BECKMANN:
+        return log_lam
+    r = mf.alpha_tan2(d)
+    tiny = (d[2] > 0.0) & (lam < LOG_LAMBDA_FORMULA) & (lam > 0.0)
+    rs = dr.select(tiny & (r > 0.0), r, 1.0)
+    a2 = 1.0 / rs
+    e = dr.fma(-a2, rs, 1.0)
+    a2c = dr.minimum(a2, 1000.0)
+    a = dr.sqrt(a2c)
+    formula = -a2c + dr.log(1.0 - a2c * e) + dr.log(erfcx_deficit(a)) + 0.5 * dr.log(rs) + LOG_SQRT_PI_2
+    return dr.select(tiny, formula, log_lam)
+
+
+def _log_add(x, y):
+    """ln(e^x + e^y) without forming either exponential."""
+    hi, lo = dr.maximum(x, y), dr.minimum(x, y)
+    return hi + log1p(dr.exp(lo - hi))
+
+
+def log_continue_up(segments, refracted, l, log_l, lam, log_lam):
+    """(ln c, c > 0) of an upward new direction with Λ (``continue_up`` in logs, c ≤ 1): ln Λ − ln(1 + Λ)
+    (uncorrelated), ln Λ − ln(L + Λ) (correlated reflection), and for a correlated refraction
+    c = −expm1(x) = (expm1(x)/x)·(x/Λ)·(−Λ), x = ln(L·B(L, 1+Λ)), so ln c = ln(expm1(x)/x) + ln(−x/Λ) + ln Λ
+    (x/Λ at Λ ≥ LAMBDA_RATIO_MIN)."""
+    if segments == UNCORRELATED:
+        v = log_lam - log1p(lam)
+    else:
+        lam_c = dr.maximum(lam, LAMBDA_RATIO_MIN)
+        x = ln_l_beta(l, lam)
+        e = expm1_ratio(x)
+        # expm1(x)/x, by its series where the quotient's derivative would divide by x² (|x| < 10⁻⁴: the
+        # series' error x³/24 is below float32's rounding).
+        small = dr.abs(x) < 1e-4
+        expm1_over_x = dr.select(small, 1.0 + x * (0.5 + x * (1.0 / 6.0)), e / dr.select(small, 1.0, x))
+        log_ratio, _ = _log_pos(-ln_l_beta(l, lam_c) / lam_c)
+        v_refracted = dr.log(expm1_over_x) + log_ratio + log_lam
+        v = dr.select(refracted, v_refracted, log_lam - _log_add(log_l, log_lam))
+    v = dr.minimum(v, 0.0)
+    return v, (lam > 0.0) & dr.isfinite(lam) & dr.isfinite(v)
+
+
+def log_last(segments, refracted, l, log_l, lambda_o):
+    """(ln ``last``, finite): −ln L − ln(1 + Λ_o) (uncorrelated); −ln(L + Λ_o) and ln(L·B(L, 1+Λ_o)) − ln L
+    (correlated, reflection and transmission)."""
+    if segments == UNCORRELATED:
+        v = -log_l - log1p(lambda_o)
+    else:
+        log_o, o_ok = _log_pos(lambda_o)
+        v_reflect = -dr.select(o_ok, _log_add(log_l, log_o), log_l)
+        v = dr.select(refracted, ln_l_beta(l, lambda_o) - log_l, v_reflect)
+    return v, dr.isfinite(v) & (l > 0.0)
 
 
 def vertex_reflect(mf, eta_f, w, o):
@@ -110,16 +189,20 @@ def scatter(mf, w, side, eta_f, u_choice, u1, u2):
     return d, refracted, f, side, eta_f, valid
 
 
-def eta_edge_term(segments, mf, w, tw, l, side, eta_f, teta_f, wo, lambda_o, refracted, u):
+def eta_edge_term(segments, mf, w, tw, l, side, eta_f, teta_f, wo, lambda_o, refracted, u, two=None):
     """The term of ∂/∂η a next-event value misses at the vertex after this one, for the branch ``refracted``
     (a Python bool) of this vertex's event (docs/gradients.md, "The IOR of the glass walks"). In the space of
     normals the walk's only moving discontinuity is the next vertex's value towards ω_o, which jumps to 0 on
     the circle w'_z = z* where its half-vector turns horizontal (z* = −o_z for a reflection, −η_f·o_z for a
     transmission): the term is ∫ over that circle of the next direction's density (this event's phase
     function, its continue factor), the next value's limit and the relative speed ±(u_z − ∂z*/∂η), dφ —
-    estimated with one uniform azimuth (``u``). u_z is ∂w'_z/∂η at the fixed normal that maps w to w'."""
+    estimated with one uniform azimuth (``u``). u_z is ∂w'_z/∂η at the fixed normal that maps w to w'.
+    ``two``: along moving directions instead (docs/gradients.md, "Directions through the walks"), the tangent
+    of ω_o, ``tw`` that of w and ``teta_f`` 0: the same circle moves with ω_o and with w."""
     side_b = -side if refracted else side
-    w_next, transmit, density, value, speed, ok = edge_point(mf, w, tw, side_b * wo, eta_f, teta_f, refracted, u)
+    to = None if two is None else side_b * two
+    w_next, transmit, density, value, speed, ok = edge_point(mf, w, tw, side_b * wo, eta_f, teta_f, refracted, u,
+                                                             to)
     d_new = -w_next
     up = d_new[2] > 0.0
     lam = mf.abs_lambda(d_new)
@@ -135,7 +218,7 @@ def valid_inputs(eta, wi):
 # ------------------------------------------------------------------ the estimators
 
 
-def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None):
+def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_tangent=None):
     """One PT estimate of f(ω_i, ω_o)·|cos θ_o| (orders 1..max_bounces) with next-event estimation to ω_o
     at every vertex (by reflection on ω_o's side, by transmission across), Russian roulette from vertex
     ``RR_START`` on; Radiance mode's 1/η_r² applied once (dielectric.rs ``eval_pt`` and ``pt_walk``).
@@ -147,7 +230,18 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
     parameters to the detached draw's; the roulette is detached and keeps a floor (RR_TRACED_FLOOR); each
     vertex adds, as a derivative only, the term of the next vertex's moving edge (``eta_edge_term``) for
     both of its events, with the tangent of w in η carried in the state. The estimate's derivative in α and
-    in η is then unbiased."""
+    in η is then unbiased.
+
+    ``direction_tangent`` (traced only; docs/gradients.md, "Directions through the walks"): (s, t_i, t_o)
+    while one coordinate s of ω_i, ω_o is differentiated (gradients.TangentCoordinates). ω_i enters the
+    first state attached, ω_o and its tangent travel in the loop's state, and the normals are drawn as above
+    (the draw's weight D_w(m)/p(m) is the density ratio in w too). The throughput is then carried in logs: a
+    step going up near the normal has a tiny Λ, its continue factor c ~ Λ and the next vertex's last factor
+    ~ 1/Λ, whose derivative −dΛ/Λ² overflows in float32 although the product is O(1); in logs the walk adds
+    ln c (``log_continue_up``), ln of the draw's weight times L over L (``scatter_traced(times_area=True)``)
+    and ln last (``log_last``), whose derivatives are relative ones (dΛ/Λ), and never forms 1/Λ. On GGX each
+    vertex adds the next vertex's edge terms along s (``eta_edge_term`` with the tangent of ω_o), the tangent
+    of w carried in the state."""
     eta = mi.Float(eta)
     wi, wo = mi.Vector3f(wi), mi.Vector3f(wo)
     start = valid_inputs(eta, wi) & (wo[2] != 0.0) & dr.all(dr.isfinite(wo))
@@ -156,54 +250,109 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
     w0, l0, side0, eta_f0 = initial_state(mf, eta, wi)
     traced = mf_sample is not None
     eta_traced = traced and dr.grad_enabled(eta)  # the edge terms are derivatives in η only
+    dirs = traced and direction_tangent is not None  # a pass along one coordinate of the directions
+    dir_edges = dirs and mf.dist != BECKMANN  # Beckmann's D vanishes at horizontal normals: no edge
 
     def body(j, w, l, side, eta_f, thr, result, active, counter, piped):
-        mfa, mfs, lo, efa, efs = mf, mf, lambda_o, eta_f, eta_f
+        mfa, mfs, lo, efa, efs, wo_ = mf, mf, lambda_o, eta_f, eta_f, wo
         if traced:  # the differentiated values come through the state (gradients.LoopValues)
             lv = LoopValues(mf.dist, piped)
-            mfa, mfs, lo, (eta_a, tw) = lv.mf, lv.mf_sample, lv.lambda_o, lv.rest
+            mfa, mfs, lo = lv.mf, lv.mf_sample, lv.lambda_o
+            if dirs:
+                eta_a, tw, wo_, s_dir, two, log_l = lv.rest
+            else:
+                eta_a, tw = lv.rest
             efa = eta_seen(eta_a, side > 0.0)
             efs = dr.detach(efa)
         rng = Stream(key, counter)
-        o = side * wo  # ω_o in the current frame
+        o = side * wo_  # ω_o in the current frame
         transmit = o[2] < 0.0
-        lst = last(segments, transmit, l, lo)
-        v = lst * dr.select(transmit, vertex_transmit(mfa, efa, w, o), vertex_reflect(mfa, efa, w, o))
         u_rr, u_choice = rng.next2()
-        thr, alive = walk.roulette_from(j >= RR_START, thr, u_rr, 1.0 / roulette_importance(v, lst, RR_NEE_GAIN),
-                                        RR_TRACED_FLOOR if traced else 0.0)
-        active &= alive
-        result = dr.select(active, result + thr * v, result)
+        if dirs:
+            vertex = dr.select(transmit, vertex_transmit(mfa, efa, w, o), vertex_reflect(mfa, efa, w, o))
+            # thr is ln of the throughput: the next event is e^{thr + ln last}·vertex; the roulette's survival
+            # probability (detached) divides the throughput, i.e. its log subtracts from thr.
+            log_lst, lst_ok = log_last(segments, transmit, l, log_l, lo)
+            lst_ok &= vertex > 0.0
+            log_lst = dr.select(lst_ok, log_lst, 0.0)
+            lst_d = dr.detach(dr.select(lst_ok, dr.exp(log_lst), 0.0))
+            importance = dr.maximum(dr.maximum(RR_NEE_GAIN * lst_d * dr.detach(vertex), RR_LAST_WEIGHT * lst_d), 1.0)
+            q = dr.maximum(dr.minimum(dr.detach(dr.exp(thr)) * importance, 1.0), RR_TRACED_FLOOR)
+            play = j >= RR_START
+            survived = (q > 0.0) & ((q >= 1.0) | (u_rr < q))
+            thr = dr.select(play & survived, thr - dr.log(dr.select(q > 0.0, q, 1.0)), thr)
+            alive = ~play | survived
+            v = dr.select(lst_ok, dr.exp(thr + log_lst) * vertex, 0.0)
+            active &= alive
+            result = dr.select(active, result + v, result)
+        else:
+            lst = last(segments, transmit, l, lo)
+            v = lst * dr.select(transmit, vertex_transmit(mfa, efa, w, o), vertex_reflect(mfa, efa, w, o))
+            thr, alive = walk.roulette_from(j >= RR_START, thr, u_rr,
+                                            1.0 / roulette_importance(v, lst, RR_NEE_GAIN),
+                                            RR_TRACED_FLOOR if traced else 0.0)
+            active &= alive
+            result = dr.select(active, result + thr * v, result)
         active &= j + 1 < max_bounces
         u1, u2 = rng.next2()
         if traced:
             # ∂/∂η of the next vertex's value along its moving edge, for either event here (detached: it
             # enters as (η − η̄)·term, a derivative only).
-            ws, teta = dr.detach(w), dr.select(side > 0.0, 1.0, -efs * efs)
+            ws = dr.detach(w)
+            teta = dr.select(side > 0.0, 1.0, -efs * efs) if not dirs else dr.zeros(mi.Float, dr.width(efs))
             u_e1, u_e2 = rng.next2()  # drawn in every traced call: the same stream with η differentiated or not
             u_mix = rng.next()
             if eta_traced:
                 edge = sum(eta_edge_term(segments, mfs, ws, tw, dr.detach(l), side, efs, teta, wo, dr.detach(lo),
                                          b, u_e) for b, u_e in ((False, u_e1), (True, u_e2)))
                 result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
-            d, refracted, side, valid, weight, m = scatter_traced(mfa, mfs, w, side, efa, u_choice, u1, u2, u_mix)
+            if dir_edges:  # the same circles, moving with ω_o and with w along s
+                edge = sum(eta_edge_term(segments, mfs, ws, tw, dr.detach(l), side, efs, teta, dr.detach(wo_),
+                                         dr.detach(lo), b, u_e, two) for b, u_e in ((False, u_e1), (True, u_e2)))
+                thr_d = dr.detach(dr.exp(thr))  # the throughput itself
+                result = dr.select(active, result + (s_dir - dr.detach(s_dir)) * thr_d * edge, result)
+            d, refracted, side, valid, weight, m = scatter_traced(mfa, mfs, w, side, efa, u_choice, u1, u2, u_mix,
+                                                                  times_area=dirs)
             tw = eta_tangent_step(ws, tw, m, efs, teta, refracted)
-            piped = lv.piped(eta_a, tw)
+            if not dirs:  # (along moving directions the state's ln L joins below)
+                piped = lv.piped(eta_a, tw)
             eta_f = dr.select(refracted, 1.0 / eta_f, eta_f)
-            thr = thr * weight
+            if dirs:  # the weight times L (``times_area``), over L in logs
+                log_weight, weight_ok = _log_pos(weight)
+                thr = thr + log_weight - log_l
+                valid &= weight_ok
+            else:
+                thr = thr * weight
         else:
             d, refracted, _, side, eta_f, valid = scatter(mfs, w, side, efs, u_choice, u1, u2)
         active &= valid
         up = d[2] > 0.0
         lam = mfa.abs_lambda(d)
-        thr = dr.select(up, thr * continue_up(segments, refracted, l, lam), thr)
-        active &= ~up | ((lam > 0.0) & (thr > 0.0))
+        if dirs:
+            log_lam = log_abs_lambda(mfa, d, lam)
+            log_c, c_ok = log_continue_up(segments, refracted, l, log_l, lam, log_lam)
+            thr = dr.select(up, thr + dr.select(c_ok, log_c, 0.0), thr)
+            active &= ~up | c_ok
+            piped = lv.piped(eta_a, tw, wo_, s_dir, two, log_lam)
+        else:
+            thr = dr.select(up, thr * continue_up(segments, refracted, l, lam), thr)
+            active &= ~up | ((lam > 0.0) & (thr > 0.0))
         return dict(j=j + 1, w=-d, l=lam, side=side, eta_f=eta_f, thr=thr, result=result, active=active,
                     counter=rng.counter, piped=piped)
 
-    state = dict(j=mi.UInt32(0), w=w0, l=l0, side=side0, eta_f=eta_f0, thr=mi.Float(1.0), result=mi.Float(0.0),
-                 active=mi.Bool(start), counter=mi.UInt32(0),
-                 piped=LoopValues.state(mf, lambda_o, mi.Float(eta), mi.Vector3f(0.0)) if traced else ())
+    piped = ()
+    thr0 = mi.Float(1.0)
+    if traced:
+        tw0 = mi.Vector3f(0.0)
+        more = ()
+        if dirs:
+            s_dir, t_i, t_o = direction_tangent
+            tw0 = side0 * mi.Vector3f(t_i)
+            more = (mi.Vector3f(wo), mi.Float(s_dir), mi.Vector3f(t_o), dr.log(l0))  # l0 = 1 + Λ(w0) ≥ 1
+            thr0 = mi.Float(0.0)  # ln 1
+        piped = LoopValues.state(mf, lambda_o, mi.Float(eta), tw0, *more)
+    state = dict(j=mi.UInt32(0), w=w0, l=l0, side=side0, eta_f=eta_f0, thr=thr0, result=mi.Float(0.0),
+                 active=mi.Bool(start), counter=mi.UInt32(0), piped=piped)
     result = walk.while_loop(state, body, label="msx_posfree_dielectric_pt")["result"]
     return result * radiance_scale(eta, radiance, wi[2] > 0.0, wo[2] > 0.0)
 
@@ -249,6 +398,6 @@ def sample_walk(segments, mf, eta, radiance, wi, sample1, u1, u2, max_bounces, k
 # The dielectric walks this module provides, by model name (jit/bsdf.py collects them).
 DIELECTRIC_WALKS = {
     name: DielectricWalk(partial(eval_pt, name), partial(sample_walk, name), differentiable=True,
-                         eta_differentiable=True)
+                         eta_differentiable=True, direction_distributions=(BECKMANN, GGX))
     for name in (UNCORRELATED, CORRELATED)
 }

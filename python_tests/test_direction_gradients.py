@@ -281,6 +281,7 @@ DIFFUSE_DIRECTION_CASES = [("correlated", "beckmann", 0.6, 0.5, 0.8, 8), ("uncor
                            ("auto", "beckmann", 0.3, 1.35, 0.9, 4), ("heitz", "ggx", 0.6, 1.0, 0.8, 4)]
 DIFFUSE_H = 1e-2
 FLOAT32_RELATIVE = 1e-4
+DROPS_MAX = 1e-5  # the share of lanes whose derivative may overflow (``_check_per_call``)
 Z_DIFFUSE = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / (4 * len(DIFFUSE_DIRECTION_CASES)))) / 2.0)
 
 
@@ -299,6 +300,7 @@ def _check_per_call(params, theta_i, batches, z_bound, label, h_wi=DIRECTION_H):
     (for ω_i; ω_o keeps ``DIRECTION_H``) larger than ``DIRECTION_H`` the bound adds the central difference's
     truncation, estimated from the difference quotient at 2h (paired, with its noise at 1e-3):
     |D(2h) − D(h)| = 3·O(h²)."""
+    from msx.jit import gradients
     from msx.jit.rng import hash_words
 
     n = DIRECTION_LANES
@@ -332,6 +334,7 @@ def _check_per_call(params, theta_i, batches, z_bound, label, h_wi=DIRECTION_H):
     for which in ("wi", "wo"):
         h = h_wi if which == "wi" else DIRECTION_H
         ads, fds, fds2 = [], [], []
+        drops = 0  # lanes whose derivative ``gradients.attach`` found non-finite (and set to 0)
         for batch in range(batches):
             key = hash_words(7 + batch, (dr.arange(mi.Float, n),))
             t = mi.Float(ANGLE)
@@ -339,9 +342,12 @@ def _check_per_call(params, theta_i, batches, z_bound, label, h_wi=DIRECTION_H):
             moving, still = frame(t), frame(mi.Float(ANGLE))
             wi = (moving if which == "wi" else still).to_local(wi_w) + lanes
             wo = (moving if which == "wo" else still).to_local(wo_w) + lanes
+            dropped = gradients.record_dropped()
             value = b._model.differentiable_estimate(call, wi, wo, key)
             dr.forward(t)
             ads.append(np.array(dr.grad(value), dtype=np.float64))
+            gradients.record_dropped(False)
+            drops += sum(int(c[0]) for c in dropped)
             fds.append(quotient(h, which, key))
             if h > DIRECTION_H:
                 fds2.append(quotient(2 * h, which, key))
@@ -366,7 +372,12 @@ def _check_per_call(params, theta_i, batches, z_bound, label, h_wi=DIRECTION_H):
             # float32 evaluation's own systematic error, taken as 10⁻⁴ of the derivative (measured differences
             # 2–3·10⁻⁵ of it; far below the 2 % this test resolves).
             arithmetic = FLOAT32_RELATIVE * abs(fd[c].mean())
-            assert abs(diff.mean()) <= z_bound * se + truncation + arithmetic, (
+            # A dropped lane counts 0 instead of its derivative: at most the largest finite one, per lane. They
+            # must stay rare (one lane in 2²⁰ of `auto` on Au at θ_i 1.35, at order 4: float32 overflow of a
+            # derivative whose value is O(1), docs/gradients.md), and their effect enters the bound.
+            assert drops <= DROPS_MAX * lanes_used, "%d lanes with a non-finite derivative" % drops
+            dropped_effect = drops * np.abs(ad[c]).max() / lanes_used
+            assert abs(diff.mean()) <= z_bound * se + truncation + arithmetic + dropped_effect, (
                 label, which, c, ad[c].mean(), fd[c].mean())
 
 

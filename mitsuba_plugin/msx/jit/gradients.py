@@ -61,6 +61,18 @@ class LoopValues:
         return (self.alpha_u, self.alpha_v, self.lambda_o) + rest
 
 
+# Tests' record of the lanes ``attach`` drops (``record_dropped``): None, or a list of per-pass counts.
+_DROPPED = [None]
+
+
+def record_dropped(on=True):
+    """Starts (or stops) recording, per forward pass of :func:`attach`, how many lanes had a non-finite
+    derivative (set to 0 there); returns the list the counts go to (drjit scalars, evaluated when read).
+    For tests: a walk's derivative should have none, and a test of it must not read only sanitised values."""
+    _DROPPED[0] = [] if on else None
+    return _DROPPED[0]
+
+
 def attach(estimate, params, primal=None):
     """``estimate(*values)`` (a Spectrum) with the derivative with respect to each of ``params`` (Floats or
     Spectra; a Spectrum parameter acts on its own channel only, as η and k do) that has gradients enabled,
@@ -81,6 +93,8 @@ def attach(estimate, params, primal=None):
             g = dr.grad(y)
             # A lane whose walk degenerates (a direction exactly along the normal meets a horizontal facet,
             # weight 0) can carry 0·∞ in its derivative: such a lane contributes nothing, and 0 is its value.
+            if _DROPPED[0] is not None:
+                _DROPPED[0].append(dr.count(~dr.all(dr.isfinite(g))))
             g = dr.select(dr.isfinite(g), g, 0.0)
         value = dr.detach(y)
         tangents.append((p - values[i]) * dr.detach(g))

@@ -441,8 +441,9 @@ class DielectricModel:
         pdf = mis.dielectric_pdf(mf, eta, wi, wo)
         # The differentiated walk's own estimate (its draws differ from the plain walk's: the position-free
         # walks draw normals and choices otherwise while differentiated), with the parameters detached.
-        value = self.walk.eval_pt(mf, eta, call.radiance, wi, wo, self.bounces(call, wi), eval_key(wo),
-                                  mf_sample=mf)
+        with gradients.recording():
+            value = self.walk.eval_pt(mf, eta, call.radiance, wi, wo, self.bounces(call, wi), eval_key(wo),
+                                      mf_sample=mf)
         valid = (cosine | valid_s) & (wo[2] != 0.0) & (pdf > 0.0)
         return wo, pdf, self.tinted(call, wi, wo, dr.select(valid, value / pdf, 0.0)), valid
 
@@ -491,7 +492,8 @@ class DiffuseModel:
         walk's estimate there (the one ``eval`` gives, lane key ``eval_key(ω_o)``) over that density."""
         wo = mi.warp.square_to_cosine_hemisphere(mi.Point2f(u1, u2))
         pdf = mis.diffuse_pdf(wi, wo)
-        value = self.walk.eval_pt(call.mf, call.albedo, wi, wo, self.bounces(call, wi), eval_key(wo))
+        with gradients.recording():
+            value = self.walk.eval_pt(call.mf, call.albedo, wi, wo, self.bounces(call, wi), eval_key(wo))
         valid = (wi[2] > 0.0) & (pdf > 0.0)
         return wo, pdf, dr.select(valid, value / pdf, 0.0), valid
 

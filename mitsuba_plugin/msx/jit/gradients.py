@@ -14,6 +14,7 @@ and weighs it by the walk's ``eval`` estimate over that density (the same estima
 and ``pdf`` reports the same density.
 """
 
+import contextlib
 import os
 
 import drjit as dr
@@ -90,6 +91,15 @@ def attach(estimate, params, primal=None):
     # wavefronts (benches/README.md, "Gradient steps"). The flag is restored on leaving.
     with dr.scoped_set_flag(dr.JitFlag.OptimizeLoops, False):
         return _attach(estimate, params, primal, lean=True)
+
+
+def recording():
+    """The scope in which a differentiated walk's loops are recorded outside :func:`attach` (``sample``'s walk on
+    the dielectric and diffuse surfaces, which does not go through it): ``OptimizeLoops`` off as in ``attach``,
+    unless the arrangement is one that keeps it ("plain", "replace")."""
+    if ARRANGEMENT in ("plain", "replace"):
+        return contextlib.nullcontext()
+    return dr.scoped_set_flag(dr.JitFlag.OptimizeLoops, False)
 
 
 def _attach(estimate, params, primal, lean):

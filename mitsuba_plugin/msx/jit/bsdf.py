@@ -8,7 +8,9 @@ applied. The Mitsuba class that builds on them is ``plugin/jit_bsdf.py``: data f
 ``jit/``, never back.
 
 Everything here is traced: Mitsuba calls the class's methods once per kernel with symbolic arrays, and the
-models' walks become loops inside the integrator's kernel. Nothing here changes drjit's flags.
+models' walks become loops inside the integrator's kernel. Nothing here changes drjit's flags, except while a
+differentiated walk is recorded: ``OptimizeLoops`` is off in that scope and restored on leaving it
+(jit/gradients.py, ``attach`` and ``recording``).
 """
 
 import drjit as dr

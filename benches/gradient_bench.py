@@ -18,7 +18,13 @@ Sections (scene, parameter):
   and the walks that differentiate through directions (``differentiate_directions``), Beckmann and GGX.
 
     python3 benches/gradient_bench.py [--scene copper|glass|normalmap|all] [--param alpha|eta|all]
-                                      [--size 64] [--spp 16] [--repeats 7]
+                                      [--size 64] [--spp 16] [--repeats 7] [--models correlated,heitz]
+                                      [--arrangements plain,lean]
+
+``--models`` keeps the msx rows whose model is listed (the built-in's row always runs); ``--arrangements``
+runs every msx row once per arrangement of ``jit/gradients.attach`` (``gradients.ARRANGEMENT``: "plain", the
+arrangement before the step's cost was cut, or "lean", the default; docs/gradients.md), interleaved with the
+others, labelled "[plain]" or "[lean]".
 """
 
 import argparse
@@ -128,6 +134,8 @@ def main():
     ap.add_argument("--size", type=int, default=64)
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--models", default=None, help="comma-separated msx models to keep (default: all)")
+    ap.add_argument("--arrangements", default=None, help="comma-separated: plain, lean (default: the module's)")
     args = ap.parse_args()
     if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(LLVM19):
         os.environ["DRJIT_LIBLLVM_PATH"] = LLVM19
@@ -138,6 +146,8 @@ def main():
     import msx
 
     msx.register()
+    from msx.jit import gradients
+
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples"))
     from fit_normal_map import encode, scene_dict as normal_map_scene, true_normals
     from fit_roughness import scene_dict
@@ -150,6 +160,25 @@ def main():
     if args.scene == "normalmap":
         params = ["normals"]
     todo = sections(scenes, params)
+    if args.models:
+        keep = set(args.models.split(","))
+        todo = [(n, p, {label: b for i, (label, b) in enumerate(c.items()) if i == 0 or b.get("model") in keep})
+                for n, p, c in todo]
+    arrangements = {}  # label → the arrangement it runs with
+    if args.arrangements:
+        wanted = args.arrangements.split(",")
+        expanded = []
+        for n, p, c in todo:
+            out = {}
+            for i, (label, b) in enumerate(c.items()):
+                if i == 0 or b.get("type") != "msx_posfree":
+                    out[label] = b
+                    continue
+                for a in wanted:
+                    out[f"{label} [{a}]"] = b
+                    arrangements[f"{label} [{a}]"] = a
+            expanded.append((n, p, out))
+        todo = expanded
     if not todo:
         ap.error(f"nothing to measure for --scene {args.scene} --param {args.param} (copper: alpha only)")
 
@@ -181,6 +210,7 @@ def main():
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     jobs = [(name, p, label, bsdf) for name, p, configs in todo for label, bsdf in configs.items()]
     times = {job[:3]: [] for job in jobs}
+    cpu = {job[:3]: [] for job in jobs}  # the process's CPU time (all its threads): less sensitive to others' load
     compiled = {job[:3]: 0 for job in jobs}
     failed = {}  # (scene, parameter, label) → "refuses" or "fails"
     for r in range(args.repeats):
@@ -190,13 +220,15 @@ def main():
             gc.collect()  # free the previous scene (reference cycles through the Python plugin)
             scene = mi.load_dict(scene_dicts[name](bsdf, args.size))
             params = mi.traverse(scene)
+            gradients.ARRANGEMENT = arrangements.get(label, "lean")
             try:
                 step(scene, params, KEYS[p], targets[name], 4 * r + 2)  # compiles the kernels (or loads them)
                 gc.collect()
                 dr.kernel_history()  # clears it
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 step(scene, params, KEYS[p], targets[name], 4 * r)
                 times[(name, p, label)].append(time.perf_counter() - t0)
+                cpu[(name, p, label)].append(time.process_time() - c0)
                 compiled[(name, p, label)] += sum(
                     1 for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT and not k.get("cache_hit")
                 )
@@ -214,7 +246,7 @@ def main():
 
     print(
         f"gradient step (prb render + backward), {args.size}², {args.spp} spp, median of {args.repeats}; "
-        f"{os.cpu_count()} cores\n"
+        f"{os.cpu_count()} cores; load average {os.getloadavg()[0]:.2f} at the end\n"
     )
     for name, p, configs in todo:
         builtin = next(iter(configs))
@@ -224,13 +256,14 @@ def main():
             print(f"{builtin}: {failed[(name, p, builtin)]} (no ratios)\n")
             continue
         base = statistics.median(times[(name, p, builtin)])
-        print(f"| BSDF | seconds | × {builtin} |\n|---|---|---|")
+        cpu_base = statistics.median(cpu[(name, p, builtin)])
+        print(f"| BSDF | seconds | × {builtin} | CPU seconds | × {builtin} |\n|---|---|---|---|---|")
         for label in configs:
             if (name, p, label) in failed:
-                print(f"| {label} | {failed[(name, p, label)]} | – |")
+                print(f"| {label} | {failed[(name, p, label)]} | – | – | – |")
                 continue
-            t = statistics.median(times[(name, p, label)])
-            print(f"| {label} | {t:.3f} | {t / base:.2f} |")
+            t, c = statistics.median(times[(name, p, label)]), statistics.median(cpu[(name, p, label)])
+            print(f"| {label} | {t:.3f} | {t / base:.2f} | {c:.3f} | {c / cpu_base:.2f} |")
         print()
 
 

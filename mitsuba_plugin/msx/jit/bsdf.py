@@ -8,7 +8,9 @@ applied. The Mitsuba class that builds on them is ``plugin/jit_bsdf.py``: data f
 ``jit/``, never back.
 
 Everything here is traced: Mitsuba calls the class's methods once per kernel with symbolic arrays, and the
-models' walks become loops inside the integrator's kernel. Nothing here changes drjit's flags.
+models' walks become loops inside the integrator's kernel. Nothing here changes drjit's flags, except while a
+differentiated walk is recorded: ``OptimizeLoops`` is off in that scope and restored on leaving it
+(jit/gradients.py, ``attach`` and ``recording``).
 """
 
 import drjit as dr
@@ -452,8 +454,9 @@ class DielectricModel:
         pdf = mis.dielectric_pdf(mf, eta, wi, wo)
         # The differentiated walk's own estimate (its draws differ from the plain walk's: the position-free
         # walks draw normals and choices otherwise while differentiated), with the parameters detached.
-        value = self.walk.eval_pt(mf, eta, call.radiance, wi, wo, self.bounces(call, wi), eval_key(wo),
-                                  mf_sample=mf)
+        with gradients.recording():
+            value = self.walk.eval_pt(mf, eta, call.radiance, wi, wo, self.bounces(call, wi), eval_key(wo),
+                                      mf_sample=mf)
         valid = (cosine | valid_s) & (wo[2] != 0.0) & (pdf > 0.0)
         return wo, pdf, self.tinted(call, wi, wo, dr.select(valid, value / pdf, 0.0)), valid
 

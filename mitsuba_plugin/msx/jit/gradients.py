@@ -14,6 +14,9 @@ and weighs it by the walk's ``eval`` estimate over that density (the same estima
 and ``pdf`` reports the same density.
 """
 
+import contextlib
+import os
+
 import drjit as dr
 import mitsuba as mi
 
@@ -73,12 +76,45 @@ def record_dropped(on=True):
     return _DROPPED[0]
 
 
+# How :func:`attach` arranges its work (docs/gradients.md, "What a gradient step costs"): "lean" (the default)
+# records the walks' loops without drjit's loop optimisation (one recording of a loop body instead of two) and
+# returns the value with the derivative attached by ``dr.replace_grad``, so that the forward pass is code of the
+# kernel only where a derivative is propagated; "plain" is the arrangement before, "replace" and "noopt" each
+# change alone (kept to measure against: benches/gradient_bench.py --arrangements, or the environment variable
+# MSX_GRADIENT_ARRANGEMENT, read at import). All give the same values and derivatives; any other name is "lean".
+ARRANGEMENT = os.environ.get("MSX_GRADIENT_ARRANGEMENT", "lean")
+
+
 def attach(estimate, params, primal=None):
     """``estimate(*values)`` (a Spectrum) with the derivative with respect to each of ``params`` (Floats or
     Spectra; a Spectrum parameter acts on its own channel only, as η and k do) that has gradients enabled,
     taken by forward mode inside the call; the others pass through detached. ``primal(*values)``, if given,
     is the value returned in place of the estimate's own (another unbiased estimate of the same function:
     the derivative stays the estimate's)."""
+    if ARRANGEMENT == "plain":
+        return _attach(estimate, params, primal, lean=False)
+    if ARRANGEMENT == "replace":
+        return _attach(estimate, params, primal, lean=True)
+    if ARRANGEMENT == "noopt":
+        with dr.scoped_set_flag(dr.JitFlag.OptimizeLoops, False):
+            return _attach(estimate, params, primal, lean=False)
+    # drjit's OptimizeLoops records every loop body twice (the second time without the loop-invariant state it
+    # found); the walks' invariant state is a few values, and the recording is most of a step's time at small
+    # wavefronts (benches/README.md, "Gradient steps"). The flag is restored on leaving.
+    with dr.scoped_set_flag(dr.JitFlag.OptimizeLoops, False):
+        return _attach(estimate, params, primal, lean=True)
+
+
+def recording():
+    """The scope in which a differentiated walk's loops are recorded outside :func:`attach` (``sample``'s walk on
+    the dielectric and diffuse surfaces, which does not go through it): ``OptimizeLoops`` off as in ``attach``,
+    unless the arrangement is one that keeps it ("plain", "replace")."""
+    if ARRANGEMENT in ("plain", "replace"):
+        return contextlib.nullcontext()
+    return dr.scoped_set_flag(dr.JitFlag.OptimizeLoops, False)
+
+
+def _attach(estimate, params, primal, lean):
     values = [dr.detach(p) for p in params]
     value = None
     tangents = []
@@ -102,9 +138,15 @@ def attach(estimate, params, primal=None):
         return estimate(*values) if primal is None else primal(*values)
     if primal is not None:
         value = dr.detach(primal(*values))
+    attached = value
     for t in tangents:
-        value = value + t
-    return value
+        attached = attached + t
+    if not lean:
+        return attached
+    # The value's own variable, with the tangents' derivative: (θ − θ̄)·g is 0 in value, and as a term of the
+    # value it made the forward passes part of every kernel that reads the value (in prb's adjoint pass, the
+    # recording of the BSDF call that gives the value, besides the one that propagates its derivative).
+    return dr.replace_grad(value, attached)
 
 
 def attach_walk(call, material, run, primal=None):

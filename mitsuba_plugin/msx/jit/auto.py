@@ -5,6 +5,11 @@ core's rule finds order 1 alone within ``auto_tolerance`` of the scattered energ
 max(α_u, α_v), |cos θ_i| and the relative IOR seen from ω_i, and the full model elsewhere. The rule is
 the core's own: ``msx_auto_rule`` hands over the α threshold of each μ cell; a lane compares its α with
 the threshold of its cell (μ below the grid, and a conductor's ω_i below the surface, run the full model).
+
+On a conductor an order-1 lane computes order 1 in closed form (``order_one_*`` below; jit/bsdf.py
+``ConductorModel``), with the visible-normal reflection density as its ``pdf`` and sampler, and the walk runs
+behind a symbolic ``dr.if_stmt``, which the LLVM backend skips in a packet none of whose lanes walk
+(benches/README.md, "``auto`` at single's price"). Dielectric and diffuse microsurfaces run the capped walk.
 """
 
 import drjit as dr
@@ -59,12 +64,55 @@ def walked_fraction(counter):
     return walks / calls if calls else float("nan")
 
 
-def cap(rule, mf, mu, max_bounces, full=True):
-    """The bounce cap of each lane: 1 where order 1 suffices (and ``full`` allows the rule), else
-    ``max_bounces``."""
+def order_one(rule, mf, mu, full=True):
+    """Per lane: whether the call is reduced to order 1 (the rule, where ``full`` allows it), counted while
+    ``count_calls`` counts."""
     one = rule.order_one_suffices(dr.maximum(mf.alpha_u, mf.alpha_v), mu) & full
     counter = _COUNTER[0]
     if counter is not None:
         dr.scatter_reduce(dr.ReduceOp.Add, counter, mi.UInt32(1), mi.UInt32(0))
         dr.scatter_reduce(dr.ReduceOp.Add, counter, mi.UInt32(1), mi.UInt32(1), active=~one)
-    return dr.select(one, mi.UInt32(1), mi.UInt32(max_bounces))
+    return one
+
+
+def cap(rule, mf, mu, max_bounces, full=True):
+    """The bounce cap of each lane: 1 where order 1 suffices (and ``full`` allows the rule), else
+    ``max_bounces``."""
+    return dr.select(order_one(rule, mf, mu, full), mi.UInt32(1), mi.UInt32(max_bounces))
+
+
+# ------------------------------------------------------------------ a conductor's order 1 in closed form
+# (twin of ``order_one_eval``, ``order_one_pdf``, ``order_one_sample`` in src/models/auto/mod.rs)
+
+
+def order_one_eval(mf, fresnel, wi, wo):
+    """Order 1 of ``correlated``: F(ω_i·h)·D(h)/(4 cos θ_i (L_0 + Λ_o)), L_0 = 1 + Λ(ω_i) — the walk's next
+    event at its first vertex (``posfree.pt_walk``), which is deterministic, in the same arithmetic."""
+    from .posfree import nee_term
+
+    last = 1.0 / (mf.abs_lambda(-wi) + mf.lambda_(wo))
+    cos_wh, nee, ok = nee_term(mf, wi, wo, last)
+    ok &= (wi[2] > 0.0) & (wo[2] > 0.0)
+    return dr.select(ok, fresnel.eval(cos_wh) * nee, 0.0)
+
+
+def order_one_pdf(mf, wi, wo):
+    """The density of ``order_one_sample``: the visible-normal reflection density D_ωi(h)/(4 ω_i·h)."""
+    return dr.select((wi[2] > 0.0) & (wo[2] > 0.0), mf.reflect_pdf(wi, wo), 0.0)
+
+
+def order_one_sample(mf, fresnel, wi, u1, u2):
+    """ω_o reflected about a visible normal drawn with (u1, u2), as the walk's first vertex draws it, with
+    the weight f·cos θ_o/pdf = F(ω_i·m)·L_0/(L_0 + Λ_o) (the walk's exit probability at that vertex, taken in
+    expectation). Returns (ω_o, pdf, weight, valid)."""
+    from .microfacet import dot, reflect
+    from .rng import clean_uniform
+
+    m, valid = mf.sample_visible(wi, clean_uniform(u1), clean_uniform(u2))
+    cos_wm = dot(wi, m)
+    wo = reflect(wi, m)
+    pdf = order_one_pdf(mf, wi, wo)
+    l0 = mf.abs_lambda(-wi)
+    weight = fresnel.eval(cos_wm) * (l0 / (l0 + mf.lambda_(wo)))
+    valid &= (wi[2] > 0.0) & (cos_wm > 0.0) & (wo[2] > 0.0) & (pdf > 0.0) & dr.isfinite(pdf)
+    return wo, pdf, dr.select(valid, weight, 0.0), valid

@@ -15,7 +15,8 @@ behind a symbolic ``dr.if_stmt``, which the LLVM backend skips in a packet none 
 import drjit as dr
 import mitsuba as mi
 
-from .microfacet import BECKMANN
+from .microfacet import BECKMANN, dot, half_vector, reflect
+from .rng import clean_uniform
 
 
 class OrderOneRule:
@@ -85,29 +86,35 @@ def cap(rule, mf, mu, max_bounces, full=True):
 # (twin of ``order_one_eval``, ``order_one_pdf``, ``order_one_sample`` in src/models/auto/mod.rs)
 
 
+def _order_one_terms(mf, wi, wo):
+    """What order 1's value and density share: (w·h, D(h), L_0 = 1 + Λ(ω_i), valid) with h the half vector."""
+    h, length = half_vector(wi, wo)
+    cos_wh = dot(wi, h)
+    ok = (length > 0.0) & (cos_wh > 0.0) & (dot(wo, h) > 0.0) & (wi[2] > 0.0) & (wo[2] > 0.0)
+    return cos_wh, mf.d(h), mf.abs_lambda(-wi), ok
+
+
 def order_one_eval(mf, fresnel, wi, wo):
     """Order 1 of ``correlated``: F(ω_i·h)·D(h)/(4 cos θ_i (L_0 + Λ_o)), L_0 = 1 + Λ(ω_i) — the walk's next
-    event at its first vertex (``posfree.pt_walk``), which is deterministic, in the same arithmetic."""
-    from .posfree import nee_term
-
-    last = 1.0 / (mf.abs_lambda(-wi) + mf.lambda_(wo))
-    cos_wh, nee, ok = nee_term(mf, wi, wo, last)
-    ok &= (wi[2] > 0.0) & (wo[2] > 0.0)
-    return dr.select(ok, fresnel.eval(cos_wh) * nee, 0.0)
+    event at its first vertex (``posfree.nee_term`` with the last factor 1/(L_0 + Λ_o)), which is
+    deterministic, in the same arithmetic."""
+    cos_wh, d, l0, ok = _order_one_terms(mf, wi, wo)
+    last = 1.0 / (l0 + mf.lambda_(wo))
+    return dr.select(ok, fresnel.eval(cos_wh) * (d * last / (4.0 * dr.abs(wi[2]))), 0.0)
 
 
 def order_one_pdf(mf, wi, wo):
-    """The density of ``order_one_sample``: the visible-normal reflection density D_ωi(h)/(4 ω_i·h)."""
-    return dr.select((wi[2] > 0.0) & (wo[2] > 0.0), mf.reflect_pdf(wi, wo), 0.0)
+    """The density of ``order_one_sample``: the visible-normal reflection density D_ωi(h)/(4 ω_i·h) =
+    D(h)/(4 cos θ_i L_0) (``Microfacet.reflect_pdf`` with A(ω_i) = cos θ_i·L_0, sharing D and L_0 with
+    ``order_one_eval``)."""
+    _, d, l0, ok = _order_one_terms(mf, wi, wo)
+    return dr.select(ok, d / (4.0 * wi[2] * l0), 0.0)
 
 
 def order_one_sample(mf, fresnel, wi, u1, u2):
     """ω_o reflected about a visible normal drawn with (u1, u2), as the walk's first vertex draws it, with
     the weight f·cos θ_o/pdf = F(ω_i·m)·L_0/(L_0 + Λ_o) (the walk's exit probability at that vertex, taken in
     expectation). Returns (ω_o, pdf, weight, valid)."""
-    from .microfacet import dot, reflect
-    from .rng import clean_uniform
-
     m, valid = mf.sample_visible(wi, clean_uniform(u1), clean_uniform(u2))
     cos_wm = dot(wi, m)
     wo = reflect(wi, m)

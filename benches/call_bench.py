@@ -6,17 +6,19 @@
 2^lanes random ω_i (cos θ_i uniform in [mu-min, mu-max], azimuth uniform) and ω_o (cosine-distributed), or
 (sample1, sample2) uniform, evaluated in one wavefront per call; copper, the built-in `roughconductor` with the
 same distribution and α. The calls are interleaved (every model and the built-in once per repeat, in turn)
-and each is timed by the kernels it launches (drjit's kernel history: execution time only, no tracing or
-compilation: the inputs are evaluated before, the kernel is compiled in an untimed first call). Prints the
-median time per call and the ratio to the built-in's median; for `auto`, the fraction of lanes whose ω_i the
-rule reduces to order 1 (100 % for the default μ range at Beckmann α 0.1). Only ratios from one run mean
-anything (benches/README.md).
+and each is timed twice: by the kernels it launches (drjit's kernel history: their execution time, wall
+clock, no tracing or compilation: the inputs are evaluated before, the kernel is compiled in an untimed first
+call) and by the process's CPU time over the call (tracing included; less sensitive to other work on the
+cores). Prints the median time per call and the ratio to the built-in's median; for `auto`, the fraction of
+lanes whose ω_i the rule does not reduce to order 1 (none for the default μ range at Beckmann α 0.1). Only
+ratios from one run mean anything (benches/README.md).
 """
 
 import argparse
 import os
 import statistics
 import sys
+import time
 
 os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 
@@ -82,11 +84,14 @@ def main():
     }
 
     def run(b, call):
+        """(the kernels' execution time, the process's CPU time of the call: tracing included) in seconds."""
         dr.kernel_history()  # clears it
+        t0 = time.process_time()
         out = calls[call](b)
         dr.eval(*out)
         dr.sync_thread()
-        return sum(k.get("execution_time", 0.0) for k in dr.kernel_history()) / 1000.0
+        cpu = time.process_time() - t0
+        return sum(k.get("execution_time", 0.0) for k in dr.kernel_history()) / 1000.0, cpu
 
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     if "auto" in bsdfs:
@@ -99,7 +104,7 @@ def main():
         jit_auto.count_calls(stop=True)
     print("lanes 2^%d, %s α %.3g Cu, %d repeats, load %s" % (args.lanes, args.distribution, args.alpha, args.repeats,
                                                            open("/proc/loadavg").read().split()[:3]))
-    print("%-10s %-12s %10s %8s" % ("call", "model", "median ms", "× built-in"))
+    print("%-10s %-12s %10s %8s %12s %8s" % ("call", "model", "kernel ms", "× built-in", "CPU ms", "× built-in"))
     for call in args.calls.split(","):
         times = {k: [] for k in bsdfs}
         for k, b in bsdfs.items():
@@ -107,10 +112,11 @@ def main():
         for _ in range(args.repeats):
             for k, b in bsdfs.items():
                 times[k].append(run(b, call))
-        ref = statistics.median(times["built-in"])
+        ref = [statistics.median(t[i] for t in times["built-in"]) for i in (0, 1)]
         for k in bsdfs:
-            t = statistics.median(times[k])
-            print("%-10s %-12s %10.2f %8.2f" % (call, k, 1000 * t, t / ref))
+            t = [statistics.median(x[i] for x in times[k]) for i in (0, 1)]
+            print("%-10s %-12s %10.2f %8.2f %12.2f %8.2f" % (call, k, 1000 * t[0], t[0] / ref[0], 1000 * t[1],
+                                                            t[1] / ref[1]))
         sys.stdout.flush()
 
 

@@ -21,7 +21,6 @@ from llvm_support import llvm_unusable_reason  # noqa: E402  (sets DRJIT_LIBLLVM
 
 np = pytest.importorskip("numpy")
 mi = pytest.importorskip("mitsuba")
-import drjit as dr  # noqa: E402
 
 _REASON = llvm_unusable_reason()
 if _REASON:
@@ -182,7 +181,8 @@ def test_eval_and_pdf_are_order_one_in_closed_form(engine, alpha):
     for i, (mu, phi) in enumerate(WI):
         wi = direction(mu, phi)
         mirror = np.array([-wi[0], -wi[1], wi[2]])
-        wo = np.concatenate([random_wo(4096, 10 + i), f32(mirror + 0.05 * np.random.default_rng(i).normal(size=(4096, 3)))])
+        near = mirror + 0.05 * np.random.default_rng(i).normal(size=(4096, 3))
+        wo = np.concatenate([random_wo(4096, 10 + i), near])
         wo = f32(wo / np.linalg.norm(wo, axis=1, keepdims=True))
         rows = f32(np.tile(wi, (len(wo), 1)))
         value, pdf = e.eval_pdf(rows, wo)
@@ -205,8 +205,8 @@ def g_values(wo, wi):
 
 
 def reference_integrals(wi, alpha, seed):
-    """∫ g·pdf dω and ∫ g·f cos θ_o dω by Mitsuba's GGX sampler (α × 1.5), per lane (for ``jit_support.stats``):
-    rows (N_G, n) and (N_G, 3, n)."""
+    """∫ g·pdf dω and ∫ g·f cos θ_o dω by Mitsuba's GGX sampler (α × 1.5), per lane (for
+    ``jit_support.stats``): rows (N_G, n) and (N_G, 3, n)."""
     eta, k = cu_rgb()
     b = mi.load_dict({"type": "roughconductor", "distribution": "ggx", "alpha": 1.5 * alpha, "material": "none"})
     rows = np.tile(wi, (N_REF, 1))

@@ -7,16 +7,16 @@ the core's own: ``msx_auto_rule`` hands over the α threshold of each μ cell; a
 the threshold of its cell (μ below the grid, and a conductor's ω_i below the surface, run the full model).
 
 On a conductor an order-1 lane computes order 1 in closed form (``order_one_*`` below; jit/bsdf.py
-``ConductorModel``), with the visible-normal reflection density as its ``pdf`` and sampler, and the walk runs
-behind a symbolic ``dr.if_stmt``, which the LLVM backend skips in a packet none of whose lanes walk
-(benches/README.md, "``auto`` at single's price"). Dielectric and diffuse microsurfaces run the capped walk.
+``ConductorModel``), with the visible-normal reflection density as its ``pdf`` and sampler: in ``eval`` and
+``pdf`` the walk runs behind a symbolic ``dr.if_stmt``, which the LLVM backend skips in a packet none of whose
+lanes walk; ``sample`` runs the walk sampler capped at one vertex on those lanes (benches/README.md, "``auto``
+at single's price"). Dielectric and diffuse microsurfaces run the capped walk.
 """
 
 import drjit as dr
 import mitsuba as mi
 
-from .microfacet import BECKMANN, dot, half_vector, reflect
-from .rng import clean_uniform
+from .microfacet import BECKMANN, dot, half_vector
 
 
 class OrderOneRule:
@@ -71,7 +71,8 @@ def order_one(rule, mf, mu, full=True):
     one = rule.order_one_suffices(dr.maximum(mf.alpha_u, mf.alpha_v), mu) & full
     counter = _COUNTER[0]
     if counter is not None:
-        dr.scatter_reduce(dr.ReduceOp.Add, counter, mi.UInt32(1), mi.UInt32(0))
+        # One per lane: a literal value and index would make a scatter of width 1 outside a loop.
+        dr.scatter_reduce(dr.ReduceOp.Add, counter, dr.full(mi.UInt32, 1, dr.width(one)), mi.UInt32(0))
         dr.scatter_reduce(dr.ReduceOp.Add, counter, mi.UInt32(1), mi.UInt32(1), active=~one)
     return one
 
@@ -104,22 +105,20 @@ def order_one_eval(mf, fresnel, wi, wo):
 
 
 def order_one_pdf(mf, wi, wo):
-    """The density of ``order_one_sample``: the visible-normal reflection density D_ωi(h)/(4 ω_i·h) =
-    D(h)/(4 cos θ_i L_0) (``Microfacet.reflect_pdf`` with A(ω_i) = cos θ_i·L_0, sharing D and L_0 with
-    ``order_one_eval``)."""
+    """The density of order 1's sample (``order_one_finish``): the visible-normal reflection density
+    D_ωi(h)/(4 ω_i·h) = D(h)/(4 cos θ_i L_0) (``Microfacet.reflect_pdf`` with A(ω_i) = cos θ_i·L_0, sharing
+    D and L_0 with ``order_one_eval``)."""
     _, d, l0, ok = _order_one_terms(mf, wi, wo)
     return dr.select(ok, d / (4.0 * wi[2] * l0), 0.0)
 
 
-def order_one_sample(mf, fresnel, wi, u1, u2):
-    """ω_o reflected about a visible normal drawn with (u1, u2), as the walk's first vertex draws it, with
-    the weight f·cos θ_o/pdf = F(ω_i·m)·L_0/(L_0 + Λ_o) (the walk's exit probability at that vertex, taken in
-    expectation). Returns (ω_o, pdf, weight, valid)."""
-    m, valid = mf.sample_visible(wi, clean_uniform(u1), clean_uniform(u2))
-    cos_wm = dot(wi, m)
-    wo = reflect(wi, m)
+def order_one_finish(mf, wi, wo, fresnel_weight):
+    """Order 1's sample (twin of ``order_one_sample`` in src/models/auto/mod.rs) from the walk sampler capped
+    at one vertex: its ω_o, the reflection of ω_i about the visible normal drawn with (u1, u2), and its weight
+    F(ω_i·m), times the exit probability L_0/(L_0 + Λ_o) in place of the walk's random exit (weight = eval/pdf),
+    with ``order_one_pdf``, the density of that draw. Returns (ω_o, pdf, weight, valid)."""
     pdf = order_one_pdf(mf, wi, wo)
     l0 = mf.abs_lambda(-wi)
-    weight = fresnel.eval(cos_wm) * (l0 / (l0 + mf.lambda_(wo)))
-    valid &= (wi[2] > 0.0) & (cos_wm > 0.0) & (wo[2] > 0.0) & (pdf > 0.0) & dr.isfinite(pdf)
+    weight = fresnel_weight * (l0 / (l0 + mf.lambda_(wo)))
+    valid = (pdf > 0.0) & dr.isfinite(pdf) & dr.all(dr.isfinite(wo))
     return wo, pdf, dr.select(valid, weight, 0.0), valid

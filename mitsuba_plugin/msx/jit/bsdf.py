@@ -306,10 +306,30 @@ class ConductorModel:
         elif call.traced:
             value = self.differentiable_estimate(call, wi, wo, key) if want_value else None
             pdf = gradients.proposal_pdf(walk.exit, mf, wi, wo) if want_pdf else None
+        elif self.rule is not None:
+            value, pdf = self.auto_eval_pdf(call, wi, wo, key, want_value, want_pdf)
         else:
             value = self.estimate(mf, call.fresnel, wi, wo, self.bounces(call, wi), key) if want_value else None
             pdf = mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo, self.mis_density) if want_pdf else None
         return (value * call.tint_r if want_value else None), pdf
+
+    def auto_eval_pdf(self, call, wi, wo, key, want_value, want_pdf):
+        """``auto``'s (value, pdf) (either None where not wanted): order 1 in closed form with its sampler's
+        density on the lanes the rule reduces (src/models/auto/mod.rs), the full walk and the walks' MIS
+        density elsewhere — behind a symbolic if, so that a packet whose lanes all reduce runs no walk."""
+        walk, mf = self.walk, call.mf
+        one = auto.order_one(self.rule, mf, wi[2], full=wi[2] > 0.0)
+
+        def closed():
+            return ((auto.order_one_eval(mf, call.fresnel, wi, wo),) if want_value else ()) + \
+                ((auto.order_one_pdf(mf, wi, wo),) if want_pdf else ())
+
+        def full():
+            return ((self.estimate(mf, call.fresnel, wi, wo, self.max_bounces, key),) if want_value else ()) + \
+                ((mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo, self.mis_density),) if want_pdf else ())
+
+        out = list(dr.if_stmt((), one, closed, full, label="msx_auto_order_one"))
+        return (out.pop(0) if want_value else None), (out.pop(0) if want_pdf else None)
 
     def differentiable_estimate(self, call, wi, wo, key):
         """The walk's PT estimate with its derivative in α, η and k (jit/gradients.py), and in the
@@ -363,6 +383,18 @@ class ConductorModel:
         walk, mf = self.walk, call.mf
         if walk is None:
             wo, pdf, weight, valid = self.analytic.sample(mf, call.fresnel, wi, u1, u2)
+        elif self.rule is not None:
+            # auto: the walk sampler, capped at one vertex where order 1 suffices, then those lanes' weight in
+            # expectation of the exit and their density (jit/auto.py ``order_one_finish``). Not behind an if
+            # as ``eval`` is: in a packet of both kinds of lanes the closed form's own visible-normal draw
+            # would come on top of the walk's (measured: benches/README.md, "auto at single's price").
+            one = auto.order_one(self.rule, mf, wi[2], full=wi[2] > 0.0)
+            wo, weight, valid = walk.sample_walk(mf, call.fresnel, wi, s1, u1, u2,
+                                                 dr.select(one, mi.UInt32(1), mi.UInt32(self.max_bounces)), key)
+            wo, pdf, weight, valid = dr.if_stmt(
+                (wo, weight, valid), one, lambda wo, w, v: auto.order_one_finish(mf, wi, wo, w),
+                lambda wo, w, v: (wo, mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo, self.mis_density), w, v),
+                label="msx_auto_order_one_sample")
         else:
             wo, weight, valid = walk.sample_walk(mf, call.fresnel, wi, s1, u1, u2, self.bounces(call, wi), key)
             pdf = mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo, self.mis_density)

@@ -16,6 +16,19 @@
 //! while the table lookup cost ≈ 10 % of an evaluation. Only the step from
 //! "walk" to "no walk" pays.
 //!
+//! **A conductor's order-1 calls in closed form.** Where a conductor call
+//! (ω_i above) is reduced, `eval` is [`order_one_eval`] — the walk's first next
+//! event, deterministic, in the same arithmetic, so bit-identical to the capped
+//! walk — and `pdf`/`sample` are [`order_one_pdf`]/[`order_one_sample`]: the
+//! visible-normal reflection density, which the sampler truly draws from (the
+//! walk's first reflection, the same numbers), with the weight eval/pdf =
+//! F·L_0/(L_0 + Λ_o) in place of the walk's random exit. That density is the
+//! exact one of these calls (the walks' MIS density, `mis.rs`, adds a cosine
+//! lobe for orders the call does not have). The Dr.Jit engine computes the same
+//! (jit/auto.py) and skips the walk in packets whose lanes all reduce
+//! (benches/README.md, "`auto` at single's price"). Dielectric and diffuse
+//! microsurfaces run the capped walk.
+//!
 //! **Estimator.** `table.rs` beside this file: an upper bound (T₁ + 2
 //! standard errors, 1024 jittered visible normals; 4096 for the diffuse
 //! microsurface) of the multiply scattered fraction T₁ of `correlated` at one
@@ -79,7 +92,7 @@ pub mod table;
 use super::posfree::{PosFree, Segments};
 use super::{Call, Sampled, ScatteringModel};
 use crate::config::{Distribution, Estimator, Surface};
-use crate::microfacet::Microsurface;
+use crate::microfacet::{ConductorFresnel, Microfacet, Microsurface};
 use crate::spectrum::Spectrum;
 use glam::DVec3;
 use std::collections::HashMap;
@@ -296,16 +309,94 @@ impl Auto {
     }
 }
 
+impl Auto {
+    /// Whether this call is reduced to order 1 and takes the closed form (`order_one_*` below): a conductor
+    /// with ω_i above whose rule says order 1 suffices, and whose counted orders include order 1. Elsewhere
+    /// (dielectric and diffuse microsurfaces included) the capped walk runs.
+    fn closed_order_one(&self, call: &Call, wi: DVec3) -> Option<ConductorFresnel> {
+        match call.surf {
+            Microsurface::Conductor(fresnel)
+                if wi.z > 0.0
+                    && call.orders.0 <= 1
+                    && call.orders.1 >= 1
+                    && self.rule.order_one_suffices(call.mf.alpha_u.max(call.mf.alpha_v), wi.z, 1.0) =>
+            {
+                Some(fresnel)
+            }
+            _ => None,
+        }
+    }
+}
+
+/// Order 1 of `correlated` in closed form (Walter 2007 with the height-correlated G2): f·cos θ_o =
+/// F(ω_i·h)·D(h)/(4 cos θ_i (L_0 + Λ_o)), L_0 = 1 + Λ(ω_i) — the walk's next event at its first vertex,
+/// which is deterministic (posfree/conductor.rs `nee_term` with the last factor 1/(L_0 + Λ_o)).
+pub fn order_one_eval(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, wo: DVec3) -> Spectrum {
+    if wi.z <= 0.0 || wo.z <= 0.0 {
+        return Spectrum::ZERO;
+    }
+    let h = wi + wo;
+    let len = h.length();
+    if len <= 0.0 {
+        return Spectrum::ZERO;
+    }
+    let h = h / len;
+    let cos_wh = wi.dot(h);
+    if cos_wh <= 0.0 || wo.dot(h) <= 0.0 {
+        return Spectrum::ZERO;
+    }
+    let last = 1.0 / (mf.abs_lambda(-wi) + mf.lambda(wo));
+    fresnel.eval(cos_wh) * (mf.d(h) * last / (4.0 * wi.z))
+}
+
+/// The density of [`order_one_sample`]: the visible-normal reflection density D_ωi(h)/(4 ω_i·h) for ω_o
+/// above, 0 below (where the sampler returns nothing).
+pub fn order_one_pdf(mf: &Microfacet, wi: DVec3, wo: DVec3) -> f64 {
+    if wi.z <= 0.0 || wo.z <= 0.0 {
+        return 0.0;
+    }
+    mf.reflect_pdf(wi, wo)
+}
+
+/// ω_o by reflecting ω_i about a visible normal drawn with (u1, u2) (the walk's first vertex, the same
+/// numbers), weighted by f·cos θ_o / pdf = F(ω_i·m)·L_0/(L_0 + Λ_o): the expectation of the walk's
+/// exit at its first vertex, without its random exit (sample1 is not used).
+pub fn order_one_sample(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, u1: f64, u2: f64) -> Option<Sampled> {
+    if wi.z <= 0.0 {
+        return None;
+    }
+    let (_, cos_wm, wo) = mf.reflect_visible(wi, u1, u2)?;
+    if wo.z <= 0.0 {
+        return None;
+    }
+    let pdf = order_one_pdf(mf, wi, wo);
+    if !(pdf > 0.0 && pdf.is_finite()) {
+        return None;
+    }
+    let l0 = mf.abs_lambda(-wi);
+    let weight = fresnel.eval(cos_wm) * (l0 / (l0 + mf.lambda(wo)));
+    Some(Sampled { wo, weight, order: 1, pdf: Some(pdf) })
+}
+
 impl ScatteringModel for Auto {
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
+        if let Some(fresnel) = self.closed_order_one(call, wi) {
+            return order_one_eval(&call.mf, &fresnel, wi, wo);
+        }
         self.full.eval(&self.capped(call, wi), wi, wo)
     }
 
     fn pdf(&self, call: &Call, wi: DVec3, wo: DVec3) -> f64 {
+        if self.closed_order_one(call, wi).is_some() {
+            return order_one_pdf(&call.mf, wi, wo);
+        }
         self.full.pdf(call, wi, wo)
     }
 
     fn sample(&self, call: &Call, wi: DVec3, first: (f64, f64, f64)) -> Option<Sampled> {
+        if let Some(fresnel) = self.closed_order_one(call, wi) {
+            return order_one_sample(&call.mf, &fresnel, wi, first.1, first.2);
+        }
         self.full.sample(&self.capped(call, wi), wi, first)
     }
 }

@@ -17,10 +17,21 @@ from statistics import NormalDist
 import numpy as np
 import pytest
 
-from test_direction_gradients import ANGLE, N, _agrees_with_central_differences, _directions, table  # noqa: F401
+from test_direction_gradients import ANGLE, N, _agrees_with_central_differences, _directions  # noqa: F401
 
 import drjit as dr  # noqa: E402
 import mitsuba as mi  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def table():
+    """The engine's table, with the engine registered in drjit's default symbolic mode for the module (as in
+    test_direction_gradients.py)."""
+    import jit_support
+    from msx.jit import bsdf as jit_bsdf
+
+    with jit_support.engine_mode():
+        yield jit_bsdf
 
 # The central differences' step. On GGX the next events' values jump where their half vector turns horizontal, and
 # a lane whose jump falls between θ ± h carries jump/2h: such lanes are ∝ h, so the differences' variance ∝ 1/h; a

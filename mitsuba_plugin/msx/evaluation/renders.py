@@ -52,6 +52,18 @@ class Image:
 # ---------------------------------------------------------------- rendering
 
 
+def _raise_if_stopped():
+    """A Ctrl-C can be lost below msx during a render: its handler ran (msx/cli.py noted the signal) but the
+    KeyboardInterrupt never reached this code, and ``msx compare --quick`` signalled 4.2–4.6 s in ran to its end
+    with exit 0 (2026-11-28, after ``auto``'s walk went behind a per-packet ``dr.if_stmt``, so raised, most
+    likely, inside the Dr.Jit engine's Python code while drjit recorded the kernel; the layer that swallows it
+    was not traced). The noted signal stops the run at the end of the render it arrived in."""
+    from ..cli import stop_received
+
+    if stop_received():
+        raise KeyboardInterrupt
+
+
 class Renderer:
     """Loads the scenes of one variant and renders them, timing mi.render."""
 
@@ -128,6 +140,7 @@ class Renderer:
             img = self.mi.render(scene, seed=seed, spp=spp)
             arr = np.array(img, dtype=np.float64)
             seconds = time.perf_counter() - t0
+        _raise_if_stopped()
         if not np.all(np.isfinite(arr)):
             raise RuntimeError(f"non-finite pixels in {name} {params}")
         return arr[..., :3], seconds

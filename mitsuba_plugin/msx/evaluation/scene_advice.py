@@ -160,7 +160,7 @@ class SceneRenderer(renders.Renderer):
             if threads < 2:
                 dr.set_thread_count(2)
             try:
-                self._scenes[key] = self.mi.load_string(text.decode())
+                self._scenes[key] = self.mi.load_string(text.decode(), parallel=False)  # docs/mitsuba.md
             finally:
                 if threads < 2:
                     dr.set_thread_count(threads)
@@ -360,7 +360,7 @@ def _preflight(variant, scene, materials):
 
     def refusal(model):
         try:
-            mi.load_string(scene_xml.standalone(scene, m, model))
+            mi.load_string(scene_xml.standalone(scene, m, model), parallel=False)
             return None
         except Exception as e:  # noqa: BLE001 - Mitsuba's or msx's message, in one line
             _stopped(e)
@@ -572,7 +572,8 @@ def write_scene(scene, results, target, renderer=None, written_files=None):
                     os.replace(tmp, path)
             used = set().union(*(scene_xml._REF.findall(d.decode(errors="replace")) for d in scene.files.values()))
             try:
-                renderer.mi.load_string(data.decode(), **{k: v for k, v in renderer.defines.items() if k in used})
+                renderer.mi.load_string(data.decode(), parallel=False,
+                                         **{k: v for k, v in renderer.defines.items() if k in used})
             except Exception as e:  # noqa: BLE001
                 unloadable = [m.key for m in scene.materials if not m.loads]
                 if not unloadable:

@@ -43,10 +43,14 @@ from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter
 from .gradients import LoopValues
 from .microfacet import BECKMANN, GGX, INV_PI, ConductorFresnel, dot, half_vector, normalized, reflect
 from .model import ConductorWalk, DielectricWalk, DiffuseWalk
-from .rng import ONE_MINUS_EPS, Stream, clean_uniform
+from .posfree import horizon_circle
+from .rng import ONE_MINUS_EPS, Stream, clean_uniform, mix32, mix32_int
 from .special import expm1, log1p, optical_depth
 
 LN_2 = 0.6931471805599453
+# The key of the edge terms' own stream (``eval_from`` along moving directions on GGX): a salt mixed into the
+# lane's key, so that the walk's stream is the same with the terms or without.
+EDGE_SALT = mix32_int(0x45444745)
 
 
 # ------------------------------------------------------------------ height machinery
@@ -182,13 +186,38 @@ def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None, direction_tangen
 
     With ``mf_sample``, ω_i and ω_o may carry a derivative (docs/gradients.md, "Directions through the
     walks"): the normals are drawn for the detached direction and the attached direction is reflected about
-    them, each weighed by its density ratio, and the heights move with the attached direction. On Beckmann nothing jumps where the directions move (its D is 0 at a
-    horizontal half vector); GGX's next event would need an edge term, which this walk does not have, so it
-    refuses directions there (``direction_distributions``) and ignores ``direction_tangent``."""
-    return eval_from(mf, ConductorFacets(fresnel), wi, wo, max_bounces, key, mf_sample)
+    them, each weighed by its density ratio, and the heights move with the attached direction. On Beckmann nothing
+    jumps where the directions move (its D is 0 at a horizontal half vector). On GGX the next event of a vertex
+    reached going up jumps where its half vector turns horizontal: with ``direction_tangent`` = (s, t_i, t_o)
+    (gradients.TangentCoordinates) each vertex adds that edge's term (``horizon_edge_term``)."""
+    return eval_from(mf, ConductorFacets(fresnel), wi, wo, max_bounces, key, mf_sample,
+                     direction_tangent=direction_tangent)
 
 
-def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None):
+def horizon_edge_term(mf, fresnel, w, tw, t, wo, two, lambda_o, u_phi, u_h):
+    """The term of a directional derivative that the next vertex's next-event value misses where it jumps
+    (GGX conductor facets; docs/gradients.md, "Heitz's walk on conductor facets"): as
+    ``posfree.horizon_edge_term`` (the circle of new directions d with d_z = ω_o,z, ``posfree.horizon_circle``),
+    with this walk's factors: the step's density times its weight in the space of new directions,
+    ρ = F(w·m)·D(m)/(4A(w)) (the visible normal's density ⟨w·m⟩D(m)/A(w) over the reflection's Jacobian
+    4⟨w·m⟩), and the next value's limit on its nonzero side, the next height step from this vertex's height
+    ``t`` along d conditioned on a hit (drawn with ``u_h``, its hit probability P_hit in the value), Heitz's
+    phase function at the horizontal half vector h, D_{−d}(h)/(4⟨−d·h⟩) = D(h)/(4A(−d)) with D(h) its limit
+    ``d_horizon``, the Fresnel term and ω_o's masking at the next height: V⁺ = P_hit·F(−d·h)·D(h)/(4A(−d))·
+    G1(ω_o, t′). One uniform azimuth ``u_phi`` estimates the integral over the circle. Everything is detached:
+    the term enters as (s − s̄)·term."""
+    d, m, cos_wm, h, u_z, ok = horizon_circle(w, tw, wo, u_phi)
+    area_w = mf.projected_area(w)
+    rho = fresnel.eval(cos_wm) * mf.d(m) / (4.0 * area_w)
+    t_next, p_hit = sample_height_hit(mf, d, t, u_h)
+    area_d = mf.projected_area(-d)
+    v = p_hit * fresnel.eval(dot(-d, h)) * (mf.d_horizon(h) / (4.0 * area_d)) * masking_at(lambda_o, t_next)
+    term = 2.0 * math.pi * rho * v * (two[2] - u_z)
+    ok &= (area_w > 0.0) & (area_d > 0.0) & (p_hit > 0.0)
+    return dr.select(ok & dr.all(dr.isfinite(term)), term, 0.0)
+
+
+def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None, direction_tangent=None):
     """Heitz's eval walk on conductor or Lambertian facets (Rust ``eval_from`` with ``Mat::Conductor`` /
     ``Mat::Diffuse``; the dielectric's, which changes sides, is ``dielectric_eval_from``): entering from ω_i
     at t = 0, each vertex draws its height conditioned on hitting (the throughput carries P_hit), then the
@@ -196,19 +225,30 @@ def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None):
     ``mf_sample``: as ``eval``'s. The statistics and the facets' own values (``facets.values``) travel in the
     loop's state whenever they carry derivatives (``walk.carries_gradients``; gradients.LoopValues): with
     ``mf_sample``, and without it when a caller differentiates the walk as written (the traced ``sample``'s
-    weight)."""
+    weight). ``direction_tangent`` (traced, facets with ``horizon_edges``, a distribution whose D does not
+    vanish at horizontal normals): (s, t_i, t_o) of the one coordinate s of the directions differentiated;
+    each vertex then adds the next vertex's edge term (``horizon_edge_term``), with the tangent of the vertex's
+    direction −wr carried in the state (t ↦ t − 2(t·m)m per reflection, from the tangent of ω_i) and its two
+    numbers from a stream of their own (``EDGE_SALT``)."""
     last = max_bounces  # a Python int, or a UInt32 per lane (model 'auto' style caps)
     lambda_o = mf.lambda_(wo)
     start = valid_incidence(wi) & valid_incidence(wo) & (last > 0)
     traced = mf_sample is not None
     piped_values = traced or walk.carries_gradients(mf, lambda_o, *facets.values())
+    edges = (traced and direction_tangent is not None and getattr(facets, "horizon_edges", False)
+             and mf.dist != BECKMANN)
+    edge_key = mix32(key ^ EDGE_SALT) if edges else None
 
     def body(order, wr, t, thr, result, active, counter, piped):
         mfa, mfs, lo, values = LoopValues.unpack(piped_values, mf, lambda_o, (), piped)
         mfs = mfs if traced else mfa  # the walk as written draws from the statistics it evaluates
+        if edges:  # ... then the coordinate s and the tangents of −wr and of ω_o
+            values, (s_dir, tw, two) = values[:-3], values[-3:]
         # Traced, ω_o travels in the state too, after the facets' values (it may carry a derivative).
         values, wo_ = (values[:-1], values[-1]) if traced else (values, wo)
         f = facets.with_values(values) if piped_values else facets
+        if edges:
+            u_phi, u_eh = Stream(edge_key, counter).next2()
         rng = Stream(key, counter)
         u_h, u_rr = rng.next2()
         # Traced, the height is reparameterized, as on glass (``dielectric_eval_from``): the step's uniform
@@ -219,9 +259,20 @@ def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None):
         active &= p_hit > 0.0
         thr = thr * p_hit
         t = tn
+        thr_vertex, w_vertex = thr, -wr
         nee, nee_ok, wr, thr, valid = f.eval_vertex(mfa, mfs, -wr, wo_, lo, t, thr, rng, traced)
         result = dr.select(active & nee_ok, result + nee, result)
         active &= order < last
+        if edges:
+            frd = f.fresnel if f.fresnel.mirror else ConductorFresnel(dr.detach(f.fresnel.eta),
+                                                                      dr.detach(f.fresnel.k))
+            w_s = dr.detach(w_vertex)
+            edge = horizon_edge_term(mfs, frd, w_s, tw, dr.detach(t), dr.detach(wo_), two, dr.detach(lo), u_phi,
+                                     u_eh)
+            result = dr.select(active, result + (s_dir - dr.detach(s_dir)) * dr.detach(thr_vertex) * edge, result)
+            m = f.normal  # the normal this vertex reflected about: the tangent of the next −wr at fixed m
+            tw = tw - 2.0 * dot(tw, m) * m
+            piped = piped[:-3] + (s_dir, tw, two)
         thr, survived = walk.russian_roulette_keep(thr, u_rr, 1.0)
         active &= valid & survived & dr.all(dr.isfinite(wr))
         return dict(order=order + 1, wr=wr, t=t, thr=thr, result=result, active=active, counter=rng.counter,
@@ -231,6 +282,9 @@ def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None):
                  result=dr.zeros(mi.Spectrum), active=mi.Bool(start), counter=mi.UInt32(0),
                  piped=LoopValues.state(mf, lambda_o, *facets.values(), *((mi.Vector3f(wo),) if traced else ()))
                  if piped_values else ())
+    if edges:
+        s_dir, t_i, t_o = direction_tangent
+        state["piped"] += (mi.Float(s_dir), mi.Vector3f(t_i), mi.Vector3f(t_o))
     return walk.while_loop(state, body, label=facets.eval_label)["result"]
 
 
@@ -240,6 +294,7 @@ class ConductorFacets:
 
     choice = False  # a vertex draws no reflect-or-refract number
     sides = False  # the walk stays above the microsurface
+    horizon_edges = True  # the next event jumps where its half vector turns horizontal (GGX: ``eval_from``)
     label = "msx_heitz_conductor_sample"
     eval_label = "msx_heitz_conductor_eval"
 
@@ -266,6 +321,7 @@ class ConductorFacets:
         m, cos_wm, valid = visible_normal(mfs, dr.detach(wi_l) if traced else wi_l, u1, u2)
         if traced:
             cos_wm = dot(wi_l, m)
+        self.normal = m  # read by ``eval_from`` along moving directions (the tangent of the next direction)
         thr = thr * self.fresnel.eval(cos_wm)
         if traced:
             thr = thr * visible_ratio(mfa, mfs, wi_l, m)
@@ -286,6 +342,7 @@ class DiffuseFacets(ConductorFacets):
 
     label = "msx_heitz_diffuse_sample"
     eval_label = "msx_heitz_diffuse_eval"
+    horizon_edges = False  # its next event is continuous (``diffuse_eval``)
 
     def __init__(self, albedo):
         self.albedo = albedo
@@ -562,7 +619,7 @@ def dielectric_sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
 # The conductor walk this module provides (jit/bsdf.py collects it): height-correlated order-1 exit in
 # the MIS density, and no walk from below the macro surface.
 CONDUCTOR_WALKS = {"heitz": ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, below=False, differentiable=True,
-                                          direction_distributions=(BECKMANN,))}
+                                          direction_distributions=(BECKMANN, GGX))}
 
 # The walks on the other microsurfaces (jit/bsdf.py collects them; their MIS densities are
 # ``mis.dielectric_pdf`` and ``mis.diffuse_pdf``).

@@ -14,14 +14,14 @@ from . import invariance_conductor as conductor
 from . import invariance_dielectric as dielectric
 from . import invariance_general as general
 from . import mis
-from .microfacet import BECKMANN
+from .microfacet import BECKMANN, GGX
 from .model import ConductorWalk, DielectricWalk, DiffuseWalk
 
 # The conductor walk (jit/bsdf.py collects it): height-correlated order-1 exit in the MIS density, and no
 # walk from below the macro surface (the core's eval and sample need ω_i up).
 CONDUCTOR_WALKS = {"invariance": ConductorWalk(conductor.eval, conductor.sample, mis.HEIGHT_CORRELATED, below=False,
                                               eval_bdpt=conductor.eval_bdpt, differentiable=True,
-                                              direction_distributions=(BECKMANN,))}
+                                              direction_distributions=(BECKMANN, GGX))}
 # The walks on the other microsurfaces (MIS densities: ``mis.diffuse_pdf``, ``mis.dielectric_pdf``). The
 # Lambertian walk keeps its table in ``dr.alloc_local``: refused in scenes (jit/invariance_general.py).
 DIFFUSE_WALKS = {"invariance": DiffuseWalk(general.eval, general.sample, needs_local_arrays=True)}

@@ -11,6 +11,7 @@ with probability 1 − H_m/H_{m−1}; the weight is the product of the Fresnel t
 """
 
 import copy
+import math
 
 import drjit as dr
 import mitsuba as mi
@@ -18,13 +19,17 @@ import mitsuba as mi
 from . import walk
 from .gradients import LoopValues
 from .invariance_recursion import MonotoneExit, run_slots
-from .microfacet import ConductorFresnel, dot, half_vector, max_channel, reflect
-from .rng import Stream
+from .microfacet import BECKMANN, ConductorFresnel, dot, half_vector, max_channel, reflect
+from .posfree import horizon_circle
+from .rng import Stream, mix32, mix32_int
 
 # src/models/invariance/conductor.rs: the roulette's sure-survival level, and the highest order the
 # connection strategy serves.
 RR_KEEP = 0.5
 CONNECT_MAX_ORDER = 3
+# The key of the edge terms' own stream (``walk_from`` along moving directions on GGX): a salt mixed into the
+# lane's key, so that the walk's stream is the same with the terms or without.
+EDGE_SALT = mix32_int(0x494E5645)
 
 
 def half_vector_d(mf, w, x):
@@ -83,6 +88,85 @@ class LightVertex:
         return dr.select(ok, fresnel.eval(cos0) * self.fresnel * value, 0.0)
 
 
+# ------------------------------------------------------------------ edge terms (GGX, moving directions)
+#
+# docs/gradients.md, "The invariance walk on conductor facets". GGX's D is α²/π at a horizontal normal, so two
+# values of the walk jump where a half vector turns horizontal, on circles that move with the directions:
+# the next event of the vertex a step reaches going up (its half vector towards ω_o, ``nee_edge_term``) and
+# the connection with the light vertex's y (the half vector of w and y, ``connect_edge_term``). Everything in
+# them is detached: they enter as (s − s̄)·term.
+
+
+def _detached_exit(dp):
+    """A detached copy of the exit table ``dp`` (its pushes do not touch ``dp``)."""
+    return MonotoneExit([dr.detach(x) for x in dp.down], [dr.detach(x) for x in dp.g], dp.a, dp.has_up,
+                        dr.detach(dp.hit), dp.unrolled)
+
+
+def nee_edge_term(mf, fresnel, dp, w, tw, pdf_scale, wo, two, lambda_o, mis_next, u):
+    """The term the next vertex's next event misses where it jumps: as ``posfree.horizon_edge_term`` (the
+    circle of new directions d with d_z = ω_o,z, ``posfree.horizon_circle``), ∫ ρ(d)·V⁺(d)·(∂ω_o,z − u_z) dφ,
+    with this walk's factors: ρ = F(w·m)·D(m)/(4A(w)) (``pdf_scale`` = 1/(4A(w))), and the next value's limit
+    V⁺ = (H_{m+1}/H_m)·F(−d·h)·D(h)/(4A(−d))·b⁺·p_exit(d_0..d_m, d, ω_o)/H_{m+1} at the horizontal half vector
+    h (D(h) its limit ``d_horizon``; A(−d) = d_z·Λ(d)), b⁺ the balance weight against the connection where the
+    next order is one it serves (``mis_next``): p/(p + p_rev⁺), p = D(m)/(4A(w)) the step's density of d and
+    p_rev⁺ = D(h)/(4A(ω_o)) the light vertex's. Beyond the circle the walk stops (an upward d at least as
+    steep as ω_o), and what the later vertices add goes to 0 there continuously. One uniform azimuth ``u``."""
+    d, m, cos_wm, h, u_z, ok = horizon_circle(w, tw, wo, u)
+    z = wo[2]
+    p_step = mf.d(m) * pdf_scale
+    rho = fresnel.eval(cos_wm) * p_step
+    l_d = mf.lambda_(d)
+    dp = _detached_exit(dp)
+    cont = dp.push_up(l_d, ok)
+    col_o = dp.columns(lambda_o, mi.Float(0.0))[0]
+    d_h = mf.d_horizon(h)
+    p_rev = d_h * (0.25 / (z * (1.0 + lambda_o)))
+    balance = dr.select(mis_next, p_step / (p_step + p_rev), 1.0)
+    v = cont * fresnel.eval(dot(-d, h)) * (d_h * 0.25 / (z * l_d)) * balance * col_o
+    term = 2.0 * math.pi * rho * v * (two[2] - u_z)
+    ok &= (l_d > 0.0) & (p_step > 0.0)
+    return dr.select(ok & dr.all(dr.isfinite(term)), term, 0.0)
+
+
+def connect_edge_term(mf, fresnel, dp, col_o, w, tw, pdf_scale, wo, two, lambda_o, u):
+    """The term the connection misses where it jumps: its integrand over y (the light vertex's direction,
+    y = ω_o − 2(ω_o·m_y)m_y for the light's normal m_y), g(y) = b·p_fwd·phase·exit·F(w·h)·F(ω_o·m_y) with
+    p_fwd = D(h)/(4A(w)) and h = normalize(w + y), is nonzero on y_z > −w_z and jumps to 0 where h turns
+    horizontal, on the circle y_z = z* = −w_z. y moves with ω_o at the fixed m_y (speed t_o − 2(t_o·m_y)m_y)
+    and the circle with w (dz*/ds = −t_w,z): the term is ∫ g⁺(y)·(u_z + t_w,z) dφ over the circle (solid angle
+    dz dφ), g⁺ with D(h) at its limit ``d_horizon``, the balance weight b⁺ = p_y/(p_fwd⁺ + p_y) (p_y =
+    D(m_y)/(4A(ω_o)), the light's density of y), the light's phase D(m_y)/(4A(y)) and the exit probability
+    of the path through y (``LightVertex.connect``). One uniform azimuth ``u``."""
+    z = -w[2]
+    r = dr.safe_sqrt(1.0 - z * z)
+    sp, cp = dr.sincos(2.0 * math.pi * u)
+    y = mi.Vector3f(r * cp, r * sp, z)
+    m_y, length_y = half_vector(wo, -y)
+    cos1 = dot(wo, m_y)
+    h = mi.Vector3f(w[0] + y[0], w[1] + y[1], 0.0)
+    h_len = dr.norm(h)
+    h = h / dr.select(h_len > 0.0, h_len, 1.0)
+    cos0 = dot(w, h)
+    up = z > 0.0
+    l_y = dr.select(up, mf.lambda_(y), mf.abs_lambda(y))
+    area_y = dr.abs(z) * l_y
+    d_m = mf.d(m_y)
+    p_y = d_m * (0.25 / (wo[2] * (1.0 + lambda_o)))
+    phase = 0.25 * d_m / area_y
+    p_fwd = mf.d_horizon(h) * pdf_scale
+    balance = p_y / (p_fwd + p_y)
+    via_up = _detached_exit(dp).columns(lambda_o, l_y)[1]
+    via_down = dr.select(dp.has_up, 0.0, l_y / (l_y + lambda_o) * col_o)
+    exit = dr.select(up, via_up, via_down)
+    g = fresnel.eval(cos0) * fresnel.eval(cos1) * (balance * p_fwd * phase * exit)
+    u_z = two[2] - 2.0 * dot(two, m_y) * m_y[2]
+    term = 2.0 * math.pi * g * (u_z + tw[2])
+    ok = ((length_y > 0.0) & (cos1 > 0.0) & (m_y[2] > 0.0) & (h_len > 0.0) & (cos0 > 0.0) & (z != 0.0)
+          & (area_y > 0.0) & (p_y > 0.0) & (wo[2] > 0.0))
+    return dr.select(ok & dr.all(dr.isfinite(term)), term, 0.0)
+
+
 # ------------------------------------------------------------------ the walks
 
 
@@ -92,8 +176,9 @@ def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None, direction_tangen
     parameters detached; the estimate's derivative is then unbiased: docs/gradients.md). With it, ω_i and ω_o
     may carry a derivative (docs/gradients.md, "Directions through the walks"): every normal is drawn for the
     detached direction and the attached one reflects about it, weighed by the ratio of its density in the
-    space of normals; on Beckmann nothing jumps where the directions move. GGX's next events would need edge
-    terms: directions are refused there (``direction_distributions``), and ``direction_tangent`` is ignored."""
+    space of normals; on Beckmann nothing jumps where the directions move. On GGX the next events and the
+    connection jump where a half vector turns horizontal: with ``direction_tangent`` = (s, t_i, t_o)
+    (gradients.TangentCoordinates) the walk adds those edges' terms (``walk_from``)."""
     last = max_bounces  # a Python int, or a UInt32 per lane
     slots = run_slots(last)
     lambda_o = mf.lambda_(wo)
@@ -110,11 +195,12 @@ def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None, direction_tangen
     dp0 = MonotoneExit.new(l0, slots, unrolled=mf_sample is not None)
     return walk_from(mf, fresnel, wo, lambda_o, light, CONNECT_MAX_ORDER, mi.Vector3f(wi), 0.25 / (wi[2] * l0),
                      mi.Spectrum(1.0), dp0, start, 0, last, key, rng0.counter, mf_sample=mf_sample,
-                     attached_mis=direction_tangent is not None)
+                     attached_mis=direction_tangent is not None, direction_tangent=direction_tangent)
 
 
 def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, dp0, active, first_vertex, last,
-              key, counter, label="msx_invariance_conductor_eval", mf_sample=None, attached_mis=False):
+              key, counter, label="msx_invariance_conductor_eval", mf_sample=None, attached_mis=False,
+              direction_tangent=None):
     """The walk of ``eval`` from vertex ``first_vertex`` on (twin of ``Walk::from``), arriving there with
     w = −d_m, ``pdf_scale`` = 1/(4 A(w)), the throughput Π F · H_m and the exit table ``dp0`` of d_0..d_m,
     on the lanes ``active``; orders up to ``last``. ``light`` (a ``LightVertex`` with ``lambda_o`` set, or
@@ -130,9 +216,17 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
     ω_o moving, the next event's intermediate direction moves with ω_i and the connection's with ω_o, and the
     weights' derivatives along those two flows do not cancel (measured: ∂/∂ω_i −0.210 against the central
     difference's −0.174 at order 2, docs/gradients.md). Attached, each strategy's term is the derivative of
-    its own weighted integral, and the weights sum to 1 at every θ."""
+    its own weighted integral, and the weights sum to 1 at every θ.
+
+    ``direction_tangent`` (traced, on a distribution whose D does not vanish at horizontal normals): (s, t_i,
+    t_o) of the one coordinate s of the directions differentiated; each vertex then adds the terms of the
+    edges where its values jump (``nee_edge_term`` for the next vertex's next event, ``connect_edge_term`` for
+    its connection), with the tangent of w carried in the state (t ↦ t − 2(t·m)m per reflection, from the
+    tangent of ω_i) and their two numbers from a stream of their own (``EDGE_SALT``)."""
     connects = light is not None
     traced = mf_sample is not None
+    edges = traced and direction_tangent is not None and mf.dist != BECKMANN
+    edge_key = mix32(key ^ EDGE_SALT) if edges else None
     material = () if fresnel.mirror else (fresnel.eta, fresnel.k)
     piped_values = traced or walk.carries_gradients(mf, lambda_o, *material)
 
@@ -156,6 +250,8 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
                 rest = rest[2:]
             if traced:  # ω_o, which may carry a derivative
                 wo = rest[0]
+            if edges:  # then the coordinate s and the tangents of w and of ω_o
+                s_dir, tw, two = rest[1:4]
         rng = Stream(key, counter)
         dp = MonotoneExit.from_state(dp_state, dp0.unrolled)
         order = j + 1
@@ -174,14 +270,26 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
         result = dr.select(active & ok, result + thr * fresnel.eval(cos_wh) * (value * col_o), result)
         active &= order < last
         # The connection for order + 1: d_{m+1} = y from the side of ω_o.
+        if edges:
+            u_nee_edge, u_conn_edge = Stream(edge_key, counter).next2()
+            mf_e, wo_e, lo_e, w_e, scale_e = mf_s, dr.detach(wo), dr.detach(lambda_o), dr.detach(w), dr.detach(pdf_scale)
+            fr_e = fresnel if fresnel.mirror else ConductorFresnel(dr.detach(fresnel.eta), dr.detach(fresnel.k))
         if connects:
             conn = light.connect(mf, fresnel, dp.has_up, w, pdf_scale, via_up, col_o, traced, attached_mis)
             conn_on = active & (order < connect_max)
             result = dr.select(conn_on, result + thr * conn, result)
+            if edges:
+                edge = connect_edge_term(mf_e, fr_e, dp, dr.detach(col_o), w_e, tw, scale_e, wo_e, two, lo_e,
+                                         u_conn_edge)
+                result = dr.select(conn_on, result + (s_dir - dr.detach(s_dir)) * dr.detach(thr) * edge, result)
         # Russian roulette on Π F · H_m, after the vertex's estimates.
         u_rr, _ = rng.next2()
         thr, alive = walk.roulette_from(j >= walk.RR_START, thr, u_rr, RR_KEEP)
         active &= alive
+        if edges:  # the next vertex's next event, of order + 1 (the balance weight where a connection serves it)
+            mis_next = mi.Bool(connects) & (order + 1 <= connect_max)
+            edge = nee_edge_term(mf_e, fr_e, dp, w_e, tw, scale_e, wo_e, two, lo_e, mis_next, u_nee_edge)
+            result = dr.select(active, result + (s_dir - dr.detach(s_dir)) * dr.detach(thr) * edge, result)
         # The next direction.
         u1, u2 = rng.next2()
         # Traced, the normal is drawn for the detached w, and the attached w reflects about it.
@@ -210,6 +318,9 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
         pushed = dp.push_down(l_down, active & ~up)
         active &= up | pushed
         w = -d_next
+        if edges:  # the tangent of the next w = w − 2(w·m)m at the fixed normal
+            tw = tw - 2.0 * dot(tw, m) * m
+            piped = piped[:-3] + (s_dir, tw, two)
         pdf_scale = 0.25 / (dr.abs(d_next[2]) * l_next)
         return dict(j=j + 1, w=w, pdf_scale=pdf_scale, pdf_walk=pdf_walk, thr=thr, result=result, active=active,
                     counter=rng.counter, dp_state=dp.state(), piped=piped)
@@ -227,6 +338,9 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
             piped += (mi.Spectrum(fresnel.eta), mi.Spectrum(fresnel.k))
         if traced:
             piped += (mi.Vector3f(wo),)
+        if edges:
+            s_dir, t_i, t_o = direction_tangent
+            piped += (mi.Float(s_dir), mi.Vector3f(t_i), mi.Vector3f(t_o))
     state = dict(j=mi.UInt32(first_vertex), w=mi.Vector3f(w), pdf_scale=mi.Float(pdf_scale), pdf_walk=mi.Float(0.0),
                  thr=mi.Spectrum(thr), result=dr.zeros(mi.Spectrum, width), active=mi.Bool(active),
                  counter=mi.UInt32(counter), dp_state=dp0.state(), piped=piped)

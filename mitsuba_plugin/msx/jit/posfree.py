@@ -81,6 +81,26 @@ def eval_pt(segments, mf, fresnel, wi, wo, max_bounces, key, mf_sample=None, dir
                    mf_sample=mf_sample, direction_tangent=direction_tangent)
 
 
+def horizon_circle(w, tw, wo, u):
+    """The point of the circle of new directions d with d_z = ω_o,z at the azimuth 2πu, where the next
+    vertex's half vector towards ω_o turns horizontal (``horizon_edge_term``; shared with heitz.py): (d, m the
+    normal that reflects w into d, w·m, h the horizontal half vector of −d and ω_o, u_z the speed of d_z at the
+    fixed m from the tangent ``tw`` of w, valid). Detached inputs."""
+    z = wo[2]
+    r = dr.safe_sqrt(1.0 - z * z)
+    sp, cp = dr.sincos(2.0 * math.pi * u)
+    d = mi.Vector3f(r * cp, r * sp, z)
+    m, length = half_vector(w, d)
+    cos_wm = dot(w, m)
+    # The next vertex: light from w' = −d, its half vector towards ω_o horizontal (its z is 0 on the circle).
+    h = mi.Vector3f(wo[0] - d[0], wo[1] - d[1], 0.0)
+    h_len = dr.norm(h)
+    h = h / dr.select(h_len > 0.0, h_len, 1.0)
+    u_z = -tw[2] + 2.0 * dot(tw, m) * m[2]
+    ok = (length > 0.0) & (cos_wm > 0.0) & (m[2] > 0.0) & (h_len > 0.0) & (z > 0.0)
+    return d, m, cos_wm, h, u_z, ok
+
+
 def horizon_edge_term(segments, mf, fresnel, w, tw, l, wo, two, lambda_o, u):
     """The term of a directional derivative that the next vertex's next-event value misses where it jumps
     (GGX; docs/gradients.md, "Directions through the walks"): from a vertex reached going up, that value jumps
@@ -90,22 +110,13 @@ def horizon_edge_term(segments, mf, fresnel, w, tw, l, wo, two, lambda_o, u):
     reflects w into d; V⁺ the next value's limit on its nonzero side; u_z the speed of d_z at fixed m, from the
     tangent ``tw`` of w; ``two`` the tangent of ω_o. One uniform azimuth ``u`` estimates it. Everything here
     is detached: the term enters as (s − s̄)·term, a derivative with no value."""
+    d, m, cos_wm, h, u_z, ok = horizon_circle(w, tw, wo, u)
     z = wo[2]
-    r = dr.safe_sqrt(1.0 - z * z)
-    sp, cp = dr.sincos(2.0 * math.pi * u)
-    d = mi.Vector3f(r * cp, r * sp, z)
-    m, length = half_vector(w, d)
-    cos_wm = dot(w, m)
     lam = mf.abs_lambda(d)
     rho = fresnel.eval(cos_wm) * (mf.d(m) / (4.0 * dr.abs(w[2]) * l) * continue_up(segments, l, lam))
-    # The next vertex: light from w' = −d, its half vector towards ω_o horizontal (its z is 0 on the circle).
-    h = mi.Vector3f(wo[0] - d[0], wo[1] - d[1], 0.0)
-    h_len = dr.norm(h)
-    h = h / dr.select(h_len > 0.0, h_len, 1.0)
     v = fresnel.eval(dot(-d, h)) * (mf.d_horizon(h) * last(segments, lam, lambda_o) / (4.0 * z))
-    u_z = -tw[2] + 2.0 * dot(tw, m) * m[2]
     term = 2.0 * math.pi * rho * v * (two[2] - u_z)
-    ok = (length > 0.0) & (cos_wm > 0.0) & (m[2] > 0.0) & (h_len > 0.0) & (z > 0.0) & (lam > 0.0)
+    ok &= lam > 0.0
     return dr.select(ok & dr.all(dr.isfinite(term)), term, 0.0)
 
 

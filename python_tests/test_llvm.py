@@ -238,6 +238,39 @@ def test_masking_and_errors():
         mi.load_dict(dict(type="msx_posfree", alpha=-1.0))
 
 
+def test_batched_route_refuses_inputs_that_carry_a_gradient():
+    """The batched route computes on the Rust core: a direction or parameter that carries a gradient stops the
+    call with one line (eval, pdf, sample; the way out named) instead of a silent zero gradient — here on
+    ``invariance`` on the diffuse surface, which the Dr.Jit engine does not run. Detached inputs still run."""
+    mi = llvm()
+    b = mi.load_dict(dict(type="msx_posfree", surface="diffuse", model="invariance", alpha=0.5))
+    n = 64
+    ctx = mi.BSDFContext()
+    t = mi.Float(0.2)
+    dr.enable_grad(t)
+    frame = mi.Frame3f(mi.Vector3f(dr.sin(t), 0.0 * t, dr.cos(t)))
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.wi = frame.to_local(mi.Vector3f(0.3, 0.1, 0.9))
+    wo = frame.to_local(mi.Vector3f(-0.2, 0.1, 0.95))
+    calls = (lambda: b.eval(ctx, si, wo), lambda: b.pdf(ctx, si, wo),
+             lambda: b.sample(ctx, si, mi.Float(0.3), mi.Point2f(0.4, 0.6)))
+    for call in calls:
+        with pytest.raises(ValueError) as e:
+            call()
+        message = str(e.value)
+        assert "batched route" in message and "carry a gradient (wi" in message and "\n" not in message, message
+    si.wi, wo = dr.detach(si.wi), dr.detach(wo)
+    params = mi.traverse(b)
+    dr.enable_grad(params["alpha.value"])
+    params.update()
+    with pytest.raises(ValueError, match=r"carry a gradient \(alpha_u"):
+        b.eval(ctx, si, wo)
+    dr.disable_grad(params["alpha.value"])
+    params.update()
+    v = np_of(b.eval(ctx, si, wo))
+    assert np.all(np.isfinite(v)) and np.all(v > 0)
+
+
 def test_traverse_lists_the_surfaces_textures():
     """traverse lists exactly the textures the configured surface uses, as in the scalar variants."""
     mi = llvm()

@@ -35,7 +35,7 @@ import weakref
 import numpy as np
 
 from .._native import ffi, lib
-from .parameters import PLUGIN, warn
+from .parameters import PLUGIN, MsxParameterError, warn
 from .base import ERR_LEN, make_base_class, make_factory, native_channels, one_line
 from .vectorized_config import vectorized_config
 
@@ -132,6 +132,15 @@ def _check_at_exit():
         check_fallback()
     except Exception:  # interpreter shutting down: nothing sensible to do
         pass
+
+
+# The batched route hands the inputs to the Rust core as numbers: no derivative crosses it. Inputs that carry
+# one stop the trace with this line instead of giving a silent zero gradient.
+_NO_DERIVATIVE = ("%s: model='%s' on surface '%s' on the batched route (msx.register(backend=\"batched\")) received "
+                  "inputs that carry a gradient (%s); this route computes on the Rust core and carries no "
+                  "derivative — differentiate with the Dr.Jit engine (msx.register(), the default in *_ad_* "
+                  "variants; docs/gradients.md lists what it differentiates), or keep these inputs out of the "
+                  "gradient (dr.disable_grad)")
 
 
 def make_bsdf_class(mi, variant):
@@ -261,6 +270,10 @@ def make_bsdf_class(mi, variant):
                 for name, tex in self._spectra:
                     inputs[name] = channels(tex.eval(si, si_a))
                 flat = [Float(x) if not isinstance(x, Float) else x for v in inputs.values() for x in v]
+                moving = [name for name, v in inputs.items() if any(dr.grad_enabled(x) for x in v)]
+                if moving:
+                    raise MsxParameterError(_NO_DERIVATIVE % (PLUGIN, self._cfg.model, self._cfg.surface,
+                                                              ", ".join(moving)))
                 n = max(width_of(*flat), dr.width(active) if not isinstance(active, bool) else 1)
                 dr.eval(*flat)
 

@@ -317,7 +317,7 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None):
             d = d_new
             h_tw = dr.select(refr, eta_tangent_step(w, mi.Vector3f(0.0), m, es, teta, refr), h_tw)
         else:
-            m, cos_wm, valid = heitz.visible_normal(mfs, w, u1, u2)
+            m, cos_wm, valid = heitz.visible_normal(mfs, w, u1, u2, where=active)  # only where the walk goes on
             active &= valid
             o, d, crossed = reflect_or_refract_unit(w, m, cos_wm, es, u_f)
             refr = active & crossed

@@ -55,7 +55,12 @@ def continue_up(segments, refracted, l, lam, branch=False):
     if segments == UNCORRELATED:
         c = lam / (1.0 + lam)
     else:
-        c = dr.select(refracted, -expm1_ratio(ln_l_beta(l, lam, branch)), lam / (l + lam))
+        if branch:  # only in packets with a refracted lane (same bits)
+            x = dr.if_stmt((l, lam), refracted, lambda l, lam: ln_l_beta(l, lam, True),
+                           lambda l, lam: dr.zeros(mi.Float, dr.width(l)), label="msx_posfree_continue_refracted")
+        else:
+            x = ln_l_beta(l, lam)
+        c = dr.select(refracted, -expm1_ratio(x), lam / (l + lam))
     c = dr.select(dr.isfinite(c), dr.clip(c, 0.0, 1.0), dr.select(refracted, 0.0, 1.0))
     return dr.select(dr.isinf(lam), 1.0, c)
 
@@ -66,7 +71,12 @@ def last(segments, refracted, l, lambda_o, branch=False):
     if segments == UNCORRELATED:
         v = 1.0 / (l * (1.0 + lambda_o))
     else:
-        v = dr.select(refracted, l_beta(l, lambda_o, branch) / l, 1.0 / (l + lambda_o))
+        if branch:  # only in packets with a lane across (same bits)
+            lb = dr.if_stmt((l, lambda_o), refracted, lambda l, lo: l_beta(l, lo, True),
+                            lambda l, lo: dr.zeros(mi.Float, dr.width(l)), label="msx_posfree_last_across")
+        else:
+            lb = l_beta(l, lambda_o)
+        v = dr.select(refracted, lb / l, 1.0 / (l + lambda_o))
     return dr.select(dr.isfinite(v), dr.maximum(v, 0.0), 0.0)
 
 

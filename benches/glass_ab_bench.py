@@ -144,7 +144,7 @@ def main():
                 scene = mi.load_string(sources[m])  # one scene alive at a time (scene_bench.py)
                 scene_bench.resize(mi, scene, 320, 240)
                 t0 = time.process_time()
-                dr.eval(mi.render(scene, spp=args.spp, seed=rep))
+                dr.eval(mi.render(scene, spp=args.spp, seed=1 + rep))  # seed 0 traces another kernel
                 dr.sync_thread()
                 if rep:
                     times[(m, label)].append(time.process_time() - t0)

@@ -5,7 +5,8 @@
 
 2^lanes random ω_i (cos θ_i uniform in [mu-min, mu-max], azimuth uniform) and ω_o (cosine-distributed), or
 (sample1, sample2) uniform, evaluated in one wavefront per call; copper, the built-in `roughconductor` with the
-same distribution and α. The calls are interleaved (every model and the built-in once per repeat, in turn)
+same distribution and α (``--surface dielectric``: glass of IOR ``--ior`` against `roughdielectric`, ω_i and ω_o
+each flipped below the surface with probability 1/2). The calls are interleaved (every model and the built-in once per repeat, in turn)
 and each is timed twice: by the kernels it launches (drjit's kernel history: their execution time, wall
 clock, no tracing or compilation: the inputs are evaluated before, the kernel is compiled in an untimed first
 call) and by the process's CPU time over the call (tracing included; less sensitive to other work on the
@@ -33,6 +34,9 @@ def main():
     ap.add_argument("--mu-min", type=float, default=0.5)
     ap.add_argument("--mu-max", type=float, default=1.0)
     ap.add_argument("--calls", default="eval,pdf,sample,eval_pdf")
+    ap.add_argument("--surface", default="conductor", choices=("conductor", "dielectric"),
+                    help="dielectric: glass of IOR --ior against roughdielectric, ω_i and ω_o on both sides")
+    ap.add_argument("--ior", type=float, default=1.5)
     args = ap.parse_args()
 
     import drjit as dr
@@ -55,6 +59,9 @@ def main():
     so = np.sqrt(u)
     wo = np.stack([so * np.cos(phi_o), so * np.sin(phi_o), np.sqrt(1 - u)]).astype(np.float32)
     su = rng.random((3, n)).astype(np.float32)
+    if args.surface == "dielectric":  # ω_i and ω_o each on either side with probability 1/2
+        wi[2] *= np.where(rng.random(n) < 0.5, 1.0, -1.0).astype(np.float32)
+        wo[2] *= np.where(rng.random(n) < 0.5, 1.0, -1.0).astype(np.float32)
 
     def vec(a):
         v = mi.Vector3f(*[mi.Float(x) for x in a])
@@ -71,10 +78,15 @@ def main():
     dr.make_opaque(s1, s2)
     ctx = mi.BSDFContext()
 
-    common = {"distribution": args.distribution, "alpha": args.alpha, "material": "Cu"}
-    bsdfs = {"built-in": mi.load_dict({"type": "roughconductor", **common})}
+    if args.surface == "dielectric":
+        common = {"distribution": args.distribution, "alpha": args.alpha, "int_ior": args.ior, "ext_ior": 1.0}
+        builtin, surface = "roughdielectric", {"surface": "dielectric"}
+    else:
+        common = {"distribution": args.distribution, "alpha": args.alpha, "material": "Cu"}
+        builtin, surface = "roughconductor", {}
+    bsdfs = {"built-in": mi.load_dict({"type": builtin, **common})}
     for m in args.models.split(","):
-        bsdfs[m] = mi.load_dict({"type": "msx_posfree", "model": m, **common})
+        bsdfs[m] = mi.load_dict({"type": "msx_posfree", "model": m, **surface, **common})
 
     calls = {
         "eval": lambda b: (b.eval(ctx, si, wo_v),),
@@ -102,8 +114,9 @@ def main():
         print("auto: %.2f %% of the lanes walk (μ_i in [%.2f, %.2f])"
               % (100 * jit_auto.walked_fraction(counter), args.mu_min, args.mu_max))
         jit_auto.count_calls(stop=True)
-    print("lanes 2^%d, %s α %.3g Cu, %d repeats, load %s" % (args.lanes, args.distribution, args.alpha, args.repeats,
-                                                           open("/proc/loadavg").read().split()[:3]))
+    print("lanes 2^%d, %s α %.3g %s, %d repeats, load %s"
+          % (args.lanes, args.distribution, args.alpha, "glass η %.3g" % args.ior if args.surface == "dielectric"
+             else "Cu", args.repeats, open("/proc/loadavg").read().split()[:3]))
     print("%-10s %-12s %10s %8s %12s %8s" % ("call", "model", "kernel ms", "× built-in", "CPU ms", "× built-in"))
     for call in args.calls.split(","):
         times = {k: [] for k in bsdfs}

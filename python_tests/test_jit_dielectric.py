@@ -247,6 +247,31 @@ def test_ln_l_beta_in_float32():
     assert np.all((lb >= 0.0) & (lb <= 1.0))
 
 
+def test_ln_l_beta_per_packet_forms_same_bits():
+    """``ln_l_beta(branch=True)`` (each form only in packets with lanes of it, docs/engines.md) gives the
+    bits of the plain form, inside a symbolic loop as the walks call it: on the grid of
+    ``test_ln_l_beta_in_float32`` (series and Stirling lanes mixed in packets), in packets of one form only
+    (sorted), and at the edges (0, ∞)."""
+    from msx.jit import special
+
+    grid = np.float32(10.0) ** np.linspace(-7, 7, 43, dtype=np.float32)
+    ll, lam = (a.ravel() for a in np.meshgrid(grid, grid, indexing="ij"))
+    order = np.argsort(ll + lam, kind="stable")
+    ll = np.concatenate([ll, ll[order], [0.0, 2.0, np.inf, 3.0, 0.1]]).astype(np.float32)
+    lam = np.concatenate([lam, lam[order], [2.0, 0.0, 1.0, np.inf, 0.2]]).astype(np.float32)
+
+    def in_loop(branch):
+        def body(i, a, b, out):
+            return i + 1, a, b, special.ln_l_beta(a, b, branch)
+
+        state = (mi.UInt32(0), mi.Float(ll), mi.Float(lam), dr.zeros(mi.Float, len(ll)))
+        return np.asarray(dr.while_loop(state, lambda i, a, b, out: i < 1, body)[3])
+
+    plain, branched = in_loop(False), in_loop(True)
+    assert np.array_equal(plain, branched, equal_nan=True)
+    assert np.array_equal(branched, np.asarray(special.ln_l_beta(mi.Float(ll), mi.Float(lam))), equal_nan=True)
+
+
 def test_single_equals_roughdielectric():
     """model='single' is Mitsuba's roughdielectric: eval, pdf and sample agree to float32 rounding, in both
     transport modes, for ω_i and ω_o on the whole sphere."""

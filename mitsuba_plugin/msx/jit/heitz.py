@@ -142,8 +142,15 @@ def dielectric_phase_reflect(mf, wi, wo, eta):
     return dr.select(ok, p * fresnel_dielectric(dr.select(ok, c, 1.0), eta), 0.0)
 
 
-def visible_normal(mf, wi, u1, u2):
-    """A visible normal of ``wi`` (Rust ``visible_normal``): (m, ωi·m, valid)."""
+def visible_normal(mf, wi, u1, u2, where=None):
+    """A visible normal of ``wi`` (Rust ``visible_normal``): (m, ωi·m, valid). ``where`` (a mask, plain
+    walks only): drawn only there, (ωi, 0, False) elsewhere; a packet with no lane of it skips the sampler."""
+    if where is not None:
+        def nothing(w, a, b):
+            return w, dr.zeros(mi.Float, dr.width(a)), dr.zeros(mi.Bool, dr.width(a))
+
+        return dr.if_stmt((wi, u1, u2), where, lambda w, a, b: visible_normal(mf, w, a, b), nothing,
+                          label="msx_visible_normal")
     m, valid = mf.sample_visible(wi, u1, u2)
     c = dot(wi, m)
     return m, c, valid & dr.all(dr.isfinite(m)) & (c > 0.0)
@@ -566,11 +573,15 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
             piped = lv.piped(eta_a, tw)
             thr = thr * weight
         else:
-            m, cos_wm, valid = visible_normal(mfs, wi_l, u1, u2)
+            # The roulette before the scatter (which leaves thr as it is here): the visible normal only in the
+            # lanes that go on (the same bits).
+            thr, survived = walk.russian_roulette_keep(thr, u_rr, 1.0)
+            m, cos_wm, valid = visible_normal(mfs, wi_l, u1, u2, where=active & survived)
             wr, crossed = scatter_unit(wi_l, m, cos_wm, e_s, ua)
         outside = outside ^ crossed
         t = dr.select(crossed, flip_height(t), t)
-        thr, survived = walk.russian_roulette_keep(thr, u_rr, 1.0, RR_TRACED_FLOOR if traced else 0.0)
+        if traced:
+            thr, survived = walk.russian_roulette_keep(thr, u_rr, 1.0, RR_TRACED_FLOOR)
         active &= valid & survived & dr.all(dr.isfinite(wr))
         return dict(order=order + 1, wr=wr, t=t, outside=outside, thr=thr, result=result, active=active,
                     counter=rng.counter, piped=piped)

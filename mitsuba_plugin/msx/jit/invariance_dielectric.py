@@ -155,7 +155,7 @@ def transmit_exit(chain, lambda_t, key, counter, active, traced=False):
     run = active & (lambda_t >= 0.0) & ~dr.isinf(lambda_t)
     p0 = chain.pi_at(0, run)
     l0 = chain.rates[0]
-    e = p0 * l_beta(l0, lambda_t)
+    e = p0 * l_beta(l0, lambda_t, branch=not traced)  # L_0 ≥ 1: the series form is never needed
     deeper = run & (chain.a > 1)
     tau, rest, counter, ratio = draw_depth(chain, 1, key, counter, deeper, traced)
     above = -expm1(-tau)  # 1 − e^{−τ}
@@ -317,7 +317,7 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None):
             d = d_new
             h_tw = dr.select(refr, eta_tangent_step(w, mi.Vector3f(0.0), m, es, teta, refr), h_tw)
         else:
-            m, cos_wm, valid = heitz.visible_normal(mfs, w, u1, u2)
+            m, cos_wm, valid = heitz.visible_normal(mfs, w, u1, u2, where=active)  # only where the walk goes on
             active &= valid
             o, d, crossed = reflect_or_refract_unit(w, m, cos_wm, es, u_f)
             refr = active & crossed

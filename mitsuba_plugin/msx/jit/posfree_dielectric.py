@@ -49,22 +49,34 @@ RR_NEE_GAIN = 100.0
 # ------------------------------------------------------------------ segment and vertex terms
 
 
-def continue_up(segments, refracted, l, lam):
-    """Continue factor c of the table for an upward new direction with Λ (``refracted`` a mask)."""
+def continue_up(segments, refracted, l, lam, branch=False):
+    """Continue factor c of the table for an upward new direction with Λ (``refracted`` a mask; ``branch``:
+    ``special.ln_l_beta``'s per-packet forms, for the walks without derivatives)."""
     if segments == UNCORRELATED:
         c = lam / (1.0 + lam)
     else:
-        c = dr.select(refracted, -expm1_ratio(ln_l_beta(l, lam)), lam / (l + lam))
+        if branch:  # only in packets with a refracted lane (same bits)
+            x = dr.if_stmt((l, lam), refracted, lambda l, lam: ln_l_beta(l, lam, True),
+                           lambda l, lam: dr.zeros(mi.Float, dr.width(l)), label="msx_posfree_continue_refracted")
+        else:
+            x = ln_l_beta(l, lam)
+        c = dr.select(refracted, -expm1_ratio(x), lam / (l + lam))
     c = dr.select(dr.isfinite(c), dr.clip(c, 0.0, 1.0), dr.select(refracted, 0.0, 1.0))
     return dr.select(dr.isinf(lam), 1.0, c)
 
 
-def last(segments, refracted, l, lambda_o):
-    """Last-segment factor p_j·e_k for an exiting ω_o with Λ_o (in its medium's frame)."""
+def last(segments, refracted, l, lambda_o, branch=False):
+    """Last-segment factor p_j·e_k for an exiting ω_o with Λ_o (in its medium's frame; ``branch`` as in
+    ``continue_up``)."""
     if segments == UNCORRELATED:
         v = 1.0 / (l * (1.0 + lambda_o))
     else:
-        v = dr.select(refracted, l_beta(l, lambda_o) / l, 1.0 / (l + lambda_o))
+        if branch:  # only in packets with a lane across (same bits)
+            lb = dr.if_stmt((l, lambda_o), refracted, lambda l, lo: l_beta(l, lo, True),
+                            lambda l, lo: dr.zeros(mi.Float, dr.width(l)), label="msx_posfree_last_across")
+        else:
+            lb = l_beta(l, lambda_o)
+        v = dr.select(refracted, lb / l, 1.0 / (l + lambda_o))
     return dr.select(dr.isfinite(v), dr.maximum(v, 0.0), 0.0)
 
 
@@ -167,6 +179,23 @@ def vertex_transmit(mf, eta_f, w, o):
     denom = cw + eta_f * co
     v = cw * (-co) * eta_f * eta_f * (1.0 - f) * mf.d(h) / (dr.abs(w[2]) * denom * denom)
     return dr.select(ok & dr.isfinite(v), dr.maximum(v, 0.0), 0.0)
+
+
+def vertex_next_event(mf, eta_f, w, o, transmit):
+    """``vertex_transmit`` where ``transmit`` (a mask), else ``vertex_reflect``, with one half vector, one
+    Fresnel factor and one D: each lane rounds the same operations as the function of its branch (the same
+    bits), at about half the cost of computing both and selecting."""
+    h, length = normalized(dr.select(transmit, transmit_half_vector(w, o, eta_f), w + o))
+    cw, co = dot(w, h), dot(o, h)
+    f = mi.fresnel(cw, eta_f)[0]
+    d = mf.d(h)
+    v_r = f * d / (4.0 * dr.abs(w[2]))
+    v_r = dr.select((length > 0.0) & (cw > 0.0) & (co > 0.0) & dr.isfinite(v_r), v_r, 0.0)
+    denom = cw + eta_f * co
+    v_t = cw * (-co) * eta_f * eta_f * (1.0 - f) * d / (dr.abs(w[2]) * denom * denom)
+    ok_t = (length > 0.0) & dr.isfinite(length) & (cw > 0.0) & (co < 0.0) & (f < 1.0)
+    v_t = dr.select(ok_t & dr.isfinite(v_t), dr.maximum(v_t, 0.0), 0.0)
+    return dr.select(transmit, v_t, v_r)
 
 
 def initial_state(mf, eta, wi):
@@ -286,8 +315,11 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
             active &= alive
             result = dr.select(active, result + v, result)
         else:
-            lst = last(segments, transmit, l, lo)
-            v = lst * dr.select(transmit, vertex_transmit(mfa, efa, w, o), vertex_reflect(mfa, efa, w, o))
+            lst = last(segments, transmit, l, lo, branch=not traced)
+            if traced:
+                v = lst * dr.select(transmit, vertex_transmit(mfa, efa, w, o), vertex_reflect(mfa, efa, w, o))
+            else:
+                v = lst * vertex_next_event(mfa, efa, w, o, transmit)
             thr, alive = walk.roulette_from(j >= RR_START, thr, u_rr,
                                             1.0 / roulette_importance(v, lst, RR_NEE_GAIN),
                                             RR_TRACED_FLOOR if traced else 0.0)
@@ -295,36 +327,52 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
             result = dr.select(active, result + thr * v, result)
         active &= j + 1 < max_bounces
         u1, u2 = rng.next2()
-        if traced:
-            # ∂/∂η of the next vertex's value along its moving edge, for either event here (detached: it
-            # enters as (η − η̄)·term, a derivative only).
-            ws = dr.detach(w)
-            teta = dr.select(side > 0.0, 1.0, -efs * efs) if not dirs else dr.zeros(mi.Float, dr.width(efs))
-            u_e1, u_e2 = rng.next2()  # drawn in every traced call: the same stream with η differentiated or not
-            u_mix = rng.next()
-            if eta_traced:
-                edge = sum(eta_edge_term(segments, mfs, ws, tw, dr.detach(l), side, efs, teta, wo, dr.detach(lo),
-                                         b, u_e) for b, u_e in ((False, u_e1), (True, u_e2)))
-                result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
-            if dir_edges:  # the same circles, moving with ω_o and with w along s
-                edge = sum(eta_edge_term(segments, mfs, ws, tw, dr.detach(l), side, efs, teta, dr.detach(wo_),
-                                         dr.detach(lo), b, u_e, two) for b, u_e in ((False, u_e1), (True, u_e2)))
-                thr_d = dr.detach(dr.exp(thr))  # the throughput itself
-                result = dr.select(active, result + (s_dir - dr.detach(s_dir)) * thr_d * edge, result)
-            d, refracted, side, valid, weight, m = scatter_traced(mfa, mfs, w, side, efa, u_choice, u1, u2, u_mix,
-                                                                  times_area=dirs)
-            tw = eta_tangent_step(ws, tw, m, efs, teta, refracted)
-            if not dirs:  # (along moving directions the state's ln L joins below)
-                piped = lv.piped(eta_a, tw)
-            eta_f = dr.select(refracted, 1.0 / eta_f, eta_f)
-            if dirs:  # the weight times L (``times_area``), over L in logs
-                log_weight, weight_ok = _log_pos(weight)
-                thr = thr + log_weight - log_l
-                valid &= weight_ok
-            else:
-                thr = thr * weight
+        if not traced:
+            # The scatter and the new segment's continue factor only in the lanes that go on: every walk ends
+            # in the roulette (or at the bounce cap) above, and a packet whose lanes all ended skips the
+            # vertex's sampler (its Newton loop runs on the live lanes only). The live lanes' bits are the
+            # same as computing it everywhere.
+            def step(w, l, side, eta_f, thr):
+                d, refracted, _, side, eta_f, valid = scatter(mf, w, side, eta_f, u_choice, u1, u2)
+                up = d[2] > 0.0
+                lam = mf.abs_lambda(d)
+                thr = dr.select(up, thr * continue_up(segments, refracted, l, lam, branch=True), thr)
+                return -d, lam, side, eta_f, thr, valid & (~up | ((lam > 0.0) & (thr > 0.0)))
+
+            def ended(w, l, side, eta_f, thr):
+                return w, l, side, eta_f, thr, dr.zeros(mi.Bool, dr.width(thr))
+
+            w, l, side, eta_f, thr, valid = dr.if_stmt((w, l, side, eta_f, thr), active, step, ended,
+                                                       label="msx_posfree_dielectric_scatter")
+            return dict(j=j + 1, w=w, l=l, side=side, eta_f=eta_f, thr=thr, result=result, active=active & valid,
+                        counter=rng.counter, piped=piped)
+        # ∂/∂η of the next vertex's value along its moving edge, for either event here (detached: it
+        # enters as (η − η̄)·term, a derivative only).
+        ws = dr.detach(w)
+        teta = dr.select(side > 0.0, 1.0, -efs * efs) if not dirs else dr.zeros(mi.Float, dr.width(efs))
+        u_e1, u_e2 = rng.next2()  # drawn in every traced call: the same stream with η differentiated or not
+        u_mix = rng.next()
+        if eta_traced:
+            edge = sum(eta_edge_term(segments, mfs, ws, tw, dr.detach(l), side, efs, teta, wo, dr.detach(lo),
+                                     b, u_e) for b, u_e in ((False, u_e1), (True, u_e2)))
+            result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
+        if dir_edges:  # the same circles, moving with ω_o and with w along s
+            edge = sum(eta_edge_term(segments, mfs, ws, tw, dr.detach(l), side, efs, teta, dr.detach(wo_),
+                                     dr.detach(lo), b, u_e, two) for b, u_e in ((False, u_e1), (True, u_e2)))
+            thr_d = dr.detach(dr.exp(thr))  # the throughput itself
+            result = dr.select(active, result + (s_dir - dr.detach(s_dir)) * thr_d * edge, result)
+        d, refracted, side, valid, weight, m = scatter_traced(mfa, mfs, w, side, efa, u_choice, u1, u2, u_mix,
+                                                              times_area=dirs)
+        tw = eta_tangent_step(ws, tw, m, efs, teta, refracted)
+        if not dirs:  # (along moving directions the state's ln L joins below)
+            piped = lv.piped(eta_a, tw)
+        eta_f = dr.select(refracted, 1.0 / eta_f, eta_f)
+        if dirs:  # the weight times L (``times_area``), over L in logs
+            log_weight, weight_ok = _log_pos(weight)
+            thr = thr + log_weight - log_l
+            valid &= weight_ok
         else:
-            d, refracted, _, side, eta_f, valid = scatter(mfs, w, side, efs, u_choice, u1, u2)
+            thr = thr * weight
         active &= valid
         up = d[2] > 0.0
         lam = mfa.abs_lambda(d)
@@ -378,7 +426,7 @@ def sample_walk(segments, mf, eta, radiance, wi, sample1, u1, u2, max_bounces, k
                                                       dr.select(first, v1, a_r), dr.select(first, v2, b_r))
         up = d[2] > 0.0
         lam = mf.abs_lambda(d)
-        c = continue_up(segments, refracted, l, lam)
+        c = continue_up(segments, refracted, l, lam, branch=True)
         u = dr.select(refracted, (u_choice - f) / (1.0 - f), u_choice / f)
         u = dr.select(dr.isfinite(u), dr.clip(u, 0.0, ONE_MINUS_EPS), e_r)
         u_exit = dr.select(first, u, e_r)

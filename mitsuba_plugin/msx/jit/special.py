@@ -204,7 +204,19 @@ def _ln_l_beta_series(a, b):
     return -p * total
 
 
-def ln_l_beta(l, lam):
+def _ln_l_beta_stirling(a, b):
+    """The shifted Stirling form of ``ln_l_beta`` for a = max(L, Λ), b = min(L, Λ) (its docstring)."""
+    n = float(_STIRLING_SHIFT)
+    x0, x1 = n + 1.0, a + n + 1.0
+    v = ((n + 0.5) * log1p_ratio(b / x0) - (a + n + 0.5) * log1p_ratio(b / x1) - b * log1p_ratio(a / (x0 + b))
+         + _stirling_tail_diff(x0, b) - _stirling_tail_diff(x1, b))
+    for k in range(1, _STIRLING_SHIFT + 1):
+        # log1p(b/(a+k)) − log1p(b/k) = log1p(−ab/((a+k)(k+b))), the argument in (−1, 0].
+        v += log1p_ratio(-(a / (a + k)) * (b / (b + k)))
+    return v
+
+
+def ln_l_beta(l, lam, branch=False):
     """ln(L·B(L, 1+Λ)) = ln Γ(L+1) + ln Γ(Λ+1) − ln Γ(L+Λ+1) (≤ 0 for L, Λ ≥ 0); 0 when L or Λ is 0,
     −∞ when one is infinite (``ln_l_beta`` of src/models/posfree/dielectric.rs).
 
@@ -217,25 +229,30 @@ def ln_l_beta(l, lam):
 
     (the sum is Σ [log1p(b/(a+k)) − log1p(b/k)]), whose terms are each O(b) (the −b and the b ln terms
     combine into −b·log1p(a/(n+1+b))): float32 keeps its relative precision as b → 0, where the core's
-    three ln Γ would cancel."""
+    three ln Γ would cancel.
+
+    ``branch``: each form is computed only in the packets that have lanes of it (same bits; ignored while
+    the inputs carry derivatives). A walk's first vertex has L ≥ 1, so its packets skip the series."""
     l, lam = mi.Float(l), mi.Float(lam)
     a, b = dr.maximum(l, lam), dr.minimum(l, lam)
-    n = float(_STIRLING_SHIFT)
-    x0, x1 = n + 1.0, a + n + 1.0
-    v = ((n + 0.5) * log1p_ratio(b / x0) - (a + n + 0.5) * log1p_ratio(b / x1) - b * log1p_ratio(a / (x0 + b))
-         + _stirling_tail_diff(x0, b) - _stirling_tail_diff(x1, b))
-    for k in range(1, _STIRLING_SHIFT + 1):
-        # log1p(b/(a+k)) − log1p(b/k) = log1p(−ab/((a+k)(k+b))), the argument in (−1, 0].
-        v += log1p_ratio(-(a / (a + k)) * (b / (b + k)))
-    v = dr.select(a + b <= _SERIES_MAX, _ln_l_beta_series(a, b), v)
+    series = a + b <= _SERIES_MAX
+    if branch and not dr.grad_enabled(l, lam):
+        # Each form only in the packets that have lanes of it (a symbolic if_stmt branches per packet; the
+        # lanes of the other form are overwritten by the select below, so the bits are the same).
+        zero = lambda a, b: dr.zeros(mi.Float, dr.width(a))  # noqa: E731
+        v = dr.if_stmt((a, b), ~series, _ln_l_beta_stirling, zero, label="msx_ln_l_beta_stirling")
+        v = dr.select(series, dr.if_stmt((a, b), series, _ln_l_beta_series, zero, label="msx_ln_l_beta_series"), v)
+    else:
+        v = _ln_l_beta_stirling(a, b)
+        v = dr.select(series, _ln_l_beta_series(a, b), v)
     v = dr.minimum(v, 0.0)
     v = dr.select(dr.isfinite(l) & dr.isfinite(lam), v, -dr.inf)
     return dr.select((lam == 0.0) | (l == 0.0), 0.0, v)
 
 
-def l_beta(l, lam):
+def l_beta(l, lam, branch=False):
     """L·B(L, 1+Λ) = Γ(L+1)Γ(Λ+1)/Γ(L+Λ+1) ∈ [0, 1] (``l_beta`` of src/models/posfree/dielectric.rs)."""
-    return dr.exp(ln_l_beta(l, lam))
+    return dr.exp(ln_l_beta(l, lam, branch))
 
 
 def beta(a, b):

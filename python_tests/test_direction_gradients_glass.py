@@ -75,8 +75,10 @@ CASES = [("correlated", "beckmann", 0.5, "outside-reflected", 19),
          ("heitz", "beckmann", 0.5, "inside-transmitted", 16),
          ("heitz", "ggx", 0.5, "outside-reflected", 18),
          ("heitz", "ggx", 0.5, "inside-transmitted", 16)]
-# Two derivatives (ω_i, ω_o) per case, plus the BSDF-level check.
-Z_MAX = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / (2 * len(CASES) + 1))) / 2.0)
+# The walks checked through the BSDF as a render calls it (and through prb).
+BSDF_MODELS = ["correlated", "heitz"]
+# Two derivatives (ω_i, ω_o) per case, plus the BSDF-level checks.
+Z_MAX = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / (2 * len(CASES) + len(BSDF_MODELS)))) / 2.0)
 
 
 def _tangent(w):
@@ -151,7 +153,8 @@ def test_glass_walk_derivative_through_directions(table, model, distribution, al
         assert abs(diff.mean()) <= Z_MAX * se + truncation, (model, geometry, which, ad.mean(), d1.mean())
 
 
-def test_glass_walk_derivative_through_directions_forward_and_reverse(table):
+@pytest.mark.parametrize("model", BSDF_MODELS)
+def test_glass_walk_derivative_through_directions_forward_and_reverse(table, model):
     """Through the BSDF as a render calls it: forward and reverse mode give the same derivative of the mean of
     ``eval`` over a tilting frame, ω_i outside and inside, ω_o reflected and transmitted, and it agrees with
     central differences of that mean (independent lanes: the keys follow the directions)."""
@@ -159,7 +162,7 @@ def test_glass_walk_derivative_through_directions_forward_and_reverse(table):
 
     gc.collect()  # a symbolic call traces every live instance of the class (test_direction_gradients.py)
     n = 1 << 19
-    b = mi.load_dict({"type": "msx_posfree", "surface": "dielectric", "int_ior": IOR, "model": "correlated",
+    b = mi.load_dict({"type": "msx_posfree", "surface": "dielectric", "int_ior": IOR, "model": model,
                       "alpha": 0.5, "distribution": "beckmann", "differentiate_directions": True})
     ptr = dr.gather(mi.BSDFPtr, mi.BSDFPtr(b), dr.zeros(mi.UInt32, n))
     ctx = mi.BSDFContext()
@@ -191,15 +194,16 @@ def test_glass_walk_derivative_through_directions_forward_and_reverse(table):
     rev = float(dr.grad(t)[0])
     assert abs(rev - fwd[0].mean()) <= 1e-3 * abs(fwd[0].mean()), (rev, fwd[0].mean())
     assert _agrees_with_central_differences(fwd[0], lambda a: np.array(mean_eval(mi.Float(a)), dtype=np.float64)[0],
-                                            0.03, "glass through the BSDF (reverse %.5f)" % rev)
+                                            0.03, "glass %s through the BSDF (reverse %.5f)" % (model, rev))
 
 
-def test_glass_walk_through_prb_and_normalmap(table):
+@pytest.mark.parametrize("model", BSDF_MODELS)
+def test_glass_walk_through_prb_and_normalmap(table, model):
     """``prb`` through Mitsuba's ``normalmap`` on a glass walk with ``differentiate_directions``: the render's
     gradient in the map runs (reverse mode through the walk's forward passes, jit/gradients.py) and is finite and
     not zero, as the conductor's (examples/fit_normal_map.py). Its value is the per-call checks' above."""
     from test_direction_gradients import _normalmap_gradient
 
-    grad = _normalmap_gradient({"type": "msx_posfree", "surface": "dielectric", "int_ior": IOR, "model": "correlated",
+    grad = _normalmap_gradient({"type": "msx_posfree", "surface": "dielectric", "int_ior": IOR, "model": model,
                                 "alpha": 0.3, "distribution": "beckmann", "differentiate_directions": True})
     assert np.isfinite(grad).all() and np.abs(grad).max() > 0.0

@@ -1,11 +1,12 @@
 """Gradients through directions of the glass walks (issue 32, item 4; docs/gradients.md, "Directions through the
 walks", "The glass walks along moving directions" and "Heitz's walk through glass along moving directions"): the
 position-free walks on a rough dielectric (``uncorrelated``, ``correlated``, ``auto``) and Heitz's walk
-(``heitz``), Beckmann and GGX, with ``differentiate_directions=true``.
+(``heitz``), Beckmann and GGX, and the invariance walk (``invariance``, Beckmann), with
+``differentiate_directions=true``.
 
-- Per call, on the walk itself (``posfree_dielectric.eval_pt`` or ``heitz.dielectric_eval`` traced, as
-  ``DielectricModel.differentiable_estimate`` runs it for one coordinate of the directions): the forward-mode derivative along a tangent of ω_i, and of ω_o,
-  lane by lane at fixed lane keys, against central differences of the same lanes (common random numbers: step h
+- Per call, on the walk itself (``posfree_dielectric.eval_pt``, ``heitz.dielectric_eval`` or
+  ``invariance_dielectric.eval`` traced, as ``DielectricModel.differentiable_estimate`` runs it for one
+  coordinate of the directions): the forward-mode derivative along a tangent of ω_i, and of ω_o, lane by lane at fixed lane keys, against central differences of the same lanes (common random numbers: step h
   and 2h, the truncation estimated from D(2h) − D(h) = 3·O(h²)); a paired z-test per derivative, Šidák over all
   the checks of this file. Every lane's derivative must be finite: the walk's own derivatives are read before
   ``gradients.attach`` would set a non-finite one to 0, so no lane is dropped silently.
@@ -37,9 +38,9 @@ def table():
 # The central differences' step. On GGX the next events' values jump where their half vector turns horizontal, and
 # a lane whose jump falls between θ ± h carries jump/2h: such lanes are ∝ h, so the differences' variance ∝ 1/h; a
 # larger step there (its truncation estimated as everywhere) resolves the derivative with fewer lanes.
-# Heitz's walk with ω_o reflected takes 4·10⁻³ on Beckmann too (H_HEITZ_REFLECTED): more of its lanes flip a
-# decision between θ ± h (outside → reflected, 2¹⁹ lanes, h = 10⁻³: the differences' standard error 0.0074 against
-# the derivative's own 0.0024).
+# Heitz's walk (and the invariance walk, which hands its paths to it) with ω_o reflected takes 4·10⁻³ on Beckmann
+# too (H_HEITZ_REFLECTED): more of its lanes flip a decision between θ ± h (outside → reflected, 2¹⁹ lanes,
+# h = 10⁻³: the differences' standard error 0.0074 against the derivative's own 0.0024).
 H = {"beckmann": 1e-3, "ggx": 4e-3}
 H_HEITZ_REFLECTED = 4e-3
 IOR = 1.5
@@ -74,7 +75,12 @@ CASES = [("correlated", "beckmann", 0.5, "outside-reflected", 19),
          ("heitz", "beckmann", 0.5, "inside-reflected", 21),
          ("heitz", "beckmann", 0.5, "inside-transmitted", 16),
          ("heitz", "ggx", 0.5, "outside-reflected", 18),
-         ("heitz", "ggx", 0.5, "inside-transmitted", 16)]
+         ("heitz", "ggx", 0.5, "inside-transmitted", 16),
+         # The invariance walk (its first run's depths reparameterized, Heitz's walk after the refraction).
+         ("invariance", "beckmann", 0.5, "outside-reflected", 19),
+         ("invariance", "beckmann", 0.5, "outside-transmitted", 16),
+         ("invariance", "beckmann", 0.5, "inside-reflected", 20),
+         ("invariance", "beckmann", 0.5, "inside-transmitted", 16)]
 # The walks checked through the BSDF as a render calls it (and through prb).
 BSDF_MODELS = ["correlated", "heitz"]
 # Two derivatives (ω_i, ω_o) per case, plus the BSDF-level checks.
@@ -118,7 +124,7 @@ def test_glass_walk_derivative_through_directions(table, model, distribution, al
                                             + 0.03 * rng.standard_normal((3, n)).astype(np.float32))))
                 for v in GEOMETRIES[geometry])
     key = hash_words(11, (dr.arange(mi.Float, n),))
-    h = H_HEITZ_REFLECTED if model == "heitz" and "reflected" in geometry else H[distribution]
+    h = H_HEITZ_REFLECTED if model in ("heitz", "invariance") and "reflected" in geometry else H[distribution]
     for which in ("wi", "wo"):
         t = _tangent(wi0 if which == "wi" else wo0)
         zero = mi.Vector3f(0.0)

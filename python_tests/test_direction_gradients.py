@@ -481,8 +481,7 @@ def test_walk_sample_weight_differentiates_through_the_incident_direction(table,
 
 
 @pytest.mark.parametrize("params,needle", [
-    ({"surface": "dielectric", "int_ior": 1.5, "model": "invariance"}, "not implemented"),
-    ({"surface": "dielectric", "int_ior": 1.5, "model": "heitz"}, "not implemented")])
+    ({"surface": "dielectric", "int_ior": 1.5, "model": "invariance", "distribution": "ggx"}, "not implemented")])
 def test_differentiate_directions_refused_where_it_would_be_biased(table, params, needle):
     p = _walk_params("correlated", 0.5, "none") | params
     if p.get("surface") == "dielectric":

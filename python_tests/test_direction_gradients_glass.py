@@ -1,10 +1,12 @@
 """Gradients through directions of the glass walks (issue 32, item 4; docs/gradients.md, "Directions through the
-walks" and "The glass walks along moving directions"): the position-free walks on a rough dielectric
-(``uncorrelated``, ``correlated``, ``auto``), Beckmann and GGX, with ``differentiate_directions=true``.
+walks", "The glass walks along moving directions" and "Heitz's walk through glass along moving directions"): the
+position-free walks on a rough dielectric (``uncorrelated``, ``correlated``, ``auto``) and Heitz's walk
+(``heitz``), Beckmann and GGX, and the invariance walk (``invariance``, Beckmann), with
+``differentiate_directions=true``.
 
-- Per call, on the walk itself (``posfree_dielectric.eval_pt`` traced, as ``DielectricModel.differentiable_estimate``
-  runs it for one coordinate of the directions): the forward-mode derivative along a tangent of ω_i, and of ω_o,
-  lane by lane at fixed lane keys, against central differences of the same lanes (common random numbers: step h
+- Per call, on the walk itself (``posfree_dielectric.eval_pt``, ``heitz.dielectric_eval`` or
+  ``invariance_dielectric.eval`` traced, as ``DielectricModel.differentiable_estimate`` runs it for one
+  coordinate of the directions): the forward-mode derivative along a tangent of ω_i, and of ω_o, lane by lane at fixed lane keys, against central differences of the same lanes (common random numbers: step h
   and 2h, the truncation estimated from D(2h) − D(h) = 3·O(h²)); a paired z-test per derivative, Šidák over all
   the checks of this file. Every lane's derivative must be finite: the walk's own derivatives are read before
   ``gradients.attach`` would set a non-finite one to 0, so no lane is dropped silently.
@@ -36,7 +38,11 @@ def table():
 # The central differences' step. On GGX the next events' values jump where their half vector turns horizontal, and
 # a lane whose jump falls between θ ± h carries jump/2h: such lanes are ∝ h, so the differences' variance ∝ 1/h; a
 # larger step there (its truncation estimated as everywhere) resolves the derivative with fewer lanes.
+# Heitz's walk (and the invariance walk, which hands its paths to it) with ω_o reflected takes 4·10⁻³ on Beckmann
+# too (H_HEITZ_REFLECTED): more of its lanes flip a decision between θ ± h (outside → reflected, 2¹⁹ lanes,
+# h = 10⁻³: the differences' standard error 0.0074 against the derivative's own 0.0024).
 H = {"beckmann": 1e-3, "ggx": 4e-3}
+H_HEITZ_REFLECTED = 4e-3
 IOR = 1.5
 # (name, ω_i, ω_o) in the local frame (η = 1.5: total internal reflection inside beyond 41.8°). Chosen where
 # the derivatives stand well above their noise (a reflection at moderate incidence off glass is ~4 % of the
@@ -62,9 +68,23 @@ CASES = [("correlated", "beckmann", 0.5, "outside-reflected", 19),
          ("correlated", "ggx", 0.5, "inside-transmitted", 16),
          ("uncorrelated", "beckmann", 0.5, "outside-transmitted", 16),
          ("uncorrelated", "ggx", 0.5, "inside-transmitted", 17),
-         ("auto", "beckmann", 0.3, "inside-transmitted", 16)]
-# Two derivatives (ω_i, ω_o) per case, plus the BSDF-level check.
-Z_MAX = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / (2 * len(CASES) + 1))) / 2.0)
+         ("auto", "beckmann", 0.3, "inside-transmitted", 16),
+         # Heitz's walk (its heights reparameterized; P_hit/A(w) folded into one factor).
+         ("heitz", "beckmann", 0.5, "outside-reflected", 19),
+         ("heitz", "beckmann", 0.5, "outside-transmitted", 16),
+         ("heitz", "beckmann", 0.5, "inside-reflected", 21),
+         ("heitz", "beckmann", 0.5, "inside-transmitted", 16),
+         ("heitz", "ggx", 0.5, "outside-reflected", 18),
+         ("heitz", "ggx", 0.5, "inside-transmitted", 16),
+         # The invariance walk (its first run's depths reparameterized, Heitz's walk after the refraction).
+         ("invariance", "beckmann", 0.5, "outside-reflected", 19),
+         ("invariance", "beckmann", 0.5, "outside-transmitted", 16),
+         ("invariance", "beckmann", 0.5, "inside-reflected", 20),
+         ("invariance", "beckmann", 0.5, "inside-transmitted", 16)]
+# The walks checked through the BSDF as a render calls it (and through prb).
+BSDF_MODELS = ["correlated", "heitz"]
+# Two derivatives (ω_i, ω_o) per case, plus the BSDF-level checks.
+Z_MAX = NormalDist().inv_cdf(1.0 - (1.0 - (1.0 - 1e-3) ** (1.0 / (2 * len(CASES) + len(BSDF_MODELS)))) / 2.0)
 
 
 def _tangent(w):
@@ -104,7 +124,7 @@ def test_glass_walk_derivative_through_directions(table, model, distribution, al
                                             + 0.03 * rng.standard_normal((3, n)).astype(np.float32))))
                 for v in GEOMETRIES[geometry])
     key = hash_words(11, (dr.arange(mi.Float, n),))
-    h = H[distribution]
+    h = H_HEITZ_REFLECTED if model in ("heitz", "invariance") and "reflected" in geometry else H[distribution]
     for which in ("wi", "wo"):
         t = _tangent(wi0 if which == "wi" else wo0)
         zero = mi.Vector3f(0.0)
@@ -139,7 +159,8 @@ def test_glass_walk_derivative_through_directions(table, model, distribution, al
         assert abs(diff.mean()) <= Z_MAX * se + truncation, (model, geometry, which, ad.mean(), d1.mean())
 
 
-def test_glass_walk_derivative_through_directions_forward_and_reverse(table):
+@pytest.mark.parametrize("model", BSDF_MODELS)
+def test_glass_walk_derivative_through_directions_forward_and_reverse(table, model):
     """Through the BSDF as a render calls it: forward and reverse mode give the same derivative of the mean of
     ``eval`` over a tilting frame, ω_i outside and inside, ω_o reflected and transmitted, and it agrees with
     central differences of that mean (independent lanes: the keys follow the directions)."""
@@ -147,7 +168,7 @@ def test_glass_walk_derivative_through_directions_forward_and_reverse(table):
 
     gc.collect()  # a symbolic call traces every live instance of the class (test_direction_gradients.py)
     n = 1 << 19
-    b = mi.load_dict({"type": "msx_posfree", "surface": "dielectric", "int_ior": IOR, "model": "correlated",
+    b = mi.load_dict({"type": "msx_posfree", "surface": "dielectric", "int_ior": IOR, "model": model,
                       "alpha": 0.5, "distribution": "beckmann", "differentiate_directions": True})
     ptr = dr.gather(mi.BSDFPtr, mi.BSDFPtr(b), dr.zeros(mi.UInt32, n))
     ctx = mi.BSDFContext()
@@ -179,15 +200,16 @@ def test_glass_walk_derivative_through_directions_forward_and_reverse(table):
     rev = float(dr.grad(t)[0])
     assert abs(rev - fwd[0].mean()) <= 1e-3 * abs(fwd[0].mean()), (rev, fwd[0].mean())
     assert _agrees_with_central_differences(fwd[0], lambda a: np.array(mean_eval(mi.Float(a)), dtype=np.float64)[0],
-                                            0.03, "glass through the BSDF (reverse %.5f)" % rev)
+                                            0.03, "glass %s through the BSDF (reverse %.5f)" % (model, rev))
 
 
-def test_glass_walk_through_prb_and_normalmap(table):
+@pytest.mark.parametrize("model", BSDF_MODELS)
+def test_glass_walk_through_prb_and_normalmap(table, model):
     """``prb`` through Mitsuba's ``normalmap`` on a glass walk with ``differentiate_directions``: the render's
     gradient in the map runs (reverse mode through the walk's forward passes, jit/gradients.py) and is finite and
     not zero, as the conductor's (examples/fit_normal_map.py). Its value is the per-call checks' above."""
     from test_direction_gradients import _normalmap_gradient
 
-    grad = _normalmap_gradient({"type": "msx_posfree", "surface": "dielectric", "int_ior": IOR, "model": "correlated",
+    grad = _normalmap_gradient({"type": "msx_posfree", "surface": "dielectric", "int_ior": IOR, "model": model,
                                 "alpha": 0.3, "distribution": "beckmann", "differentiate_directions": True})
     assert np.isfinite(grad).all() and np.abs(grad).max() > 0.0

@@ -44,6 +44,7 @@ from .gradients import LoopValues
 from .microfacet import BECKMANN, GGX, INV_PI, ConductorFresnel, dot, half_vector, normalized, reflect
 from .model import ConductorWalk, DielectricWalk, DiffuseWalk
 from .posfree import horizon_circle
+from .posfree_dielectric import vertex_reflect, vertex_transmit
 from .rng import ONE_MINUS_EPS, Stream, clean_uniform, mix32, mix32_int
 from .special import expm1, log1p, optical_depth
 
@@ -480,7 +481,8 @@ def diffuse_sample(mf, albedo, wi, sample1, u1, u2, max_bounces, key):
 # ------------------------------------------------------------------ dielectric
 
 
-def dielectric_edge_term(mf, w, tw, t, outside, eta_f, teta_f, wo, lambda_o, refracted, u_phi, u_h):
+def dielectric_edge_term(mf, w, tw, t, outside, eta_f, teta_f, wo, lambda_o, refracted, u_phi, u_h,
+                         two=None):
     """The term of ∂/∂η that the next vertex's next-event value misses on its moving edge, for the branch
     ``refracted`` (a Python bool) of this vertex's event: as ``posfree_dielectric.eta_edge_term`` (docs/
     gradients.md, "The IOR of the glass walks"), with the next vertex's height in place of the continue factor
@@ -489,9 +491,14 @@ def dielectric_edge_term(mf, w, tw, t, outside, eta_f, teta_f, wo, lambda_o, ref
     and the value Heitz's phase function takes at a horizontal half-vector, F·D(h)/(4A(w)) for a reflection (A
     the projected area) and η²(1 − F)(w·h)D(h)|o·h|/(A(w)(w·h + η o·h)²) for a transmission, i.e.
     ``edge_vertex``'s value × |w_z|/A(w). One uniform azimuth (``u_phi``) estimates the integral over the
-    circle. Everything is detached: the term enters as (η − η̄)·term."""
+    circle. Everything is detached: the term enters as (η − η̄)·term.
+
+    ``two``: along moving directions instead (docs/gradients.md, "The glass walks along moving directions"),
+    the tangent of ω_o, ``tw`` that of w and ``teta_f`` 0: the same circle moves with ω_o and with w; the term
+    enters as (s − s̄)·term for the coordinate s."""
     o = dr.select(outside ^ refracted, wo, -wo)
-    w_next, transmit, density, value, speed, ok = edge_point(mf, w, tw, o, eta_f, teta_f, refracted, u_phi)
+    to = None if two is None else dr.select(outside ^ refracted, two, -two)
+    w_next, transmit, density, value, speed, ok = edge_point(mf, w, tw, o, eta_f, teta_f, refracted, u_phi, to)
     t_b = flip_height(t) if refracted else t
     t_next, p_hit = sample_height_hit(mf, -w_next, t_b, u_h)
     masking = masking_at(lambda_o, dr.select(transmit, flip_height(t_next), t_next))
@@ -501,8 +508,48 @@ def dielectric_edge_term(mf, w, tw, t, outside, eta_f, teta_f, wo, lambda_o, ref
     return dr.select(ok & (area > 0.0) & dr.isfinite(term), term, 0.0)
 
 
+def _expm1_over_x(x):
+    """(e^x − 1)/x for x ≤ 0, by its series where |x| < 10⁻⁴ (there the quotient's derivative would divide by
+    x², which underflows in float32; the series' error x³/24 is below float32's rounding)."""
+    small = dr.abs(x) < 1e-4
+    return dr.select(small, 1.0 + x * (0.5 + x * (1.0 / 6.0)), expm1(x) / dr.select(small, 1.0, x))
+
+
+def _log1p_over_x(x):
+    """ln(1 + x)/x for −1 < x ≤ 0, by its series where |x| < 10⁻⁴ (as ``_expm1_over_x``)."""
+    small = dr.abs(x) < 1e-4
+    return dr.select(small, 1.0 + x * (-0.5 + x * (1.0 / 3.0)), log1p(x) / dr.select(small, 1.0, x))
+
+
+def sample_height_hit_over_area(mf, w, t, u):
+    """``sample_height_hit`` for a walk along moving directions (docs/gradients.md, "Heitz's walk through glass
+    along moving directions"): (t', P_hit/L, hit), L = |Λ(w)| (the next vertex's projected area over |w_z|),
+    written so that no quotient divides by a tiny Λ. Upward, with x = Λt: P_hit = −expm1(x) = Λ·g with
+    g = −t·expm1(x)/x, and t' = t − ln(1 − U·P_hit)/Λ = t + (ln(1 + z)/z)·U·g with z = −U·P_hit, so P_hit/L = g
+    and t' come from O(1) quotients (their series near 0); Λ itself only multiplies. After a step going up near
+    the normal Beckmann's Λ is below 10⁻¹⁹ and the derivatives of 1/Λ, of t′ as written and of the next
+    vertex's 1/A(w) each overflow in float32 (−dΛ/Λ²), though the products are O(1). Downward: P_hit = 1,
+    L ≥ 1, the step as ``sample_height``. The value is ``sample_height_hit``'s up to rounding."""
+    up = w[2] > 0.0
+    lam = mf.abs_lambda(w)  # Λ(w) upward, 1 + Λ(−w) ≥ 1 downward, ∞ horizontal
+    x = lam * t
+    g = -t * _expm1_over_x(x)
+    p_hit = lam * g
+    u = dr.clip(u, 0.0, ONE_MINUS_EPS)
+    z = -u * p_hit
+    t_up = dr.minimum(t + _log1p_over_x(z) * u * g, 0.0)
+    leaves = ~(lam > 0.0) | (t >= 0.0) | (lam == dr.inf)  # (a horizontal w: A(w) = 0·∞, the lane ends)
+    bad = ~(p_hit > 0.0) | ~(z > -1.0) | dr.isnan(t_up) | ~dr.isfinite(g)
+    miss_up = leaves | bad
+    t_down, hit_down = sample_height(mf, w, t, u)
+    hit_down &= dr.isfinite(lam)
+    t_res = dr.select(up, dr.select(miss_up, t, t_up), dr.select(hit_down, t_down, t))
+    q = dr.select(up, dr.select(miss_up, 0.0, g), dr.select(hit_down, 1.0 / dr.select(hit_down, lam, 1.0), 0.0))
+    return t_res, q, dr.select(up, ~miss_up, hit_down)
+
+
 def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bounces, key, counter,
-                         mf_sample=None, tw=None):
+                         mf_sample=None, tw=None, direction=None):
     """Heitz's dielectric eval walk from a state on (Rust ``eval_from`` with ``Mat::Dielectric``): the ray
     travels along ``wr`` (frame of its side, ``outside``) from height ``t`` towards the vertex of order
     ``order``, carrying ``thr``; the lane's stream goes on at ``counter``. Returns the contributions of
@@ -521,7 +568,15 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
     parameters (``glass_traced.scatter_traced``: the normal's and the choice's density ratio in the weight,
     the floors); the roulette is detached and keeps a floor; while η is differentiated
     each vertex adds the next vertex's edge term for both of its events (``dielectric_edge_term``), with the
-    tangent of −``wr`` in η carried in the state (``tw``, 0 by default: the caller's direction fixed)."""
+    tangent of −``wr`` in η carried in the state (``tw``, 0 by default: the caller's direction fixed).
+
+    ``direction`` (traced only; docs/gradients.md, "Heitz's walk through glass along moving directions"):
+    (s, t_o) while one coordinate s of ω_i, ω_o is differentiated, t_o the tangent of ω_o in s; ``tw`` is then
+    the tangent of −``wr`` in s. ω_o (attached), s and t_o travel in the loop's state. Each vertex's hit
+    probability and its 1/A(w) are folded into one factor P_hit/L (``sample_height_hit_over_area``), the next
+    event and the draw's weight taken times L (``posfree_dielectric.vertex_reflect``/``vertex_transmit``,
+    ``scatter_traced(times_area=True)``), so that no derivative divides by a tiny Λ; on GGX each vertex adds
+    the next vertex's edge terms along s (``dielectric_edge_term`` with the tangent of ω_o)."""
     last = max_bounces
     eta = mi.Float(eta)
     wo = mi.Vector3f(wo)
@@ -530,29 +585,46 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
     lambda_o = mf.lambda_(dr.select(wo_out, wo, -wo))
     traced = mf_sample is not None
     eta_traced = traced and dr.grad_enabled(eta)  # the edge terms are derivatives in η only
+    dirs = traced and direction is not None  # a pass along one coordinate of the directions
+    dir_edges = dirs and mf.dist != BECKMANN  # Beckmann's D vanishes at horizontal normals: no edge
 
     def body(order, wr, t, outside, thr, result, active, counter, piped):
-        mfa, mfs, lo, eta_a = mf, mf, lambda_o, eta
+        mfa, mfs, lo, eta_a, wo_ = mf, mf, lambda_o, eta, wo
         if traced:  # the differentiated values come through the state (gradients.LoopValues)
             lv = LoopValues(mf.dist, piped)
-            mfa, mfs, lo, (eta_a, tw) = lv.mf, lv.mf_sample, lv.lambda_o, lv.rest
+            mfa, mfs, lo = lv.mf, lv.mf_sample, lv.lambda_o
+            if dirs:
+                eta_a, tw, wo_, s_dir, two = lv.rest
+            else:
+                eta_a, tw = lv.rest
         rng = Stream(key, counter)
         u_h, u_rr = rng.next2()
         # Traced, the height is reparameterized: the step's uniform number is held and the attached Λ of the
         # attached direction maps it to t' (and gives P_hit); the density ratio of a height held fixed would
         # carry the score ∂Λ/Λ ~ ∂w_z/w_z, of infinite variance near the horizon.
-        tn, p_hit = sample_height_hit(mfa if traced else mfs, wr, t, u_h)
-        active &= p_hit > 0.0
-        thr = thr * p_hit
+        if dirs:  # thr becomes the throughput over L: the vertex's values below are taken times L
+            tn, q_hit, hit = sample_height_hit_over_area(mfa, wr, t, u_h)
+            active &= hit
+            l_d = dr.detach(mfa.abs_lambda(wr))
+            thr = thr * q_hit
+            thr_at = dr.detach(thr) * dr.select(dr.isfinite(l_d), l_d, 0.0)  # the throughput itself
+        else:
+            tn, p_hit = sample_height_hit(mfa if traced else mfs, wr, t, u_h)
+            active &= p_hit > 0.0
+            thr = thr * p_hit
+            thr_at = dr.detach(thr)
         t = tn
         wi_l = -wr
-        wo_l = dr.select(outside, wo, -wo)
+        wo_l = dr.select(outside, wo_, -wo_)
         e = eta_seen(eta_a, outside)
         e_s = dr.detach(e) if traced else e
         same = wo_out == outside
         # Next-event estimation towards ω_o.
-        p = dr.select(same, dielectric_phase_reflect(mfa, wi_l, wo_l, e),
-                      dielectric_phase_transmit(mfa, wi_l, wo_l, e))
+        if dirs:  # Heitz's phase functions times L: the position-free vertex values
+            p = dr.select(same, vertex_reflect(mfa, e, wi_l, wo_l), vertex_transmit(mfa, e, wi_l, wo_l))
+        else:
+            p = dr.select(same, dielectric_phase_reflect(mfa, wi_l, wo_l, e),
+                          dielectric_phase_transmit(mfa, wi_l, wo_l, e))
         t_o = dr.select(same, t, flip_height(t))
         contrib = p * masking_at(lo, t_o)
         result = dr.select(active & (contrib > 0.0), result + thr * contrib, result)
@@ -561,16 +633,23 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
         u1, u2 = rng.next2()
         ua, u_mix = rng.next2()
         if traced:
-            ws, teta = dr.detach(wi_l), dr.select(outside, 1.0, -e_s * e_s)
+            ws = dr.detach(wi_l)
+            teta = dr.select(outside, 1.0, -e_s * e_s) if not dirs else dr.zeros(mi.Float, dr.width(e_s))
             u_e = rng.next2() + rng.next2()  # drawn in every traced call: the same stream with η or without
+            t_s, lo_s = dr.detach(t), dr.detach(lo)
+            pairs = ((False, u_e[0], u_e[1]), (True, u_e[2], u_e[3]))
             if eta_traced:
-                t_s, lo_s = dr.detach(t), dr.detach(lo)
                 edge = sum(dielectric_edge_term(mfs, ws, tw, t_s, outside, e_s, teta, wo, lo_s, b, u_phi, u_hb)
-                           for b, u_phi, u_hb in ((False, u_e[0], u_e[1]), (True, u_e[2], u_e[3])))
-                result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
-            wr, crossed, _, valid, weight, m = scatter_traced(mfa, mfs, wi_l, mi.Float(1.0), e, ua, u1, u2, u_mix)
+                           for b, u_phi, u_hb in pairs)
+                result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * thr_at * edge, result)
+            if dir_edges:  # the same circles, moving with ω_o and with w along s
+                edge = sum(dielectric_edge_term(mfs, ws, tw, t_s, outside, e_s, teta, dr.detach(wo_), lo_s, b,
+                                                u_phi, u_hb, dr.detach(two)) for b, u_phi, u_hb in pairs)
+                result = dr.select(active, result + (s_dir - dr.detach(s_dir)) * thr_at * edge, result)
+            wr, crossed, _, valid, weight, m = scatter_traced(mfa, mfs, wi_l, mi.Float(1.0), e, ua, u1, u2, u_mix,
+                                                              times_area=dirs)
             tw = eta_tangent_step(ws, tw, m, e_s, teta, crossed)
-            piped = lv.piped(eta_a, tw)
+            piped = lv.piped(eta_a, tw, wo_, s_dir, two) if dirs else lv.piped(eta_a, tw)
             thr = thr * weight
         else:
             # The roulette before the scatter (which leaves thr as it is here): the visible normal only in the
@@ -590,23 +669,30 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
                  thr=mi.Float(thr), result=mi.Float(0.0), active=mi.Bool(active & (order <= last)),
                  counter=mi.UInt32(counter), piped=())
     if traced:
+        more = () if direction is None else (mi.Vector3f(wo), mi.Float(direction[0]), mi.Vector3f(direction[1]))
         state["piped"] = LoopValues.state(mf, lambda_o, mi.Float(eta),
-                                          mi.Vector3f(0.0) if tw is None else mi.Vector3f(tw))
+                                          mi.Vector3f(0.0) if tw is None else mi.Vector3f(tw), *more)
     return walk.while_loop(state, body, label="msx_heitz_dielectric_eval")["result"]
 
 
-def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None):
+def dielectric_eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_tangent=None):
     """One unbiased estimate of f(ω_i, ω_o)·|cos θ_o| through a rough dielectric, orders
     1..max_bounces (Rust ``eval``), one channel: the walk of ``dielectric_eval_from`` entering from ω_i's
     side at the top of the microsurface; Radiance mode: × 1/η_r² when ω_o is across. ``mf_sample``: see
-    ``dielectric_eval_from``."""
+    ``dielectric_eval_from``. ``direction_tangent`` (traced only): (s, t_i, t_o) while one coordinate s of
+    ω_i, ω_o is differentiated (gradients.TangentCoordinates); ω_i enters the first state attached."""
     eta = mi.Float(eta)
     wi, wo = mi.Vector3f(wi), mi.Vector3f(wo)
     wi_out = wi[2] > 0.0
     start = valid_incidence_dielectric(wi, eta) & valid_incidence_dielectric(wo, eta) & (max_bounces > 0)
     w0 = -dr.select(wi_out, wi, -wi)
+    tw, direction = None, None
+    if mf_sample is not None and direction_tangent is not None:
+        s_dir, t_i, t_o = direction_tangent
+        t_i = mi.Vector3f(t_i)
+        tw, direction = dr.select(wi_out, t_i, -t_i), (s_dir, t_o)  # the tangent of −w0 = ω_i in its side's frame
     v = dielectric_eval_from(mf, eta, wo, w0, mi.Float(0.0), wi_out, mi.UInt32(1), mi.Float(1.0), start,
-                             max_bounces, key, mi.UInt32(0), mf_sample=mf_sample)
+                             max_bounces, key, mi.UInt32(0), mf_sample=mf_sample, tw=tw, direction=direction)
     return v * radiance_scale(eta, radiance, wi_out, wo[2] > 0.0)
 
 
@@ -635,6 +721,6 @@ CONDUCTOR_WALKS = {"heitz": ConductorWalk(eval, sample, mis.HEIGHT_CORRELATED, b
 # The walks on the other microsurfaces (jit/bsdf.py collects them; their MIS densities are
 # ``mis.dielectric_pdf`` and ``mis.diffuse_pdf``).
 DIELECTRIC_WALKS = {"heitz": DielectricWalk(dielectric_eval, dielectric_sample, differentiable=True,
-                                            eta_differentiable=True)}
+                                            eta_differentiable=True, direction_distributions=(BECKMANN, GGX))}
 DIFFUSE_WALKS = {"heitz": DiffuseWalk(diffuse_eval, diffuse_sample, differentiable=True,
                                         direction_distributions=(BECKMANN, GGX))}

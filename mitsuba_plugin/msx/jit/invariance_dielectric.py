@@ -16,7 +16,9 @@ from . import heitz, invariance_recursion, walk
 from .dielectric import eta_seen, radiance_scale, reflect_or_refract_unit
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
 from .gradients import LoopValues
+from .microfacet import BECKMANN
 from .invariance_recursion import over_run, push_down, run_slots
+from .posfree_dielectric import vertex_reflect, vertex_transmit
 from .rng import Stream, clean_uniform
 from .special import expm1, l_beta, optical_depth
 
@@ -59,10 +61,16 @@ class PieceChain:
         self.rates, self.a, ok = push_down(self.rates, self.a, self.has_up, l, active, self.unrolled)
         return ok
 
-    def push_up(self, lam, active):
+    def push_up(self, lam, active, over_lambda=False):
         """Appends an upward direction with Λ = ``lam`` where ``active``; returns H_{m+1}/H_m (0 where not
         active). carry(c) = Σ_{c'' ≥ c} π(c'') Π_{i=c+1}^{c''} L_i/(L_i+Λ) is the mass whose jump reaches
-        piece c; a fraction Λ/(L_c+Λ) lands there (Λ = ∞: everything lands where it is)."""
+        piece c; a fraction Λ/(L_c+Λ) lands there (Λ = ∞: everything lands where it is).
+
+        ``over_lambda`` (a walk along moving directions, docs/gradients.md): returns H_{m+1}/(H_m·Λ) instead,
+        and keeps π up to the factor 1/Λ, so that no quotient divides by a tiny Λ (after a step going up near
+        the normal Beckmann's Λ is below 10⁻¹⁹, and the derivatives of 1/H_{m+1} and of the next vertex's
+        1/A(w) ~ 1/Λ overflow in float32 although their products are O(1)); the normalised π is the same.
+        Λ = ∞ (a horizontal direction) returns 0 there."""
         inf = dr.isinf(lam)
         run = active & (lam > 0.0)
 
@@ -73,7 +81,10 @@ class PieceChain:
                 ln = self.rates[c + 1]
                 carry = dr.select(on & (self.a > c + 1), carry * dr.select(inf, 0.0, ln / (ln + lam)), carry)
             carry = carry + self.pi_at(c, on)
-            land = carry * dr.select(inf, 1.0, lam / (self.rates[c] + lam))
+            if over_lambda:
+                land = carry * dr.select(inf, 0.0, 1.0 / (self.rates[c] + lam))
+            else:
+                land = carry * dr.select(inf, 1.0, lam / (self.rates[c] + lam))
             return (carry, cont + dr.select(on, land, 0.0)) + pi[:c] + (dr.select(on, land, pi[c]),) + pi[c + 1:]
 
         out = over_run(self.n, self.a, step, (mi.Float(0.0), mi.Float(0.0)) + tuple(self.pi), unrolled=self.unrolled)
@@ -81,6 +92,10 @@ class PieceChain:
         good = run & (cont > 0.0) & dr.isfinite(cont)
         self.scale = dr.select(good, 1.0 / cont, self.scale)
         self.has_up = self.has_up | active
+        if over_lambda:
+            cont = dr.select(good, cont, 0.0)
+            self.hit = dr.select(active, self.hit * dr.minimum(cont * lam, 1.0), self.hit)
+            return dr.select(active, cont, 0.0)
         cont = dr.select(good, dr.minimum(cont, 1.0), 0.0)
         self.hit = dr.select(active, self.hit * cont, self.hit)
         return dr.select(active, cont, 0.0)
@@ -102,12 +117,15 @@ class PieceChain:
         return dr.select(run, total, 0.0)
 
 
-def draw_depth(chain, c_min, key, counter, active, traced=False):
+def draw_depth(chain, c_min, key, counter, active, traced=False, reparam=False):
     """τ of ``PieceChain.sample_depth``: the piece c ≥ c_min from π (one number), then τ = X_0 + … + X_c
     with fresh X_i ~ Exp(L_i) (one number each; L = ∞ adds no depth). Returns (τ, mass Σ_{c ≥ c_min} π(c),
     counter, ratio). ``traced`` (docs/gradients.md): the draw is made with the chain's values detached and
     ``ratio`` is the density of the drawn (c, X_0..X_c) under the attached values over the detached one,
-    (π(c)/π̄(c))·Π (L_i/L̄_i)·e^{−(L_i − L̄_i) X_i} — value 1, derivative the score (1 when not traced)."""
+    (π(c)/π̄(c))·Π (L_i/L̄_i)·e^{−(L_i − L̄_i) X_i} — value 1, derivative the score (1 when not traced).
+    ``reparam`` (traced, along moving directions): each X_i = E_i/L_i keeps its Exp(1) number E_i and moves
+    with the attached L_i (support [0, ∞) fixed), and ``ratio`` is π(c)/π̄(c) alone: the score of X_i,
+    L_i′(1/L_i − X_i), has infinite variance where a direction turns horizontal (L_i ~ 1/|w_z|)."""
 
     def add_mass(c, carry):
         return (carry[0] + chain.pi_at(c, active & (chain.a > c)),) if c >= c_min else carry
@@ -122,7 +140,10 @@ def draw_depth(chain, c_min, key, counter, active, traced=False):
         rng = Stream(key, counter)
         u, _ = rng.next2()
         rate = chain.rates[c]
-        if traced:
+        if traced and reparam:
+            ok = on & dr.isfinite(rate) & (rate > 0.0)
+            tau = dr.select(ok, tau + optical_depth(u) / dr.select(ok, rate, 1.0), tau)
+        elif traced:
             drawn = dr.detach(rate)
             x = optical_depth(u) / drawn
             ok = on & dr.isfinite(drawn) & (drawn > 0.0)
@@ -147,7 +168,7 @@ def draw_depth(chain, c_min, key, counter, active, traced=False):
     return tau, total, counter, ratio
 
 
-def transmit_exit(chain, lambda_t, key, counter, active, traced=False):
+def transmit_exit(chain, lambda_t, key, counter, active, traced=False, reparam=False):
     """Unbiased estimate of E[(1 − e^{−τ})^{Λ'}] given the hits (Rust ``transmit_exit``): the top piece's
     mass exactly, π(0)·L_0·B(L_0, 1+Λ'), one depth drawn from the deeper pieces for the rest. Returns
     (estimate in [0, 1], counter). ``traced``: the deeper depth is drawn detached and weighed by its density
@@ -157,7 +178,7 @@ def transmit_exit(chain, lambda_t, key, counter, active, traced=False):
     l0 = chain.rates[0]
     e = p0 * l_beta(l0, lambda_t, branch=not traced)  # L_0 ≥ 1: the series form is never needed
     deeper = run & (chain.a > 1)
-    tau, rest, counter, ratio = draw_depth(chain, 1, key, counter, deeper, traced)
+    tau, rest, counter, ratio = draw_depth(chain, 1, key, counter, deeper, traced, reparam)
     above = -expm1(-tau)  # 1 − e^{−τ}
     # Drawn from π restricted to c ≥ 1 (mass ``rest``): rest·g(τ); traced, r̄est·(π(c)/π̄(c))·…·g(τ).
     weight = dr.detach(rest) * ratio if traced else rest
@@ -166,26 +187,29 @@ def transmit_exit(chain, lambda_t, key, counter, active, traced=False):
     return dr.select(run, e, 0.0), counter
 
 
-def refraction(chain, o, refr, handed, key, counter, traced=False):
+def refraction(chain, o, refr, handed, key, counter, traced=False, reparam=False):
     """Where the first run refracts (``refr``): the vertex depth drawn from the chain's law (``draw_depth``),
     and what Heitz's walk continues from, ``handed`` = (refracted, its direction, its height): the refracted
     ray −``o`` and the flipped height. Returns (handed, counter, the draw's density ratio)."""
-    tau, _, counter, ratio = draw_depth(chain, 0, key, counter, refr, traced)
+    tau, _, counter, ratio = draw_depth(chain, 0, key, counter, refr, traced, reparam)
     refracted, h_dir, h_t = handed
     handed = (refracted | refr, dr.select(refr, -o, h_dir), dr.select(refr, heitz.flip_height(-tau), h_t))
     return handed, counter, ratio
 
 
-def extend_run(mf, chain, d, active):
+def extend_run(mf, chain, d, active, over_lambda=False):
     """Appends the reflected direction ``d`` to the first run's chain where ``active`` (the walk ends on a
-    degenerate direction): returns (active, d points up, H_{m+1}/H_m of an upward d, a downward d pushed)."""
+    degenerate direction): returns (active, d points up, H_{m+1}/H_m of an upward d, a downward d pushed).
+    ``over_lambda``: H_{m+1}/(H_m·Λ) instead (``PieceChain.push_up``), and also returns |Λ(d)|."""
     active &= dr.all(dr.isfinite(d)) & (d[2] != 0.0)
     up = d[2] > 0.0
     lam = mf.lambda_(d)
     active &= ~(up & dr.isnan(lam))
-    cont = chain.push_up(lam, active & up)
+    cont = chain.push_up(lam, active & up, over_lambda)
     l = mf.abs_lambda(d)
     pushed = chain.push_down(l, active & ~up & dr.isfinite(l))
+    if over_lambda:
+        return active, up, cont, pushed, l
     return active, up, cont, pushed
 
 
@@ -246,7 +270,7 @@ def first_run_edge_terms(mf, chain, w, eta_f, teta_f, outside, wo, lambda_o, key
     return dr.select(active, refracted + reflected, 0.0)
 
 
-def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None):
+def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_tangent=None):
     """One unbiased estimate of f(ω_i, ω_o)·|cos θ_o| of the rough dielectric with the heights of the
     first run integrated out (Rust ``dielectric::eval``), one channel. The first run (reflections in ω_i's
     medium) draws visible normals, reflects with probability F, carries the exact hit probabilities and
@@ -261,8 +285,23 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None):
     with η and hands its tangent to Heitz's walk), the depth at the refraction from the run's detached law
     with its ``draw_depth`` ratio, the next event's sampled depth likewise; the exit and hit probabilities
     are attached, the roulette detached with a floor; while η is differentiated each vertex adds its edge
-    terms (``first_run_edge_terms``). The differentiated values travel in the loop's state."""
+    terms (``first_run_edge_terms``). The differentiated values travel in the loop's state.
+
+    ``direction_tangent`` (traced only, Beckmann; docs/gradients.md, "The invariance walk through glass along
+    moving directions"): (s, t_i, t_o) while one coordinate s of ω_i, ω_o is differentiated. ω_i enters the
+    first state attached; ω_o, its tangent, s and the tangent of w in s travel in the loop's state (the
+    tangent goes to Heitz's walk with the refracted direction). As in Heitz's walk, the throughput is carried
+    over L = |Λ(−w)| (the vertex's projected area over |w_z|): the next event is the position-free vertex
+    value (Heitz's phase function × L), the draw's weight is ``scatter_traced(times_area=True)`` and an upward
+    step's hit probability comes divided by its Λ (``extend_run(over_lambda=True)``), so that no derivative
+    divides by a tiny Λ; the roulette sees the throughput itself. The depths (at the refraction and in the
+    next event's ``transmit_exit``) are reparameterized (``draw_depth(reparam=True)``: each X_i = E_i/L_i
+    moves with the attached L_i, the piece's π(c)/π̄(c) in the weight). Beckmann has no edge terms (its D is 0
+    at a horizontal half vector)."""
     traced = mf_sample is not None
+    dirs = traced and direction_tangent is not None  # a pass along one coordinate of the directions
+    if dirs and mf.dist != BECKMANN:
+        raise ValueError("invariance through glass differentiates along directions on Beckmann only")
     last = max_bounces
     slots = run_slots(last, invariance_recursion.DIELECTRIC_RUN_SLOTS)
     eta = mi.Float(eta)
@@ -280,25 +319,43 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None):
     chain0 = PieceChain.new(l0, slots, unrolled=traced)
 
     def body(j, w, thr, result, active, counter, refracted, h_dir, h_t, chain_state, piped):
-        mfa, mfs, lo, ea, es = mf, mf, lambda_o, e, e
+        mfa, mfs, lo, ea, es, wo_l_ = mf, mf, lambda_o, e, e, wo_l
         if traced:  # the differentiated values come through the state
             lv = LoopValues(mf.dist, piped)
-            mfa, mfs, lo, (eta_a, h_tw) = lv.mf, lv.mf_sample, lv.lambda_o, lv.rest
+            mfa, mfs, lo = lv.mf, lv.mf_sample, lv.lambda_o
+            if dirs:
+                eta_a, h_tw, tw, wo_, s_dir, two = lv.rest
+                wo_l_ = dr.select(outside, wo_, -wo_)
+            else:
+                eta_a, h_tw = lv.rest
             ea = eta_seen(eta_a, outside)
             es = dr.detach(ea)
         chain = PieceChain.from_state(chain_state, chain0.unrolled)
         order = j + 1
-        # Next-event estimation: phase function × exact exit probability.
-        phase = dr.select(same, heitz.dielectric_phase_reflect(mfa, w, wo_l, ea),
-                          heitz.dielectric_phase_transmit(mfa, w, wo_l, ea))
+        # Next-event estimation: phase function × exact exit probability (along moving directions thr is the
+        # throughput over L, and the phase function is taken times L).
+        if dirs:
+            phase = dr.select(same, vertex_reflect(mfa, ea, w, wo_l_), vertex_transmit(mfa, ea, w, wo_l_))
+            l_w = dr.detach(mfa.abs_lambda(-w))
+            l_w = dr.select(dr.isfinite(l_w), l_w, 0.0)
+        else:
+            phase = dr.select(same, heitz.dielectric_phase_reflect(mfa, w, wo_l_, ea),
+                              heitz.dielectric_phase_transmit(mfa, w, wo_l_, ea))
         nee = active & (phase > 0.0)
         exit_r = chain.exit_given_hits(lo, nee & same)
-        exit_t, counter = transmit_exit(chain, lo, key, counter, nee & ~same, traced)
+        exit_t, counter = transmit_exit(chain, lo, key, counter, nee & ~same, traced, dirs)
         result = dr.select(nee, result + thr * phase * dr.select(same, exit_r, exit_t), result)
         active &= order < last
         rng = Stream(key, counter)
         u_rr, u_f = rng.next2()
-        thr, alive = walk.roulette_from(j >= walk.RR_START, thr, u_rr, 1.0, RR_TRACED_FLOOR if traced else 0.0)
+        if dirs:  # the roulette's survival probability from the throughput itself, thr·L (detached)
+            q = dr.detach(dr.maximum(dr.minimum(dr.detach(thr) * l_w, 1.0), RR_TRACED_FLOOR))
+            play = j >= walk.RR_START
+            survived = (q > 0.0) & ((q >= 1.0) | (u_rr < q))
+            thr = dr.select(play, dr.select(survived, thr / q, 0.0), thr)
+            alive = ~play | survived
+        else:
+            thr, alive = walk.roulette_from(j >= walk.RR_START, thr, u_rr, 1.0, RR_TRACED_FLOOR if traced else 0.0)
         active &= alive
         # Scatter: visible normal, reflect with probability F.
         u1, u2 = rng.next2()
@@ -306,47 +363,71 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None):
             # In the space of normals (glass_traced.scatter_traced): a reflection does not move with η, a
             # refraction's direction does (its tangent goes to Heitz's walk with it).
             u_mix, _ = rng.next2()
-            d_new, refr, _, valid, weight, m = scatter_traced(mfa, mfs, w, mi.Float(1.0), ea, u_f, u1, u2, u_mix)
+            d_new, refr, _, valid, weight, m = scatter_traced(mfa, mfs, w, mi.Float(1.0), ea, u_f, u1, u2, u_mix,
+                                                              times_area=dirs)
             active &= valid
             refr &= active
-            teta = dr.select(outside, 1.0, -es * es)
-            if eta_traced:
-                edge = first_run_edge_terms(mfs, chain, w, es, teta, outside, wo, dr.detach(lo), key, j, active)
-                result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
+            if dirs:  # the tangents in s at the fixed normal (the IOR's tangent 0)
+                zero = dr.zeros(mi.Float, dr.width(es))
+                ws = dr.detach(w)
+                h_tw = dr.select(refr, eta_tangent_step(ws, tw, m, es, zero, refr), h_tw)
+                tw = eta_tangent_step(ws, tw, m, es, zero, mi.Bool(False))
+            else:
+                teta = dr.select(outside, 1.0, -es * es)
+                if eta_traced:
+                    edge = first_run_edge_terms(mfs, chain, w, es, teta, outside, wo, dr.detach(lo), key, j, active)
+                    result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
+                h_tw = dr.select(refr, eta_tangent_step(w, mi.Vector3f(0.0), m, es, teta, refr), h_tw)
             o = -d_new
             d = d_new
-            h_tw = dr.select(refr, eta_tangent_step(w, mi.Vector3f(0.0), m, es, teta, refr), h_tw)
         else:
             m, cos_wm, valid = heitz.visible_normal(mfs, w, u1, u2, where=active)  # only where the walk goes on
             active &= valid
             o, d, crossed = reflect_or_refract_unit(w, m, cos_wm, es, u_f)
             refr = active & crossed
         (refracted, h_dir, h_t), counter, depth_ratio = refraction(chain, o, refr, (refracted, h_dir, h_t), key,
-                                                                   rng.counter, traced)
+                                                                   rng.counter, traced, dirs)
         if traced:
             thr = dr.select(active, thr * weight * dr.select(refr, depth_ratio, 1.0), thr)
         active &= ~refr
         # Reflect, and extend the run's exit table.
-        active, up, cont, pushed = extend_run(mfa, chain, d, active)
-        thr = dr.select(active & up, thr * cont, thr)
+        if dirs:  # thr becomes the throughput over L of the next w = −d
+            active, up, cont, pushed, l_d = extend_run(mfa, chain, d, active, over_lambda=True)
+            thr = dr.select(active, dr.select(up, thr * cont, thr / dr.select(up, 1.0, l_d)), thr)
+        else:
+            active, up, cont, pushed = extend_run(mfa, chain, d, active)
+            thr = dr.select(active & up, thr * cont, thr)
         active &= (~up | (cont > 0.0)) & (up | pushed)
-        if traced:
+        if dirs:
+            piped = lv.piped(eta_a, h_tw, tw, wo_, s_dir, two)
+        elif traced:
             piped = lv.piped(eta_a, h_tw)
         return dict(j=j + 1, w=-d, thr=thr, result=result, active=active, counter=counter, refracted=refracted,
                     h_dir=h_dir, h_t=h_t, chain_state=chain.state(), piped=piped)
 
-    state = dict(j=mi.UInt32(0), w=mi.Vector3f(w0), thr=mi.Float(1.0), result=mi.Float(0.0), active=mi.Bool(start),
+    thr0 = mi.Float(1.0)
+    state = dict(j=mi.UInt32(0), w=mi.Vector3f(w0), thr=thr0, result=mi.Float(0.0), active=mi.Bool(start),
                  counter=mi.UInt32(0), refracted=mi.Bool(False), h_dir=mi.Vector3f(0.0, 0.0, 1.0), h_t=mi.Float(0.0),
                  chain_state=chain0.state(), piped=())
-    if traced:
+    direction = None
+    if dirs:
+        s_dir, t_i, t_o = direction_tangent
+        t_i = mi.Vector3f(t_i)
+        state["thr"] = 1.0 / mi.Float(l0)  # over L of w0 (≥ 1)
+        direction = (s_dir, t_o)
+        state["piped"] = LoopValues.state(mf, lambda_o, mi.Float(eta), mi.Vector3f(0.0),
+                                          dr.select(outside, t_i, -t_i), mi.Vector3f(wo), mi.Float(s_dir),
+                                          mi.Vector3f(t_o))
+    elif traced:
         state["piped"] = LoopValues.state(mf, lambda_o, mi.Float(eta), mi.Vector3f(0.0))
     out = walk.while_loop(state, body, label="msx_invariance_dielectric_eval")
     j, thr, result, counter, refracted, h_dir, h_t = (out[k] for k in ("j", "thr", "result", "counter", "refracted",
                                                                         "h_dir", "h_t"))
     # The rest of the refracted paths: Heitz's walk from the vertex after the refraction (order j + 1), with
-    # the refracted direction's tangent in η.
+    # the refracted direction's tangent in η (in s along moving directions).
+    h_tw = (out["piped"][4] if dirs else out["piped"][-1]) if traced else None
     rest = heitz.dielectric_eval_from(mf, eta, wo, h_dir, h_t, ~outside, j + 1, thr, refracted, last, key,
-                                      counter, mf_sample=mf_sample, tw=out["piped"][-1] if traced else None)
+                                      counter, mf_sample=mf_sample, tw=h_tw, direction=direction)
     v = (result + dr.select(refracted, rest, 0.0)) * radiance_scale(eta, radiance, outside, wo[2] > 0.0)
     return dr.select(dr.isfinite(v) & (v > 0.0), v, 0.0)
 

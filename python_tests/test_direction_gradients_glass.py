@@ -125,8 +125,8 @@ def test_glass_walk_derivative_through_directions(table, model, distribution, al
 
 
 def test_invariance_ggx_edges_of_every_scattering_lane(table):
-    """The invariance walk on GGX, α 0.8, ω_i inside → reflected, ∂/∂ω_o with 4 bounces: each vertex's edge terms
-    (the next vertex's next event on its moving circle) are an estimate of their own, added in every lane that
+    """The invariance walk on GGX, α 0.8, ω_i inside → reflected, ∂/∂ω_o with 4 bounces: each vertex's edge
+    terms (the next vertex's next event on its moving circle) are an estimate of their own, added in every lane that
     scatters — also where the scatter's own draw is invalid (a normal from its cones about w that falls below
     the horizon; docs/gradients.md). Weighed by that draw's validity they came out ~9 % short from the run's
     second vertex on, and this derivative 4 % high (0.05086 against 0.04894, z 5.5 at 2²² lanes)."""

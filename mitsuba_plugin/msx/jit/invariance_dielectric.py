@@ -296,7 +296,8 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
     with η and hands its tangent to Heitz's walk), the depth at the refraction from the run's detached law
     with its ``draw_depth`` ratio, the next event's sampled depth likewise; the exit and hit probabilities
     are attached, the roulette detached with a floor; while η is differentiated each vertex adds its edge
-    terms (``first_run_edge_terms``). The differentiated values travel in the loop's state.
+    terms (``first_run_edge_terms``), in every lane that reaches the scatter (as along directions, below). The
+    differentiated values travel in the loop's state.
 
     ``direction_tangent`` (traced only; docs/gradients.md, "The invariance walk through glass along
     moving directions"): (s, t_i, t_o) while one coordinate s of ω_i, ω_o is differentiated. ω_i enters the
@@ -393,8 +394,8 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
             else:
                 teta = dr.select(outside, 1.0, -es * es)
                 if eta_traced:
-                    edge = first_run_edge_terms(mfs, chain, w, es, teta, outside, wo, dr.detach(lo), key, j, active)
-                    result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
+                    edge = first_run_edge_terms(mfs, chain, w, es, teta, outside, wo, dr.detach(lo), key, j, reached)
+                    result = dr.select(reached, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
                 h_tw = dr.select(refr, eta_tangent_step(w, mi.Vector3f(0.0), m, es, teta, refr), h_tw)
             o = -d_new
             d = d_new

@@ -26,4 +26,4 @@ CONDUCTOR_WALKS = {"invariance": ConductorWalk(conductor.eval, conductor.sample,
 # Lambertian walk keeps its table in ``dr.alloc_local``: refused in scenes (jit/invariance_general.py).
 DIFFUSE_WALKS = {"invariance": DiffuseWalk(general.eval, general.sample, needs_local_arrays=True)}
 DIELECTRIC_WALKS = {"invariance": DielectricWalk(dielectric.eval, dielectric.sample, differentiable=True,
-                                                 eta_differentiable=True, direction_distributions=(BECKMANN,))}
+                                                 eta_differentiable=True, direction_distributions=(BECKMANN, GGX))}

@@ -231,7 +231,7 @@ def detached_chain(chain):
                       dr.detach(hit), chain.unrolled)
 
 
-def first_run_edge_terms(mf, chain, w, eta_f, teta_f, outside, wo, lambda_o, key, j, active):
+def first_run_edge_terms(mf, chain, w, eta_f, teta_f, outside, wo, lambda_o, key, j, active, tw=None, two=None):
     """∂/∂η of the first run's next-event values along their moving edges (docs/gradients.md, "The IOR of
     the glass walks"), for both events of the vertex at w, with ``glass_traced.edge_point``: in the
     space of normals the one discontinuity that moves with η is the next vertex's value towards ω_o, which
@@ -241,7 +241,13 @@ def first_run_edge_terms(mf, chain, w, eta_f, teta_f, outside, wo, lambda_o, key
     (``transmit_exit``, one depth drawn) on a copy of the chain. A refraction's next vertex is the first of
     Heitz's walk, from the depth drawn from the chain's law (``draw_depth``): ``heitz.dielectric_edge_term``
     there. One uniform azimuth per event; its numbers come from counters of their own (EDGE_COUNTER_BASE).
-    Everything is detached: the sum enters as (η − η̄)·terms."""
+    Everything is detached: the sum enters as (η − η̄)·terms.
+
+    ``tw``, ``two`` (along moving directions, docs/gradients.md, "The invariance walk through glass along moving
+    directions"): the tangents of w and of ω_o in the coordinate s (``teta_f`` 0). Both events' circles then
+    move (with ω_o, and with w at the fixed normal), the reflection's whether ω_o is across or not (its next
+    vertex's exit probability given the hits, ``exit_given_hits``, where ω_o is on its side); the sum enters as
+    (s − s̄)·terms."""
     base = mi.UInt32(EDGE_COUNTER_BASE) + j * EDGE_COUNTERS_PER_VERTEX
     rng = Stream(key, base)
     u_phi_r, u_phi_t = rng.next2()
@@ -249,20 +255,25 @@ def first_run_edge_terms(mf, chain, w, eta_f, teta_f, outside, wo, lambda_o, key
     chain = detached_chain(chain)
     # The refraction: the next vertex is Heitz's, from the depth drawn from the chain's law (flipped there).
     tau, _, counter, _ = draw_depth(chain, 0, key, rng.counter, active)
-    tw0 = mi.Vector3f(0.0)
+    dirs = two is not None
+    tw0 = tw if dirs else mi.Vector3f(0.0)
     refracted = heitz.dielectric_edge_term(mf, w, tw0, -tau, outside, eta_f, teta_f, wo, lambda_o, True,
-                                           u_phi_t, u_h)
-    # The reflection: its direction has no tangent, so only where ω_o is across does its circle move.
+                                           u_phi_t, u_h, *((two,) if dirs else ()))
+    # The reflection: in η its direction has no tangent, so only where ω_o is across does its circle move;
+    # along moving directions it moves with ω_o (and with w) on either side.
     o = dr.select(outside, wo, -wo)
-    w_next, transmit, density, value, speed, ok = edge_point(mf, w, tw0, o, eta_f, teta_f, False, u_phi_r)
-    ok &= active & transmit
+    to = dr.select(outside, two, -two) if dirs else None
+    w_next, transmit, density, value, speed, ok = edge_point(mf, w, tw0, o, eta_f, teta_f, False, u_phi_r, to)
+    ok &= active if dirs else active & transmit
     d = -w_next
     up = d[2] > 0.0
     copy_ = detached_chain(chain)
     cont = copy_.push_up(mf.lambda_(d), ok & up)
     pushed = copy_.push_down(mf.abs_lambda(d), ok & ~up)
     ok &= dr.select(up, cont > 0.0, pushed)
-    exit_t, _ = transmit_exit(copy_, lambda_o, key, counter, ok)
+    exit_t, _ = transmit_exit(copy_, lambda_o, key, counter, ok & transmit if dirs else ok)
+    if dirs:
+        exit_t = dr.select(transmit, exit_t, copy_.exit_given_hits(lambda_o, ok & ~transmit))
     area = mf.projected_area(w_next)
     value = value * dr.abs(w_next[2]) / dr.select(area > 0.0, area, 1.0)
     reflected = 2.0 * math.pi * density * dr.select(up, cont, 1.0) * exit_t * value * speed
@@ -285,9 +296,10 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
     with η and hands its tangent to Heitz's walk), the depth at the refraction from the run's detached law
     with its ``draw_depth`` ratio, the next event's sampled depth likewise; the exit and hit probabilities
     are attached, the roulette detached with a floor; while η is differentiated each vertex adds its edge
-    terms (``first_run_edge_terms``). The differentiated values travel in the loop's state.
+    terms (``first_run_edge_terms``), in every lane that reaches the scatter (as along directions, below). The
+    differentiated values travel in the loop's state.
 
-    ``direction_tangent`` (traced only, Beckmann; docs/gradients.md, "The invariance walk through glass along
+    ``direction_tangent`` (traced only; docs/gradients.md, "The invariance walk through glass along
     moving directions"): (s, t_i, t_o) while one coordinate s of ω_i, ω_o is differentiated. ω_i enters the
     first state attached; ω_o, its tangent, s and the tangent of w in s travel in the loop's state (the
     tangent goes to Heitz's walk with the refracted direction). As in Heitz's walk, the throughput is carried
@@ -296,12 +308,13 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
     step's hit probability comes divided by its Λ (``extend_run(over_lambda=True)``), so that no derivative
     divides by a tiny Λ; the roulette sees the throughput itself. The depths (at the refraction and in the
     next event's ``transmit_exit``) are reparameterized (``draw_depth(reparam=True)``: each X_i = E_i/L_i
-    moves with the attached L_i, the piece's π(c)/π̄(c) in the weight). Beckmann has no edge terms (its D is 0
-    at a horizontal half vector)."""
+    moves with the attached L_i, the piece's π(c)/π̄(c) in the weight). On GGX each vertex adds its next
+    vertex's edge terms along s (``first_run_edge_terms`` with the tangents), in every lane that reaches the
+    scatter — whether or not the scatter's own draw is valid (the edge is an estimate of its own, independent of
+    that draw); Beckmann has none (its D is 0 at a horizontal half vector)."""
     traced = mf_sample is not None
     dirs = traced and direction_tangent is not None  # a pass along one coordinate of the directions
-    if dirs and mf.dist != BECKMANN:
-        raise ValueError("invariance through glass differentiates along directions on Beckmann only")
+    dir_edges = dirs and mf.dist != BECKMANN  # Beckmann's D vanishes at horizontal normals: no edge
     last = max_bounces
     slots = run_slots(last, invariance_recursion.DIELECTRIC_RUN_SLOTS)
     eta = mi.Float(eta)
@@ -357,6 +370,7 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
         else:
             thr, alive = walk.roulette_from(j >= walk.RR_START, thr, u_rr, 1.0, RR_TRACED_FLOOR if traced else 0.0)
         active &= alive
+        reached = mi.Bool(active)  # the lanes that scatter (a copy: &= updates in place); their edges below
         # Scatter: visible normal, reflect with probability F.
         u1, u2 = rng.next2()
         if traced:
@@ -370,13 +384,18 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
             if dirs:  # the tangents in s at the fixed normal (the IOR's tangent 0)
                 zero = dr.zeros(mi.Float, dr.width(es))
                 ws = dr.detach(w)
+                if dir_edges:  # the next vertex's moving edges, for both events (as a derivative only)
+                    edge = first_run_edge_terms(mfs, chain, ws, es, zero, outside, dr.detach(wo_), dr.detach(lo), key,
+                                                j, reached, tw=tw, two=dr.detach(two))
+                    result = dr.select(reached, result + (s_dir - dr.detach(s_dir)) * (dr.detach(thr) * l_w) * edge,
+                                       result)
                 h_tw = dr.select(refr, eta_tangent_step(ws, tw, m, es, zero, refr), h_tw)
                 tw = eta_tangent_step(ws, tw, m, es, zero, mi.Bool(False))
             else:
                 teta = dr.select(outside, 1.0, -es * es)
                 if eta_traced:
-                    edge = first_run_edge_terms(mfs, chain, w, es, teta, outside, wo, dr.detach(lo), key, j, active)
-                    result = dr.select(active, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
+                    edge = first_run_edge_terms(mfs, chain, w, es, teta, outside, wo, dr.detach(lo), key, j, reached)
+                    result = dr.select(reached, result + (eta_a - dr.detach(eta_a)) * dr.detach(thr) * edge, result)
                 h_tw = dr.select(refr, eta_tangent_step(w, mi.Vector3f(0.0), m, es, teta, refr), h_tw)
             o = -d_new
             d = d_new

@@ -36,7 +36,7 @@ import drjit as dr
 import mitsuba as mi
 
 from .rng import ONE_MINUS_EPS
-from .special import erfcx, erfcx_deficit, exp_neg_sq, norm_inv
+from .special import erfcx_deficit, erfcx_nonneg, exp_neg_sq, norm_inv
 
 SQRT_PI = math.sqrt(math.pi)
 INV_SQRT_PI = 1.0 / math.sqrt(math.pi)
@@ -48,6 +48,11 @@ U_MIN = 1e-12
 NEWTON_ITERATIONS = 12
 # A lane's Newton iteration has converged when its step is below ~2 float32 ulps of its scale.
 NEWTON_TOL = 2.0 ** -22
+EPS = 2.0 ** -24
+# The rounding noise of the Newton function, in float32 ulps of its terms (see ``_newton_step``).
+NOISE_ULPS = 0.75
+# Safety factor of the quadratic-convergence stop (see ``_newton_step``).
+QUAD_SAFETY = 64.0
 
 def lambda_up(alpha_tan2):
     """Beckmann Λ ≥ 0 for an upward direction with (α tan θ)² = ``alpha_tan2`` (beckmann.rs):
@@ -82,36 +87,50 @@ def newton_monotone(fdf, x0, hi, scale, iterations=NEWTON_ITERATIONS, loop=False
     lo = dr.full(mi.Float, -dr.inf, dr.width(hi))
     x = dr.select(dr.isfinite(x0) & (x0 < hi), x0, hi - 1.0)
     active = dr.full(mi.Bool, True, dr.width(x))
+    prev = dr.full(mi.Float, dr.inf, dr.width(x))
     if loop:
-        def body(i, x, lo, hi, active):
-            x, lo, hi, active = _newton_step(fdf, x, lo, hi, active, scale)
-            return i + 1, x, lo, hi, active
+        def body(i, x, lo, hi, prev, active):
+            x, lo, hi, prev, active = _newton_step(fdf, x, lo, hi, prev, active, scale)
+            return i + 1, x, lo, hi, prev, active
 
-        _, x, lo, hi, active = dr.while_loop((mi.UInt32(0), x, lo, hi, active),
-                                             lambda i, x, lo, hi, active: active & (i < iterations), body,
-                                             label="msx_beckmann_newton")
+        _, x, lo, hi, prev, active = dr.while_loop((mi.UInt32(0), x, lo, hi, prev, active),
+                                                   lambda i, x, lo, hi, prev, active: active & (i < iterations),
+                                                   body, label="msx_beckmann_newton")
         return x, ~active
     for _ in range(iterations):
-        x, lo, hi, active = _newton_step(fdf, x, lo, hi, active, scale)
+        x, lo, hi, prev, active = _newton_step(fdf, x, lo, hi, prev, active, scale)
     return x, ~active
 
 
-def _newton_step(fdf, x, lo, hi, active, scale):
-    """One safeguarded Newton step of ``newton_monotone`` (lanes not ``active`` keep their x)."""
-    fx, dfx = fdf(x)
+def _newton_step(fdf, x, lo, hi, prev, active, scale):
+    """One safeguarded Newton step of ``newton_monotone`` (lanes not ``active`` keep their x). ``prev`` is
+    the length of the lane's previous step if that was a Newton step, else +∞."""
+    fx, dfx, noise = fdf(x)
     nxt = x - fx / dfx
-    # Converged: the step is below float32 resolution (the Rust's |next − x| test, or f = 0).
-    done = (fx == 0.0) | ((dr.abs(nxt - x) <= NEWTON_TOL * (dr.abs(x) + scale)) & dr.isfinite(dfx))
+    step = dr.abs(nxt - x)
+    # Converged: the step is below float32 resolution (the Rust's |next − x| test, or f = 0), or f is
+    # within its own float32 rounding noise of 0 (``noise``, an estimate of |f|'s rounding error): further
+    # steps would only move x about inside the noise band (near u → 1, where they never get below 2 ulps).
+    tiny = (dr.abs(nxt - x) <= NEWTON_TOL * (dr.abs(x) + scale)) & dr.isfinite(dfx)
+    quiet = (dr.abs(fx) <= noise) & dr.isfinite(dfx)
+    done = (fx == 0.0) | tiny | quiet
     upper = fx > 0.0
     hi = dr.select(active & upper, x, hi)
     lo = dr.select(active & ~upper, x, lo)
     inside = (nxt > lo) & (nxt < hi) & dr.isfinite(nxt)
     fallback = dr.select(dr.isfinite(lo), 0.5 * (lo + hi), x - (1.0 + dr.abs(x)))
-    nxt = dr.select(done & dr.isfinite(nxt), nxt, dr.select(inside, nxt, fallback))
-    nxt = dr.select(fx == 0.0, x, nxt)
+    # Quadratic convergence: after two Newton steps d₁ then d₂, the error left after d₂ is ≈ C·d₂² with
+    # C ≈ d₂/d₁²; the lane stops once QUAD_SAFETY times that is below the tolerance (saves the confirming
+    # step whose only purpose is to find the step tiny).
+    quad = inside & dr.isfinite(dfx) & dr.isfinite(prev) & (QUAD_SAFETY * step * step * step
+                                        <= NEWTON_TOL * (dr.abs(x) + scale) * prev * prev)
+    done |= quad
+    nxt = dr.select(tiny & dr.isfinite(nxt), nxt, dr.select(inside, nxt, fallback))
+    nxt = dr.select((fx == 0.0) | (quiet & ~tiny & ~inside), x, nxt)
     x = dr.select(active, nxt, x)
+    prev = dr.select(active, dr.select(inside, step, dr.inf), prev)
     active &= ~done
-    return x, lo, hi, active
+    return x, lo, hi, prev, active
 
 
 def sample_slope_x(cos_theta, sin_theta, u, iterations=NEWTON_ITERATIONS):
@@ -135,13 +154,14 @@ def sample_slope_x(cos_theta, sin_theta, u, iterations=NEWTON_ITERATIONS):
 
     def ln_g(x):
         """(ln G(x), G'(x)/G(x)), without underflow for x ≤ 0: G = e^{−x²}·(cos θ·erfcx(−x) + sin θ/√π)/2."""
-        ex = erfcx(dr.abs(x))
+        ex = erfcx_nonneg(dr.abs(x))
         h = 0.5 * (cos_theta * ex + INV_SQRT_PI * sin_s)
         e2 = exp_neg_sq(x)
         g_pos = cos_theta * (1.0 - 0.5 * ex * e2) + (0.5 * INV_SQRT_PI) * sin_s * e2
         dens = (cos_theta - x * sin_s) * INV_SQRT_PI
         neg = x <= 0.0
-        lg = dr.select(neg, dr.log(h) - x * x, dr.log(g_pos))
+        # One logarithm for both branches (the same bits as a log per branch, at half the cost).
+        lg = dr.log(dr.select(neg, h, g_pos)) - dr.select(neg, x * x, 0.0)
         dlg = dr.select(neg, dens / h, dens * e2 / g_pos)
         return lg, dlg
 
@@ -165,7 +185,8 @@ def sample_slope_x(cos_theta, sin_theta, u, iterations=NEWTON_ITERATIONS):
         b = d + (1.0 - d) * dr.select(z > 0.0, s / z, 0.0)
         b = dr.maximum(b, 1e-37)
         f = -s * (s + 2.0 * tau) + dr.log(b / b_t) - ln_u
-        return f, 2.0 * s / b
+        noise = (NOISE_ULPS * EPS) * (2.0 + s * (s + 2.0 * tau) + l)
+        return f, 2.0 * s / b, noise
 
     # Initial guess (beckmann.rs): Gamma(2, 2τ) for steep directions, Rayleigh near the horizon; for
     # u → 1 both are replaced by the exact limit s² ≈ −b(t)·ln u (the Rust's Gamma guess is ∝ −ln u there).
@@ -183,18 +204,20 @@ def sample_slope_x(cos_theta, sin_theta, u, iterations=NEWTON_ITERATIONS):
         la, da = ln_g(x)
         r = dr.maximum(ln_g_hi - la, 0.0)
         root_r = dr.sqrt(r)
-        return sqrt_l - root_r, da / (2.0 * root_r)
+        # Rounding noise of f: ln G(hi) and ln G(x) each carry ~NOISE_ULPS ulps of 1 + |ln G|.
+        noise = (NOISE_ULPS * EPS) * ((2.0 + dr.abs(la) + dr.abs(ln_g_hi)) / (2.0 * root_r) + sqrt_l)
+        return sqrt_l - root_r, da / (2.0 * root_r), noise
 
     plain = not dr.grad_enabled(cos_theta, sin_theta, u)
 
     def fdf(x):
         if plain:  # each side only in the packets that have lanes there (a symbolic if_stmt branches)
-            zero = (lambda x: (dr.zeros(mi.Float, dr.width(x)), dr.zeros(mi.Float, dr.width(x))))
-            fa, da = dr.if_stmt((x,), up, above, zero, label="msx_beckmann_above")
-            fb, db = dr.if_stmt((x,), ~up, lg_and_dlg, zero, label="msx_beckmann_below")
+            zero = (lambda x: tuple(dr.zeros(mi.Float, dr.width(x)) for _ in range(3)))
+            fa, da, na = dr.if_stmt((x,), up, above, zero, label="msx_beckmann_above")
+            fb, db, nb = dr.if_stmt((x,), ~up, lg_and_dlg, zero, label="msx_beckmann_below")
         else:
-            (fa, da), (fb, db) = above(x), lg_and_dlg(x)
-        return dr.select(up, fa, fb), dr.select(up, da, db)
+            (fa, da, na), (fb, db, nb) = above(x), lg_and_dlg(x)
+        return dr.select(up, fa, fb), dr.select(up, da, db), dr.select(up, na, nb)
 
     x0 = dr.select(up, x0_up, -s0)
     hi = dr.select(up, hi_up, 0.0)

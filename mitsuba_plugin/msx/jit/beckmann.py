@@ -187,7 +187,8 @@ def sample_slope_x(cos_theta, sin_theta, u, iterations=NEWTON_ITERATIONS):
         # One logarithm for both branches (the same bits as a log per branch, at half the cost).
         lg = dr.log(dr.select(neg, h, g_pos)) - dr.select(neg, x * x, 0.0)
         dlg = dr.select(neg, dens / h, dens * e2 / g_pos)
-        # (ln G)'' = (ln G)'·(−1/(t − x) − 2x) − (ln G)'², with (ln G)'/(t − x) = sin θ/(√π·h) (or ·e2/g_pos).
+        # (ln G)'' = (ln G)'·(−1/(t − x) − 2x) − (ln G)'², with (ln G)'/(t − x) = sin θ/(√π·h)
+        # (or sin θ·e2/(√π·g_pos) for x > 0): no division by t − x.
         q = dr.select(neg, sin_s / h, sin_s * e2 / g_pos) * INV_SQRT_PI
         d2lg = -q - 2.0 * x * dlg - dlg * dlg
         return lg, dlg, d2lg

@@ -93,6 +93,13 @@ def erfcx(x):
     return dr.select(x >= 0.0, pos, 2.0 / exp_neg_sq(x) - pos)
 
 
+def erfcx_nonneg(z):
+    """``erfcx`` for z ≥ 0 only (the same bits there), without tracing the x < 0 branch's exp and division
+    (the Beckmann sampler's Newton step, msx/jit/beckmann.py, needs erfcx(|x|) only)."""
+    z = mi.Float(z)
+    return _chebyshev(_ERFCX_COEFFS, z) / (1.0 + 2.0 * z)
+
+
 def erfc(x):
     """Complementary error function with float32 relative accuracy for large positive x (special.rs)."""
     x = mi.Float(x)

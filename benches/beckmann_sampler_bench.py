@@ -35,6 +35,8 @@ from pathlib import Path
 
 os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+from glass_ab_bench import median_times  # noqa: E402
 
 
 def install_before(rev, jit_dir):
@@ -239,15 +241,7 @@ def main():
             if side == "up":
                 # Mitsuba's sampler is defined above the horizon only (it flips nothing): same inputs.
                 fns["mitsuba"] = lambda: dist.sample(wv, mi.Point2f(u1, u2))
-            times = {k: [] for k in fns}
-            for rep in range(args.repeats + 1):
-                for k, f in fns.items():
-                    t0 = time.process_time()
-                    dr.eval(f())
-                    dr.sync_thread()
-                    if rep:
-                        times[k].append(time.process_time() - t0)
-            med = {k: statistics.median(v) * 1e3 for k, v in times.items()}
+            med = {k: v * 1e3 for k, v in median_times(fns, args.repeats, dr).items()}
             line = "  %-5s " % side + "  ".join("%s %.1f ms" % (k, v) for k, v in med.items())
             if "mitsuba" in med:
                 line += "   ratios: " + ", ".join("%s %.2fx" % (k, med[k] / med["mitsuba"])

@@ -172,24 +172,28 @@ def slope_pdf64(x, c, s):
     return 2.0 * (c - x * s) * math.exp((t - x) * (t + x)) / (s * deficit64(-t))
 
 
-def cdf_errors(iterations):
-    thetas = np.concatenate([np.linspace(0.01, 3.0, 120), [0.2, 1.0, 1.5, math.pi / 2, 1.6, 2.2, 2.9]])
-    us = np.concatenate([np.geomspace(1e-12, 0.5, 25), 1.0 - np.geomspace(EPS, 0.5, 25),
-                         np.linspace(0.0, 1.0, 21)]).astype(np.float32)
-    th, uu = np.meshgrid(thetas, us, indexing="ij")
+def cdf_units(thetas, us, iterations, floor):
+    """|CDF(x) − u| of the slopes the sampler draws at every (θ, u) of the grid, in float64, over the float32
+    floor ``floor(pdf(x)·ulp(x))``; with the grid's θ and u per value."""
+    th, uu = np.meshgrid(thetas, us.astype(np.float32), indexing="ij")
     c = np.cos(th.ravel()).astype(np.float32)
     s = np.sin(th.ravel()).astype(np.float32)
     u = uu.ravel()
     x, valid = beckmann.sample_slope_x(mi.Float(c), mi.Float(s), mi.Float(u), iterations)
     x, valid = x.numpy(), valid.numpy()
     assert valid.all()
-    ratios = []
-    for xi, ci, si, ui in zip(x.astype(np.float64), c.astype(np.float64), s.astype(np.float64), u):
+    units = np.empty(len(u))
+    for i, (xi, ci, si, ui) in enumerate(zip(x.astype(np.float64), c.astype(np.float64), s.astype(np.float64), u)):
         uc = min(max(float(ui), beckmann.U_MIN), special.ONE_MINUS_EPS)
-        err = abs(slope_cdf64(xi, ci, si) - uc)
         ulp = float(np.spacing(np.float32(abs(xi))))
-        ratios.append(err / (16.0 * EPS + 4.0 * slope_pdf64(xi, ci, si) * ulp))
-    return np.array(ratios)
+        units[i] = abs(slope_cdf64(xi, ci, si) - uc) / floor(slope_pdf64(xi, ci, si) * ulp)
+    return units, th.ravel(), u
+
+
+def cdf_errors(iterations):
+    thetas = np.concatenate([np.linspace(0.01, 3.0, 120), [0.2, 1.0, 1.5, math.pi / 2, 1.6, 2.2, 2.9]])
+    us = np.concatenate([np.geomspace(1e-12, 0.5, 25), 1.0 - np.geomspace(EPS, 0.5, 25), np.linspace(0.0, 1.0, 21)])
+    return cdf_units(thetas, us, iterations, lambda pdf_ulp: 16.0 * EPS + 4.0 * pdf_ulp)[0]
 
 
 def test_slope_sampling_inverts_the_cdf():
@@ -211,21 +215,8 @@ FLOOR_UNITS_40 = 5.95
 
 def floor_units(iterations):
     thetas = np.linspace(0.0, math.pi, 333)[1:-1]
-    us = np.concatenate([np.geomspace(1e-12, 0.5, 34), 1.0 - np.geomspace(EPS, 0.5, 34),
-                         np.linspace(0.0, 1.0, 35)]).astype(np.float32)
-    th, uu = np.meshgrid(thetas, us, indexing="ij")
-    c = np.cos(th.ravel()).astype(np.float32)
-    s = np.sin(th.ravel()).astype(np.float32)
-    u = uu.ravel()
-    x, valid = beckmann.sample_slope_x(mi.Float(c), mi.Float(s), mi.Float(u), iterations)
-    x, valid = x.numpy(), valid.numpy()
-    assert valid.all()
-    units = np.empty(len(u))
-    for i, (xi, ci, si, ui) in enumerate(zip(x.astype(np.float64), c.astype(np.float64), s.astype(np.float64), u)):
-        uc = min(max(float(ui), beckmann.U_MIN), special.ONE_MINUS_EPS)
-        ulp = float(np.spacing(np.float32(abs(xi))))
-        units[i] = abs(slope_cdf64(xi, ci, si) - uc) / (EPS + slope_pdf64(xi, ci, si) * ulp)
-    return units, th.ravel(), u
+    us = np.concatenate([np.geomspace(1e-12, 0.5, 34), 1.0 - np.geomspace(EPS, 0.5, 34), np.linspace(0.0, 1.0, 35)])
+    return cdf_units(thetas, us, iterations, lambda pdf_ulp: EPS + pdf_ulp)
 
 
 def test_slope_sampling_float32_floor():

@@ -80,3 +80,37 @@ def engine_cases(walks_only=False, per_order=False, bdpt=True):
         if bdpt and not per_order:
             out += [(surface, m, "bdpt") for m in jit_bsdf.bdpt_models(surface)]
     return out
+
+
+def tilting_eval(bsdf, wi_w, wo_w):
+    """``eval`` as a render calls it (a symbolic call on ``mi.BSDFPtr``) with the shading frame tilted by θ:
+    returns t ↦ eval at θ = t of the fixed world directions ``wi_w``, ``wo_w`` (one per lane; each lane its own
+    hit position, so its own key) — the function python_tests/test_direction_gradients*.py differentiate."""
+    n = dr.width(wi_w)
+    ptr = dr.gather(mi.BSDFPtr, mi.BSDFPtr(bsdf), dr.zeros(mi.UInt32, n))
+    ctx = mi.BSDFContext()
+
+    def at(t):
+        si = dr.zeros(mi.SurfaceInteraction3f, n)
+        si.p = mi.Point3f(dr.arange(mi.Float, n), 0.0, 0.0)
+        frame = mi.Frame3f(mi.Vector3f(dr.sin(t), 0.0 * t, dr.cos(t)))
+        si.sh_frame = frame
+        si.wi = frame.to_local(wi_w)
+        return ptr.eval(ctx, si, frame.to_local(wo_w))
+
+    return at
+
+
+def forward_and_reverse(f, angle):
+    """(per-lane forward-mode derivatives of ``f`` at θ = ``angle``, channels × lanes; the reverse-mode
+    derivative of the mean of channel 0) for f = ``tilting_eval(...)``."""
+    t = mi.Float(angle)
+    dr.enable_grad(t)
+    value = f(t)
+    dr.forward(t)
+    fwd = np.array(dr.grad(value), dtype=np.float64)
+    t = mi.Float(angle)
+    dr.enable_grad(t)
+    value = f(t)
+    dr.backward(dr.sum(value[0]) / dr.width(value[0]))
+    return fwd, float(dr.grad(t)[0])

@@ -29,6 +29,8 @@ if _REASON:
 import drjit as dr  # noqa: E402
 import mitsuba as mi  # noqa: E402
 
+import jit_support  # noqa: E402
+
 N, ANGLE, H = 4096, 0.2, 1e-3
 
 
@@ -418,30 +420,10 @@ def test_walk_derivative_through_directions_forward_and_reverse(table, model, di
     gc.collect()
     n = DIRECTION_LANES
     b = mi.load_dict(_walk_params(model, 0.6, "Cu", estimator, distribution))
-    ptr = dr.gather(mi.BSDFPtr, mi.BSDFPtr(b), dr.zeros(mi.UInt32, n))
-    ctx = mi.BSDFContext()
-    wi_w, wo_w = _directions(1, 1.0), _directions(2, 1.0)
-    wi_w, wo_w = dr.gather(mi.Vector3f, wi_w, dr.arange(mi.UInt32, n) % N), dr.gather(mi.Vector3f, wo_w,
-                                                                                      dr.arange(mi.UInt32, n) % N)
-
-    def mean_eval(t):
-        si = dr.zeros(mi.SurfaceInteraction3f, n)
-        si.p = mi.Point3f(dr.arange(mi.Float, n), 0.0, 0.0)
-        fr = mi.Frame3f(mi.Vector3f(dr.sin(t), 0.0 * t, dr.cos(t)))
-        si.sh_frame = fr
-        si.wi = fr.to_local(wi_w)
-        return ptr.eval(ctx, si, fr.to_local(wo_w))
-
-    t = mi.Float(ANGLE)
-    dr.enable_grad(t)
-    f = mean_eval(t)
-    dr.forward(t)
-    fwd = np.array(dr.grad(f), dtype=np.float64)
-    t = mi.Float(ANGLE)
-    dr.enable_grad(t)
-    f = mean_eval(t)
-    dr.backward(dr.sum(f[0]) / n)
-    rev = float(dr.grad(t)[0])
+    idx = dr.arange(mi.UInt32, n) % N
+    wi_w, wo_w = dr.gather(mi.Vector3f, _directions(1, 1.0), idx), dr.gather(mi.Vector3f, _directions(2, 1.0), idx)
+    mean_eval = jit_support.tilting_eval(b, wi_w, wo_w)
+    fwd, rev = jit_support.forward_and_reverse(mean_eval, ANGLE)
     assert abs(rev - fwd[0].mean()) <= 1e-3 * abs(fwd[0].mean()), (rev, fwd[0].mean())
     assert _agrees_with_central_differences(fwd[0], lambda a: np.array(mean_eval(mi.Float(a)), dtype=np.float64)[0],
                                             0.03, "%s %s %s through the BSDF (reverse %.5f)" % (

@@ -24,6 +24,8 @@ from test_direction_gradients import ANGLE, N, _agrees_with_central_differences,
 import drjit as dr  # noqa: E402
 import mitsuba as mi  # noqa: E402
 
+import jit_support  # noqa: E402
+
 
 @pytest.fixture(scope="module")
 def table():
@@ -192,34 +194,15 @@ def test_glass_walk_derivative_through_directions_forward_and_reverse(table, mod
     n = 1 << 19
     b = mi.load_dict({"type": "msx_posfree", "surface": "dielectric", "int_ior": IOR, "model": model,
                       "alpha": 0.5, "distribution": "beckmann", "differentiate_directions": True})
-    ptr = dr.gather(mi.BSDFPtr, mi.BSDFPtr(b), dr.zeros(mi.UInt32, n))
-    ctx = mi.BSDFContext()
     idx = dr.arange(mi.UInt32, n)
     # ω_i above for the first half of the lanes, below for the second; ω_o on both sides.
     wi_w = dr.gather(mi.Vector3f, _directions(1, 1.0), idx % N)
     wi_w[2] = dr.select(idx < n // 2, wi_w[2], -wi_w[2])
     wo_w = dr.gather(mi.Vector3f, _directions(2, 1.0), idx % N)
     wo_w[2] = dr.select(idx % 2 == 0, wo_w[2], -wo_w[2])
-
-    def mean_eval(t):
-        si = dr.zeros(mi.SurfaceInteraction3f, n)
-        si.p = mi.Point3f(dr.arange(mi.Float, n), 0.0, 0.0)
-        fr = mi.Frame3f(mi.Vector3f(dr.sin(t), 0.0 * t, dr.cos(t)))
-        si.sh_frame = fr
-        si.wi = fr.to_local(wi_w)
-        return ptr.eval(ctx, si, fr.to_local(wo_w))
-
-    t = mi.Float(ANGLE)
-    dr.enable_grad(t)
-    f = mean_eval(t)
-    dr.forward(t)
-    fwd = np.array(dr.grad(f), dtype=np.float64)
+    mean_eval = jit_support.tilting_eval(b, wi_w, wo_w)
+    fwd, rev = jit_support.forward_and_reverse(mean_eval, ANGLE)
     assert np.isfinite(fwd).all()
-    t = mi.Float(ANGLE)
-    dr.enable_grad(t)
-    f = mean_eval(t)
-    dr.backward(dr.sum(f[0]) / n)
-    rev = float(dr.grad(t)[0])
     assert abs(rev - fwd[0].mean()) <= 1e-3 * abs(fwd[0].mean()), (rev, fwd[0].mean())
     assert _agrees_with_central_differences(fwd[0], lambda a: np.array(mean_eval(mi.Float(a)), dtype=np.float64)[0],
                                             0.03, "glass %s through the BSDF (reverse %.5f)" % (model, rev))

@@ -67,33 +67,14 @@ def _directions(seed, sign):
     return v
 
 
-def _eval_through_pointer(bsdf, surface, t):
-    """``eval`` of N lanes through a symbolic call as the shading frame tilts by ``t``; ω_i above, ω_o above
-    (a dielectric: every other lane below, transmitted)."""
-    ptr = dr.gather(mi.BSDFPtr, mi.BSDFPtr(bsdf), dr.zeros(mi.UInt32, N))
+def _eval_at(bsdf, surface):
+    """t ↦ ``eval`` of N lanes through a symbolic call as the shading frame tilts by t (jit_support.tilting_eval);
+    ω_i above, ω_o above (a dielectric: every other lane below, transmitted)."""
     wo = _directions(2, 1.0)
     if surface == "dielectric":
         wo[1::2, 2] *= -1.0
     wi_w, wo_w = (mi.Vector3f(v.T.astype(np.float32)) for v in (_directions(1, 1.0), wo))
-    si = dr.zeros(mi.SurfaceInteraction3f, N)
-    si.p = mi.Point3f(dr.arange(mi.Float, N), 0.0, 0.0)  # each lane its own key
-    frame = mi.Frame3f(mi.Vector3f(dr.sin(t), 0.0 * t, dr.cos(t)))
-    si.sh_frame = frame
-    si.wi = frame.to_local(wi_w)
-    return ptr.eval(mi.BSDFContext(), si, frame.to_local(wo_w))
-
-
-def _forward_and_reverse(bsdf, surface):
-    t = mi.Float(ANGLE)
-    dr.enable_grad(t)
-    f = _eval_through_pointer(bsdf, surface, t)
-    dr.forward(t)
-    fwd = np.array(dr.grad(f[0]), dtype=np.float64)
-    t = mi.Float(ANGLE)
-    dr.enable_grad(t)
-    f = _eval_through_pointer(bsdf, surface, t)
-    dr.backward(dr.sum(f[0]) / N)
-    return fwd, float(dr.grad(t)[0])
+    return jit_support.tilting_eval(bsdf, wi_w, wo_w)
 
 
 def _refused(surface, model, estimator, distribution, message):
@@ -105,7 +86,7 @@ def _refused(surface, model, estimator, distribution, message):
         with pytest.raises(ValueError) as refused:
             t = mi.Float(ANGLE)
             dr.enable_grad(t)
-            f = _eval_through_pointer(bsdf, surface, t)
+            f = _eval_at(bsdf, surface)(t)
             dr.forward(t) if mode == "forward" else dr.backward(dr.sum(f[0]))
         text = str(refused.value)
         assert "model='%s'" % model in text and "directions that carry a gradient" in text, (mode, text)
@@ -122,7 +103,8 @@ def test_walk_directions_in_forward_and_reverse_mode(engine, surface, model, est
         except Exception as e:  # noqa: BLE001 - refused when the scene loads (Mitsuba quotes msx's line)
             _refused(surface, model, estimator, distribution, str(e).strip().splitlines()[-1])
             continue
-        fwd, rev = _forward_and_reverse(bsdf, surface)
+        fwd, rev = jit_support.forward_and_reverse(_eval_at(bsdf, surface), ANGLE)
+        fwd = fwd[0]
         mean = fwd.mean()
         print("%s %s %s %s: forward %.6f, reverse %.6f" % (surface, model, estimator, distribution, mean, rev))
         assert np.all(np.isfinite(fwd)), "%d lanes non-finite" % np.count_nonzero(~np.isfinite(fwd))

@@ -6,7 +6,6 @@ fractional node position on each axis exactly as ``Axis::position`` does (warp, 
 first node) and lets the texture interpolate linearly between nodes, as ``Grid::at`` does: texel i of an
 axis of n nodes sits at texture coordinate (i + ½)/n, so position t reads coordinate (t + ½)/n.
 Textures are built with ``use_accel=False`` so that the GPU interpolates in full float precision too.
-``Table.at_by_gathers`` computes the same interpolant from the node values by gathers (the walks' MIS density).
 """
 
 import threading

@@ -1,9 +1,8 @@
 """Where a position-free conductor walk's time goes on Fig. 9 (issue 31; benches/README.md, "The GGX conductor
 walks on Fig. 9"), in `llvm_ad_rgb`:
 
-    python3 benches/walk_profile.py [frame] [iterations] [parts] [roulette] [lookup] [--model correlated]
-                                    [--res 256] [--spp 32] [--repeats 7] [--lanes 20] [--gains 30,10,3,100]
-                                    [--models correlated,uncorrelated,auto,heitz,invariance]
+    python3 benches/walk_profile.py [frame] [iterations] [parts] [roulette] [--model correlated] [--res 256]
+                                    [--spp 32] [--repeats 7] [--lanes 20] [--gains 30,10,3,100]
 
 * ``frame``: Fig. 9 (scenes/fig09_copper_sphere.xml) rendered by the built-in, ``single`` and ``--model`` with
   parts of its calls replaced by order 1's closed forms (jit/auto.py), to attribute the frame's extra time (not
@@ -21,9 +20,6 @@ walks on Fig. 9"), in `llvm_ad_rgb`:
   next-event value in the roulette's importance) at each of ``--gains``: time × the built-in's, and the image
   variance at equal spp (per pixel over 4 seeds, averaged over the image) × the first gain's, so that
   variance × time compares the estimators' efficiency per frame.
-* ``lookup``: Fig. 9 rendered by the built-in and each of ``--models`` with the MIS density's order-1 albedo
-  looked up from the table's texture (``Table.at``, before) and by gathers (``Table.at_by_gathers``, after),
-  interleaved: time × the built-in's, wall and CPU.
 
 Only ratios from one run mean anything (shared machines).
 """
@@ -139,41 +135,6 @@ def roulette(mi, dr, np, args):
         print("  %-10s time × %.2f  image mean %.5f  variance %.3e (× %.2f)  variance × time × %.2f" % (
             label, w / ref, mean[label], var[label], var[label] / var[first],
             var[label] * w / (var[first] * statistics.median(wall[first]))))
-
-
-def lookup(mi, dr, args):
-    """Fig. 9 with the walks' MIS density looking its table up by texture (before) and by gathers (after)."""
-    from msx._render import scenes_dir
-    from msx.jit import tables
-
-    from render_bench import _render
-
-    gathers = tables.Table.at_by_gathers
-    path = str(scenes_dir() / "fig09_copper_sphere.xml")
-    size = dict(width=str(args.res), height=str(args.res))
-    configs = [("built-in", dict(bsdf="roughconductor"), None)]
-    for m in args.models.split(","):
-        configs += [("%s, %s" % (m, how), dict(bsdf="msx_posfree", model=m), how) for how in ("texture", "gathers")]
-    wall, cpu = {c[0]: [] for c in configs}, {c[0]: [] for c in configs}
-    try:
-        for rep in range(args.repeats):
-            for label, extra, how in (configs if rep % 2 == 0 else configs[::-1]):
-                tables.Table.at_by_gathers = tables.Table.at if how == "texture" else gathers  # read when traced
-                scene = mi.load_file(path, **extra, **size)
-                _render(mi, dr, scene, 1)  # compiles on the first repeat, a kernel-cache hit after
-                t0, c0 = time.perf_counter(), time.process_time()
-                _render(mi, dr, scene, args.spp)
-                wall[label].append(time.perf_counter() - t0)
-                cpu[label].append(time.process_time() - c0)
-                del scene
-                gc.collect()
-    finally:
-        tables.Table.at_by_gathers = gathers
-    print("lookup: Fig. 9, %d², %d spp, %d repeats, load %s" % (args.res, args.spp, args.repeats, load()))
-    ref_w, ref_c = statistics.median(wall["built-in"]), statistics.median(cpu["built-in"])
-    for label, _, _ in configs:
-        w, c = statistics.median(wall[label]), statistics.median(cpu[label])
-        print("  %-26s wall × %.3f   CPU × %.3f" % (label, w / ref_w, ref_c and c / ref_c))
 
 
 def lanes(mi, dr, np, n):
@@ -294,14 +255,13 @@ def parts(mi, dr, np, args):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("what", nargs="*", default=["frame", "iterations", "parts", "roulette", "lookup"])
+    ap.add_argument("what", nargs="*", default=["frame", "iterations", "parts", "roulette"])
     ap.add_argument("--model", default="correlated", choices=("correlated", "uncorrelated"))
     ap.add_argument("--res", type=int, default=256)
     ap.add_argument("--spp", type=int, default=32)
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--lanes", type=int, default=20)
     ap.add_argument("--gains", default="30,10,3,100")
-    ap.add_argument("--models", default="correlated,uncorrelated,auto,heitz,invariance")
     args = ap.parse_args()
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
@@ -315,8 +275,7 @@ def main():
     msx.register(backend="jit")
     for what in args.what:
         {"frame": lambda: frame(mi, dr, args), "iterations": lambda: iterations(mi, dr, np, args),
-         "parts": lambda: parts(mi, dr, np, args), "roulette": lambda: roulette(mi, dr, np, args),
-         "lookup": lambda: lookup(mi, dr, args)}[what]()
+         "parts": lambda: parts(mi, dr, np, args), "roulette": lambda: roulette(mi, dr, np, args)}[what]()
         sys.stdout.flush()
 
 

@@ -316,28 +316,6 @@ def test_auto_runs_order_one_where_the_core_does():
     assert np.all(as_channels(engine_eval(engine_bsdf("auto", 0.8), wi, wo, 5)).std(axis=1) > 0)
 
 
-@pytest.mark.parametrize("kind", ("E1_CORRELATED", "ALBEDO_AVG", "DIELECTRIC_ENTER"))
-def test_table_lookup_by_gathers_equals_the_texture(kind):
-    """``Table.at_by_gathers`` (the walks' MIS density) interpolates a table of 1, 2 or 3 axes as its texture does,
-    to float32 rounding, inside and outside the axes' ranges and at NaN."""
-    from msx._native import lib
-    from msx.jit import tables
-
-    rng = np.random.default_rng(11)
-    for dist in ("ggx", "beckmann"):
-        table = tables.get(getattr(lib, "MSX_TABLE_" + kind), dist)
-        xs = []
-        for warp, lo, hi, n, centred in table.axes:
-            lo_ = lo * 0.5 if warp == lib.MSX_WARP_LN else lo - 0.1 * (hi - lo)
-            x = rng.uniform(lo_, hi + 0.1 * (hi - lo), 4096).astype(np.float32)
-            x[:2] = (lo, hi)  # the first and the last node
-            x[2] = np.nan
-            xs.append(mi.Float(x))
-        texture, gathers = np.array(table.at(*xs)), np.array(table.at_by_gathers(*xs))
-        assert np.all(np.isfinite(gathers)), (kind, dist)
-        assert np.allclose(gathers, texture, rtol=0, atol=1e-6), (kind, dist, np.abs(gathers - texture).max())
-
-
 def test_reproducible_streams():
     """The same inputs give the same estimate whatever the lane order (each lane's stream is hashed from
     its own inputs and the seed); another seed gives other estimates."""

@@ -24,7 +24,7 @@ def conductor_walk_pdf(exit, mf, wi, wo):
     """The exact density of leaving after one bounce plus a cosine lobe carrying the rest of the mass,
     1 − E_1(ω_i) from the core's order-1 albedo table, floored at 1e-3."""
     lambda_o = mf.lambda_(wo)
-    e1 = _e1_table(exit, mf.dist).at_by_gathers(dr.sqrt(mf.alpha_u * mf.alpha_v), wi[2])
+    e1 = _e1_table(exit, mf.dist).at(dr.sqrt(mf.alpha_u * mf.alpha_v), wi[2])
     if exit == SEPARABLE:
         p_exit = 1.0 / (1.0 + lambda_o)
     else:

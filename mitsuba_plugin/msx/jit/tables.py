@@ -52,19 +52,15 @@ class Table:
         self.axes = [(a.warp, a.lo, a.hi, a.n, bool(a.centred)) for a in shape.axes[0:shape.naxes]]
         dims = [a[3] for a in self.axes]
         tensor = mi.TensorXf(values.astype(np.float32).reshape(dims + [1]))
-        self._values = mi.Float(values.astype(np.float32))  # the nodes, the last axis fastest (``at_by_gathers``)
         cls = {1: mi.Texture1f, 2: mi.Texture2f, 3: mi.Texture3f}[len(dims)]
         self._tex = cls(tensor, use_accel=False, filter_mode=dr.FilterMode.Linear, wrap_mode=dr.WrapMode.Clamp)
 
-    def _position(self, axis, x):
-        """x's fractional node position on an axis (``Axis::position``)."""
+    def _coordinate(self, axis, x):
         warp, lo, hi, n, centred = axis
         t = (_warp(self._lib, warp, mi.Float(x)) - lo) / (hi - lo)
         t = t * n - 0.5 if centred else t * (n - 1)
-        return dr.select(dr.isnan(t), 0.0, dr.clip(t, 0.0, n - 1))
-
-    def _coordinate(self, axis, x):
-        return (self._position(axis, x) + 0.5) / axis[3]
+        t = dr.select(dr.isnan(t), 0.0, dr.clip(t, 0.0, n - 1))
+        return (t + 0.5) / n
 
     def at(self, *x):
         """The interpolated value at x (one Float per axis, in the axes' order)."""
@@ -72,30 +68,6 @@ class Table:
         coords = [self._coordinate(a, v) for a, v in zip(self.axes, x)][::-1]
         p = {1: mi.Point1f, 2: mi.Point2f, 3: mi.Point3f}[len(coords)](*coords)
         return self._tex.eval(p)[0]
-
-    def at_by_gathers(self, *x):
-        """``at``'s interpolant from the nodes by gathers and linear steps, the last axis first (``Grid::at``; equal
-        to the texture's lookup up to float32 rounding). In Mitsuba's symbolic calls it cost a fraction of the
-        texture's: benches/README.md, "The GGX conductor walks on Fig. 9"."""
-        strides, size = [], 1
-        for axis in reversed(self.axes):
-            strides.insert(0, size)
-            size *= axis[3]
-        base, steps = mi.UInt32(0), []
-        for axis, v, stride in zip(self.axes, x, strides):
-            t, n = self._position(axis, v), axis[3]
-            i = dr.minimum(mi.UInt32(t), max(n - 2, 0))  # t ≥ 0: truncation is the floor
-            base = base + i * stride
-            steps.append((t - mi.Float(i), stride if n > 1 else 0))
-
-        def corner(k, offset):
-            if k == len(steps):
-                return dr.gather(mi.Float, self._values, base + offset)
-            f, stride = steps[k]
-            lo = corner(k + 1, offset)
-            return dr.fma(f, corner(k + 1, offset + stride) - lo, lo) if stride else lo
-
-        return corner(0, 0)
 
 
 def get(kind, distribution):

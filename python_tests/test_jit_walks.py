@@ -392,3 +392,27 @@ def test_the_run_tail_branch_changes_no_bit(monkeypatch):
         print(f"{label}: lanes whose result {always} slots would change: {differ:.4f}")
         assert np.array_equal(branched, unrolled, equal_nan=True), label
         assert differ > 0.0, f"{label}: no run reached the branch: the test shows nothing"
+
+
+def test_the_connection_branch_changes_no_bit(monkeypatch):
+    """The conductor invariance walk makes its connection (orders 2 and 3) inside a branch that packets of
+    lanes skip at the later vertices (``CONNECTION_BRANCH``): eval must give the same bits as the walk that
+    computes it at every vertex and masks it, on directions where every order contributes (GGX α = 1, ω_o
+    from grazing to normal), and the connection must matter there (without it the estimate differs)."""
+    from msx.jit import invariance_conductor as conductor
+
+    n = 1 << 16
+    si = interaction(direction(0.5), n)
+    theta = np.linspace(0.05, 1.5, n)
+    wo = mi.Vector3f(*[mi.Float(x.astype(np.float32)) for x in (np.sin(theta), np.zeros(n), np.cos(theta))])
+
+    def run(branch, connect_max=conductor.CONNECT_MAX_ORDER):
+        monkeypatch.setattr(conductor, "CONNECTION_BRANCH", branch)
+        monkeypatch.setattr(conductor, "CONNECT_MAX_ORDER", connect_max)
+        b = mi.load_dict({"type": "msx_posfree", "distribution": "ggx", "alpha": 1.0, "model": "invariance",
+                          "material": "Cu"})
+        return np_of(b.eval(mi.BSDFContext(), si, wo))
+
+    branched, masked = run(True), run(False)
+    assert np.array_equal(branched, masked, equal_nan=True)
+    assert np.any(run(True, 0) != branched), "the connection served no lane: the test shows nothing"

@@ -27,6 +27,9 @@ from .rng import Stream, mix32, mix32_int
 # connection strategy serves.
 RR_KEEP = 0.5
 CONNECT_MAX_ORDER = 3
+# The connection's work inside a ``dr.if_stmt`` that packets of lanes skip where none of them makes one
+# (``walk_from``); False computes it at every vertex and masks it: the same bits (a test), slower.
+CONNECTION_BRANCH = True
 # The key of the edge terms' own stream (``walk_from`` along moving directions on GGX): a salt mixed into the
 # lane's key, so that the walk's stream is the same with the terms or without.
 EDGE_SALT = mix32_int(0x494E5645)
@@ -119,7 +122,7 @@ def nee_edge_term(mf, fresnel, dp, w, tw, pdf_scale, wo, two, lambda_o, mis_next
     l_d = mf.lambda_(d)
     dp = _detached_exit(dp)
     cont = dp.push_up(l_d, ok)
-    col_o = dp.columns(lambda_o, mi.Float(0.0))[0]
+    col_o = dp.column(lambda_o)
     d_h = mf.d_horizon(h)
     p_rev = d_h * (0.25 / (z * (1.0 + lambda_o)))
     balance = dr.select(mis_next, p_step / (p_step + p_rev), 1.0)
@@ -225,6 +228,12 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
     tangent of ω_i) and their two numbers from a stream of their own (``EDGE_SALT``)."""
     connects = light is not None
     traced = mf_sample is not None
+    # The connection serves orders 2..connect_max: the first connect_max − 1 vertices of a walk, while a packet
+    # of lanes runs 5 of them on average on Fig. 9 (benches/README.md, "`invariance` on Fig. 9"). Its work, with
+    # its own pass over the run, sits in a ``dr.if_stmt`` that the packets skip at the later vertices and where
+    # no lane is active (``CONNECTION_BRANCH``); not where the run's passes are unrolled (``over_run``: drjit
+    # 1.5's forward mode fails on a branch in a loop).
+    branchy = connects and not dp0.unrolled and CONNECTION_BRANCH
     edges = traced and direction_tangent is not None and mf.dist != BECKMANN
     edge_key = mix32(key ^ EDGE_SALT) if edges else None
     material = () if fresnel.mirror else (fresnel.eta, fresnel.k)
@@ -259,8 +268,12 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
         # connection for orders 2..connect_max.
         d_h, cos_wh = half_vector_d(mf, w, wo)
         value = d_h * pdf_scale
-        lambda_y = light.l_y if connects else mi.Float(0.0)
-        col_o, via_up = dp.columns(lambda_o, lambda_y)
+        if branchy:  # the connection's pass over the run only inside its branch, below
+            col_o = dp.column(lambda_o)
+        elif connects:
+            col_o, via_up = dp.columns(lambda_o, light.l_y)
+        else:
+            col_o = dp.column(lambda_o)
         if connects:
             mis_w = (j > 0) & (order <= connect_max) & (value > 0.0)
             p_rev = d_h * (0.25 / (wo[2] * (1.0 + lambda_o)))
@@ -275,9 +288,18 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
             mf_e, wo_e, lo_e, w_e, scale_e = mf_s, dr.detach(wo), dr.detach(lambda_o), dr.detach(w), dr.detach(pdf_scale)
             fr_e = fresnel if fresnel.mirror else ConductorFresnel(dr.detach(fresnel.eta), dr.detach(fresnel.k))
         if connects:
-            conn = light.connect(mf, fresnel, dp.has_up, w, pdf_scale, via_up, col_o, traced, attached_mis)
             conn_on = active & (order < connect_max)
-            result = dr.select(conn_on, result + thr * conn, result)
+
+            def connection(result):
+                via = dp.columns(lambda_o, light.l_y)[1] if branchy else via_up
+                conn = light.connect(mf, fresnel, dp.has_up, w, pdf_scale, via, col_o, traced, attached_mis)
+                return (dr.select(conn_on, result + thr * conn, result),)
+
+            if branchy:
+                result = dr.if_stmt(args=(result,), cond=conn_on, true_fn=connection, false_fn=lambda r: (r,),
+                                    label="msx_invariance_connection")[0]
+            else:
+                result = connection(result)[0]
             if edges:
                 edge = connect_edge_term(mf_e, fr_e, dp, dr.detach(col_o), w_e, tw, scale_e, wo_e, two, lo_e,
                                          u_conn_edge)

@@ -135,17 +135,18 @@ class MonotoneExit:
         self.down, self.a, ok = push_down(self.down, self.a, self.has_up, l, active, self.unrolled)
         return ok
 
+    def _slot(self, i):
+        """(slot i in use, |Λ| of its direction, its g — 0 before an upward direction) for the passes."""
+        return self.a > i, self.down[i], dr.select(self.has_up, self.g[i], 0.0)
+
     def columns(self, lambda_x, lambda_y):
         """One pass over the downward run: (column(Λ_x), exit_via_up(Λ_y, Λ_x)), i.e. p_exit(d_0..d_m, x)/H_m
         and p_exit(d_0..d_m, y, x)/H_m for virtual upward x, y (``exit_given_hits``, ``exit_via_up``)."""
-        has_up = self.has_up
-        c0 = dr.select(has_up, 0.0, 1.0)
+        c0 = dr.select(self.has_up, 0.0, 1.0)
 
         def step(i, carry):
             c, c_x, c_y = carry
-            run = self.a > i
-            li = self.down[i]
-            gi = dr.select(has_up, self.g[i], 0.0)
+            run, li, gi = self._slot(i)
             r_x = 1.0 / (li + lambda_x)
             c_y_new = (li * c_y + gi) / (li + lambda_y)
             return (dr.select(run, (li * c + gi) * r_x, c), dr.select(run, (li * c_x + lambda_y * c_y_new) * r_x, c_x),
@@ -153,6 +154,16 @@ class MonotoneExit:
 
         c, c_x, _ = over_run(self.n, self.a, step, (c0, mi.Float(0.0), c0), unrolled=self.unrolled)
         return c, c_x
+
+    def column(self, lambda_x):
+        """column(Λ_x) alone: the first value of :meth:`columns`, the same bits, without its other two
+        recurrences (for a vertex that makes no connection, and ``exit_probability``)."""
+
+        def step(i, carry):
+            run, li, gi = self._slot(i)
+            return (dr.select(run, (li * carry[0] + gi) * (1.0 / (li + lambda_x)), carry[0]),)
+
+        return over_run(self.n, self.a, step, (dr.select(self.has_up, 0.0, 1.0),), unrolled=self.unrolled)[0]
 
     def push_up(self, lam, active):
         """Appends an upward direction with Λ = ``lam`` where ``active``; returns H_{m+1}/H_m, the
@@ -184,7 +195,7 @@ class MonotoneExit:
 
     def exit_probability(self, lam):
         """p_exit(d_0..d_m, x) for an upward x with Λ(x) = ``lam``: H_m times the column."""
-        return self.hit * self.columns(lam, mi.Float(0.0))[0]
+        return self.hit * self.column(lam)
 
 
 

@@ -13,10 +13,10 @@ import drjit as dr
 import mitsuba as mi
 
 from . import heitz, invariance_recursion, walk
-from .dielectric import eta_seen, radiance_scale, reflect_or_refract_unit
+from .dielectric import eta_seen, fresnel_dielectric, radiance_scale, reflect_or_refract_unit, transmit_half_vector
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
 from .gradients import LoopValues
-from .microfacet import BECKMANN
+from .microfacet import BECKMANN, dot, normalized
 from .invariance_recursion import over_run, push_down, run_slots
 from .posfree_dielectric import vertex_reflect, vertex_transmit
 from .rng import Stream, clean_uniform
@@ -100,6 +100,44 @@ class PieceChain:
         self.hit = dr.select(active, self.hit * cont, self.hit)
         return dr.select(active, cont, 0.0)
 
+    def push_up_packets(self, lam, active):
+        """``push_up`` only in the packets that have a lane of ``active`` (a symbolic ``dr.if_stmt``; the
+        other lanes keep the chain and get 0, as ``push_up`` leaves and gives them: the same bits). An
+        unrolled chain (forward mode fails on a branch) pushes everywhere."""
+        if self.unrolled:
+            return self.push_up(lam, active)
+        n = self.n
+
+        def run(lam, *s):
+            chain = PieceChain(self.rates, s[:n], self.a, s[n + 1], s[n], s[n + 2])
+            cont = chain.push_up(lam, active)
+            return (cont,) + tuple(chain.pi) + (chain.scale, chain.has_up, chain.hit)
+
+        def kept(lam, *s):
+            return (dr.zeros(mi.Float, dr.width(lam)),) + s
+
+        out = dr.if_stmt((lam,) + tuple(self.pi) + (self.scale, self.has_up, self.hit), active, run, kept,
+                         label="msx_invariance_push_up")
+        self.pi, (self.scale, self.has_up, self.hit) = list(out[1:n + 1]), out[n + 1:]
+        return out[0]
+
+    def push_down_packets(self, l, active):
+        """``push_down`` only in the packets that have a lane of ``active`` (as ``push_up_packets``)."""
+        if self.unrolled:
+            return self.push_down(l, active)
+        n = self.n
+
+        def run(l, a, *rates):
+            rates, a, ok = push_down(list(rates), a, self.has_up, l, active, False)
+            return (ok, a) + tuple(rates)
+
+        def kept(l, a, *rates):
+            return (dr.zeros(mi.Bool, dr.width(l)), a) + rates
+
+        out = dr.if_stmt((l, self.a) + tuple(self.rates), active, run, kept, label="msx_invariance_push_down")
+        self.a, self.rates = out[1], list(out[2:])
+        return out[0]
+
     def exit_given_hits(self, lam, active):
         """E[e^{−Λ τ}] given the hits: the probability of leaving along an upward direction with
         Λ = ``lam`` from the current vertex (0 where not active, Λ < 0 or ∞)."""
@@ -118,6 +156,22 @@ class PieceChain:
 
 
 def draw_depth(chain, c_min, key, counter, active, traced=False, reparam=False):
+    """``draw_depth_all`` only in the packets that have a lane of ``active`` (a symbolic ``dr.if_stmt``
+    branches per packet); the other lanes get what ``draw_depth_all`` gives them there, (0, 0, counter + 1,
+    1): the same bits. A chain whose passes are unrolled (a walk differentiated in forward mode, which fails
+    on a branch) and the traced draws take ``draw_depth_all`` itself."""
+    if traced or chain.unrolled:
+        return draw_depth_all(chain, c_min, key, counter, active, traced, reparam)
+
+    def skipped(counter):
+        zero = dr.zeros(mi.Float, dr.width(counter))
+        return zero, zero, counter + 1, zero + 1.0
+
+    return dr.if_stmt((counter,), active, lambda c: draw_depth_all(chain, c_min, key, c, active), skipped,
+                      label="msx_invariance_draw_depth")
+
+
+def draw_depth_all(chain, c_min, key, counter, active, traced=False, reparam=False):
     """τ of ``PieceChain.sample_depth``: the piece c ≥ c_min from π (one number), then τ = X_0 + … + X_c
     with fresh X_i ~ Exp(L_i) (one number each; L = ∞ adds no depth). Returns (τ, mass Σ_{c ≥ c_min} π(c),
     counter, ratio). ``traced`` (docs/gradients.md): the draw is made with the chain's values detached and
@@ -187,6 +241,26 @@ def transmit_exit(chain, lambda_t, key, counter, active, traced=False, reparam=F
     return dr.select(run, e, 0.0), counter
 
 
+def next_event_exits(chain, lambda_o, key, counter, nee, same):
+    """(``exit_given_hits`` where ``nee & same``, ``transmit_exit`` where ``nee & ~same``, counter) of a plain
+    walk, each inside a symbolic ``dr.if_stmt`` that a packet without a lane of it skips: its other lanes get
+    what the function gives them there (0, and the counter one pair on: ``draw_depth``), the same bits."""
+
+    def reflected(lo):
+        return chain.exit_given_hits(lo, nee & same)
+
+    def across(lo, counter):
+        return transmit_exit(chain, lo, key, counter, nee & ~same)
+
+    def zero(lo, *counter):
+        z = dr.zeros(mi.Float, dr.width(lo))
+        return (z, counter[0] + 1) if counter else z
+
+    exit_r = dr.if_stmt((lambda_o,), nee & same, reflected, zero, label="msx_invariance_exit_reflected")
+    exit_t, counter = dr.if_stmt((lambda_o, counter), nee & ~same, across, zero, label="msx_invariance_exit_across")
+    return exit_r, exit_t, counter
+
+
 def refraction(chain, o, refr, handed, key, counter, traced=False, reparam=False):
     """Where the first run refracts (``refr``): the vertex depth drawn from the chain's law (``draw_depth``),
     and what Heitz's walk continues from, ``handed`` = (refracted, its direction, its height): the refracted
@@ -205,12 +279,34 @@ def extend_run(mf, chain, d, active, over_lambda=False):
     up = d[2] > 0.0
     lam = mf.lambda_(d)
     active &= ~(up & dr.isnan(lam))
-    cont = chain.push_up(lam, active & up, over_lambda)
+    if over_lambda:
+        cont = chain.push_up(lam, active & up, over_lambda)
+    else:  # only in the packets with a lane of it (the same bits)
+        cont = chain.push_up_packets(lam, active & up)
     l = mf.abs_lambda(d)
-    pushed = chain.push_down(l, active & ~up & dr.isfinite(l))
+    pushed = chain.push_down_packets(l, active & ~up & dr.isfinite(l))
     if over_lambda:
         return active, up, cont, pushed, l
     return active, up, cont, pushed
+
+
+def phase_next_event(mf, w, o, eta, transmit):
+    """Heitz's phase function towards ``o`` (``heitz.dielectric_phase_transmit`` where ``transmit``, else
+    ``heitz.dielectric_phase_reflect``) with one half vector, one visible-normal density and one Fresnel factor
+    per lane: each lane rounds the operations of its own branch's function (the same bits), at about half the
+    cost of computing both and selecting (as ``posfree_dielectric.vertex_next_event``)."""
+    h, length = normalized(dr.select(transmit, transmit_half_vector(w, o, eta), w + o))
+    c, co = dot(w, h), dot(o, h)
+    d = mf.d_visible(w, h)
+    p = d / (4.0 * c)
+    ok_r = (length > 1e-12) & (c > 0.0) & (h[2] > 0.0) & dr.isfinite(p) & (p > 0.0)
+    # The reflection's Fresnel argument where its term is valid (its other lanes give 0 either way).
+    f = fresnel_dielectric(dr.select(transmit | ok_r, c, 1.0), eta)
+    v_r = dr.select(ok_r, p * f, 0.0)
+    denom = c + eta * co
+    v_t = eta * eta * (1.0 - f) * d * (-co) / (denom * denom)
+    ok_t = (length > 1e-12) & (c > 0.0) & (co < 0.0) & (f < 1.0) & dr.isfinite(v_t) & (v_t > 0.0)
+    return dr.select(transmit, dr.select(ok_t, v_t, 0.0), v_r)
 
 
 def dielectric_valid(w, eta):
@@ -352,11 +448,13 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
             l_w = dr.detach(mfa.abs_lambda(-w))
             l_w = dr.select(dr.isfinite(l_w), l_w, 0.0)
         else:
-            phase = dr.select(same, heitz.dielectric_phase_reflect(mfa, w, wo_l_, ea),
-                              heitz.dielectric_phase_transmit(mfa, w, wo_l_, ea))
+            phase = phase_next_event(mfa, w, wo_l_, ea, ~same)
         nee = active & (phase > 0.0)
-        exit_r = chain.exit_given_hits(lo, nee & same)
-        exit_t, counter = transmit_exit(chain, lo, key, counter, nee & ~same, traced, dirs)
+        if traced:
+            exit_r = chain.exit_given_hits(lo, nee & same)
+            exit_t, counter = transmit_exit(chain, lo, key, counter, nee & ~same, traced, dirs)
+        else:  # each only in the packets that have a lane of it (a symbolic if_stmt; the same bits)
+            exit_r, exit_t, counter = next_event_exits(chain, lo, key, counter, nee, same)
         result = dr.select(nee, result + thr * phase * dr.select(same, exit_r, exit_t), result)
         active &= order < last
         rng = Stream(key, counter)
@@ -471,7 +569,7 @@ def sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
     def body(j, w, done, active, counter, u, refracted, h_dir, h_t, chain_state):
         ua, u1, u2 = u
         chain = PieceChain.from_state(chain_state)
-        m, cos_wm, valid = heitz.visible_normal(mf, w, u1, u2)
+        m, cos_wm, valid = heitz.visible_normal(mf, w, u1, u2, where=active)  # only where the walk goes on
         active &= valid
         o, d, crossed = reflect_or_refract_unit(w, m, cos_wm, e, ua)
         refr = active & crossed

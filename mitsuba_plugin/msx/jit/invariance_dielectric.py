@@ -127,15 +127,16 @@ class PieceChain:
             return self.push_down(l, active)
         n = self.n
 
+        # Slot 0 (L_0) is never written: it stays out of the branch, as it was out of the loop's changes.
         def run(l, a, *rates):
-            rates, a, ok = push_down(list(rates), a, self.has_up, l, active, False)
-            return (ok, a) + tuple(rates)
+            rates, a, ok = push_down([self.rates[0]] + list(rates), a, self.has_up, l, active, False)
+            return (ok, a) + tuple(rates[1:])
 
         def kept(l, a, *rates):
             return (dr.zeros(mi.Bool, dr.width(l)), a) + rates
 
-        out = dr.if_stmt((l, self.a) + tuple(self.rates), active, run, kept, label="msx_invariance_push_down")
-        self.a, self.rates = out[1], list(out[2:])
+        out = dr.if_stmt((l, self.a) + tuple(self.rates[1:]), active, run, kept, label="msx_invariance_push_down")
+        self.a, self.rates = out[1], [self.rates[0]] + list(out[2:])
         return out[0]
 
     def exit_given_hits(self, lam, active):
@@ -265,10 +266,23 @@ def refraction(chain, o, refr, handed, key, counter, traced=False, reparam=False
     """Where the first run refracts (``refr``): the vertex depth drawn from the chain's law (``draw_depth``),
     and what Heitz's walk continues from, ``handed`` = (refracted, its direction, its height): the refracted
     ray −``o`` and the flipped height. Returns (handed, counter, the draw's density ratio)."""
-    tau, _, counter, ratio = draw_depth(chain, 0, key, counter, refr, traced, reparam)
-    refracted, h_dir, h_t = handed
-    handed = (refracted | refr, dr.select(refr, -o, h_dir), dr.select(refr, heitz.flip_height(-tau), h_t))
-    return handed, counter, ratio
+    if traced or chain.unrolled:
+        tau, _, counter, ratio = draw_depth(chain, 0, key, counter, refr, traced, reparam)
+        refracted, h_dir, h_t = handed
+        handed = (refracted | refr, dr.select(refr, -o, h_dir), dr.select(refr, heitz.flip_height(-tau), h_t))
+        return handed, counter, ratio
+
+    # A plain walk: the draw and the flip only in the packets that have a refracting lane (a symbolic
+    # if_stmt); the other lanes keep what they hand over and move the counter one pair on (the same bits).
+    def run(counter, refracted, h_dir, h_t):
+        tau, _, counter, _ = draw_depth_all(chain, 0, key, counter, refr)
+        return counter, refracted | refr, dr.select(refr, -o, h_dir), dr.select(refr, heitz.flip_height(-tau), h_t)
+
+    def kept(counter, *handed):
+        return (counter + 1,) + handed
+
+    counter, *handed = dr.if_stmt((counter,) + tuple(handed), refr, run, kept, label="msx_invariance_refraction")
+    return tuple(handed), counter, mi.Float(1.0)
 
 
 def extend_run(mf, chain, d, active, over_lambda=False):
@@ -288,6 +302,33 @@ def extend_run(mf, chain, d, active, over_lambda=False):
     if over_lambda:
         return active, up, cont, pushed, l
     return active, up, cont, pushed
+
+
+def extend_run_packets(mf, chain, d, active):
+    """``extend_run`` of a plain walk only in the packets that have a lane of ``active`` (a symbolic
+    ``dr.if_stmt``; the other lanes keep the chain, and get what ``extend_run`` gives them there: not active,
+    0, not pushed; the same bits). An unrolled chain (forward mode fails on a branch) extends everywhere."""
+    if chain.unrolled:
+        return extend_run(mf, chain, d, active)
+    n = chain.n
+
+    def flat(c):  # slot 0 (L_0) is never written: it stays out of the branch
+        return tuple(c.rates[1:]) + tuple(c.pi) + (c.a, c.has_up, c.scale, c.hit)
+
+    def run(d, active, *s):
+        c = PieceChain([chain.rates[0]] + list(s[:n - 1]), s[n - 1:2 * n - 1], *s[2 * n - 1:])
+        active, _, cont, pushed = extend_run(mf, c, d, active)
+        return (active, cont, pushed) + flat(c)
+
+    def kept(d, active, *s):
+        return (active, dr.zeros(mi.Float, dr.width(active)), dr.zeros(mi.Bool, dr.width(active))) + s
+
+    out = dr.if_stmt((d, active) + flat(chain), active, run, kept, label="msx_invariance_extend_run")
+    rest = out[3:]
+    chain.rates = [chain.rates[0]] + list(rest[:n - 1])
+    chain.pi = list(rest[n - 1:2 * n - 1])
+    chain.a, chain.has_up, chain.scale, chain.hit = rest[2 * n - 1:]
+    return out[0], d[2] > 0.0, out[1], out[2]
 
 
 def phase_next_event(mf, w, o, eta, transmit):
@@ -512,7 +553,7 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
             active, up, cont, pushed, l_d = extend_run(mfa, chain, d, active, over_lambda=True)
             thr = dr.select(active, dr.select(up, thr * cont, thr / dr.select(up, 1.0, l_d)), thr)
         else:
-            active, up, cont, pushed = extend_run(mfa, chain, d, active)
+            active, up, cont, pushed = extend_run_packets(mfa, chain, d, active)
             thr = dr.select(active & up, thr * cont, thr)
         active &= (~up | (cont > 0.0)) & (up | pushed)
         if dirs:
@@ -575,7 +616,7 @@ def sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
         refr = active & crossed
         (refracted, h_dir, h_t), counter, _ = refraction(chain, o, refr, (refracted, h_dir, h_t), key, counter)
         active &= ~refr
-        active, up, cont, pushed = extend_run(mf, chain, d, active)
+        active, up, cont, pushed = extend_run_packets(mf, chain, d, active)
         rng = Stream(key, counter)
         u_exit, c = rng.next2()
         leaves = active & up & (u_exit >= cont)

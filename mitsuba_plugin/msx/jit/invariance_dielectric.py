@@ -31,24 +31,33 @@ class PieceChain:
     not materialised), ``a`` (pieces), ``has_up``, ``hit`` (H_m). Pass :meth:`state` through the walk's
     loop and rebuild with :meth:`from_state`."""
 
-    def __init__(self, rates, pi, a, has_up, scale, hit, unrolled=False):
+    def __init__(self, rates, pi, a, has_up, scale, hit, unrolled=False, packets=True):
         self.rates, self.pi = list(rates), list(pi)
         self.a, self.has_up, self.scale, self.hit = a, has_up, scale, hit
         self.n = len(self.rates)
         # How its passes are traced (``over_run``): a Python bool of the trace, not loop state.
         self.unrolled = unrolled
+        # Whether its pushes, draws and the first run's steps on it (``refraction``, ``extend_run_packets``) run
+        # in per-packet branches (``branched``): the eval walk's do (−8 % per call, benches/README.md, "The
+        # invariance walk through glass"); the sample walk's do not (its first vertex, where every lane is,
+        # dominates it, and the branches cost it 2–4 %). The same bits either way.
+        self.packets = packets
+
+    @property
+    def branched(self):
+        return self.packets and not self.unrolled
 
     @staticmethod
-    def new(l0, n, unrolled=False):
+    def new(l0, n, unrolled=False, packets=True):
         return PieceChain([mi.Float(l0)] + [mi.Float(1.0) for _ in range(n - 1)], [mi.Float(0.0) for _ in range(n)],
-                          mi.UInt32(1), mi.Bool(False), mi.Float(1.0), mi.Float(1.0), unrolled)
+                          mi.UInt32(1), mi.Bool(False), mi.Float(1.0), mi.Float(1.0), unrolled, packets)
 
     def state(self):
         return (self.rates, self.pi, self.a, self.has_up, self.scale, self.hit)
 
     @staticmethod
-    def from_state(s, unrolled=False):
-        return PieceChain(*s, unrolled=unrolled)
+    def from_state(s, unrolled=False, packets=True):
+        return PieceChain(*s, unrolled=unrolled, packets=packets)
 
     def pi_at(self, c, on):
         """π(c) (normalised) of the slot c (a Python int) where ``on``."""
@@ -102,9 +111,9 @@ class PieceChain:
 
     def push_up_packets(self, lam, active):
         """``push_up`` only in the packets that have a lane of ``active`` (a symbolic ``dr.if_stmt``; the
-        other lanes keep the chain and get 0, as ``push_up`` leaves and gives them: the same bits). An
-        unrolled chain (forward mode fails on a branch) pushes everywhere."""
-        if self.unrolled:
+        other lanes keep the chain and get 0, as ``push_up`` leaves and gives them: the same bits). A chain
+        that is not ``branched`` (unrolled: forward mode fails on a branch; the sample walk's) pushes everywhere."""
+        if not self.branched:
             return self.push_up(lam, active)
         n = self.n
 
@@ -123,7 +132,7 @@ class PieceChain:
 
     def push_down_packets(self, l, active):
         """``push_down`` only in the packets that have a lane of ``active`` (as ``push_up_packets``)."""
-        if self.unrolled:
+        if not self.branched:
             return self.push_down(l, active)
         n = self.n
 
@@ -159,9 +168,9 @@ class PieceChain:
 def draw_depth(chain, c_min, key, counter, active, traced=False, reparam=False):
     """``draw_depth_all`` only in the packets that have a lane of ``active`` (a symbolic ``dr.if_stmt``
     branches per packet); the other lanes get what ``draw_depth_all`` gives them there, (0, 0, counter + 1,
-    1): the same bits. A chain whose passes are unrolled (a walk differentiated in forward mode, which fails
-    on a branch) and the traced draws take ``draw_depth_all`` itself."""
-    if traced or chain.unrolled:
+    1): the same bits. A chain that is not ``branched`` (unrolled: a walk differentiated in forward mode, which
+    fails on a branch; the sample walk's) and the traced draws take ``draw_depth_all`` itself."""
+    if traced or not chain.branched:
         return draw_depth_all(chain, c_min, key, counter, active, traced, reparam)
 
     def skipped(counter):
@@ -266,7 +275,7 @@ def refraction(chain, o, refr, handed, key, counter, traced=False, reparam=False
     """Where the first run refracts (``refr``): the vertex depth drawn from the chain's law (``draw_depth``),
     and what Heitz's walk continues from, ``handed`` = (refracted, its direction, its height): the refracted
     ray −``o`` and the flipped height. Returns (handed, counter, the draw's density ratio)."""
-    if traced or chain.unrolled:
+    if traced or not chain.branched:
         tau, _, counter, ratio = draw_depth(chain, 0, key, counter, refr, traced, reparam)
         refracted, h_dir, h_t = handed
         handed = (refracted | refr, dr.select(refr, -o, h_dir), dr.select(refr, heitz.flip_height(-tau), h_t))
@@ -307,8 +316,8 @@ def extend_run(mf, chain, d, active, over_lambda=False):
 def extend_run_packets(mf, chain, d, active):
     """``extend_run`` of a plain walk only in the packets that have a lane of ``active`` (a symbolic
     ``dr.if_stmt``; the other lanes keep the chain, and get what ``extend_run`` gives them there: not active,
-    0, not pushed; the same bits). An unrolled chain (forward mode fails on a branch) extends everywhere."""
-    if chain.unrolled:
+    0, not pushed; the same bits). A chain that is not ``branched`` extends everywhere."""
+    if not chain.branched:
         return extend_run(mf, chain, d, active)
     n = chain.n
 
@@ -605,12 +614,12 @@ def sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
     w0 = dr.select(outside, wi, -wi)
     l0 = mf.abs_lambda(-w0)
     start = dielectric_valid(wi, eta) & dr.isfinite(l0) & (last > 0)
-    chain0 = PieceChain.new(l0, slots)
+    chain0 = PieceChain.new(l0, slots, packets=False)  # no per-packet branches (PieceChain)
 
     def body(j, w, done, active, counter, u, refracted, h_dir, h_t, chain_state):
         ua, u1, u2 = u
-        chain = PieceChain.from_state(chain_state)
-        m, cos_wm, valid = heitz.visible_normal(mf, w, u1, u2, where=active)  # only where the walk goes on
+        chain = PieceChain.from_state(chain_state, packets=False)
+        m, cos_wm, valid = heitz.visible_normal(mf, w, u1, u2)
         active &= valid
         o, d, crossed = reflect_or_refract_unit(w, m, cos_wm, e, ua)
         refr = active & crossed

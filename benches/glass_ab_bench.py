@@ -3,6 +3,7 @@ item 2; benches/README.md, "Glass walks per frame").
 
     python3 benches/glass_ab_bench.py [--before 0d52f77] [--models correlated,heitz,invariance]
                                       [--calls-only | --frames-only] [--lanes 21] [--spp 16] [--repeats 5]
+                                      [--alpha 0.6]
 
 The modules ``posfree_dielectric``, ``heitz`` and ``invariance_dielectric`` of ``--before`` (``git show``) are
 written beside the installed ones as ``msx/jit/<name>_before.py`` (removed at exit) and imported, so the
@@ -10,8 +11,8 @@ before and after walks run in the same process, interleaved, each timed by the p
 ``dr.sync_thread()``, the median of the repeats (the first round, which compiles, is not counted):
 
 * per call: ``eval`` and ``sample`` of each walk directly (2^lanes random ω_i and ω_o, each on either side,
-  Beckmann α 0.6, η 1.5, one wavefront);
-* per frame: the shipped ``matpreview_glass.xml`` at α 0.6 (320×240, as benches/scene_bench.py swaps it), the
+  Beckmann α ``--alpha`` (0.6), η 1.5, one wavefront);
+* per frame: the shipped ``matpreview_glass.xml`` at α ``--alpha`` (320×240, as benches/scene_bench.py swaps it), the
   built-in ``roughdielectric`` and each model with its walk from before and after (the model's walk is
   swapped in ``jit/bsdf.py``'s table before the scene is loaded).
 
@@ -65,6 +66,7 @@ def main():
     ap.add_argument("--lanes", type=int, default=21)
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--alpha", type=float, default=0.6)
     ap.add_argument("--calls-only", action="store_true")
     ap.add_argument("--frames-only", action="store_true")
     args = ap.parse_args()
@@ -108,7 +110,7 @@ def main():
         key = mi.UInt32(rng.integers(0, 2 ** 32, n, dtype=np.uint64).astype(np.uint32))
         s = [mi.Float(x) for x in rng.random((3, n)).astype(np.float32)]
         dr.make_opaque(key, *s)
-        mf = Microfacet(BECKMANN, mi.Float(0.6), mi.Float(0.6))
+        mf = Microfacet(BECKMANN, mi.Float(args.alpha), mi.Float(args.alpha))
         eta = mi.Float(1.5)
         fns = {}
         for m in models:
@@ -132,7 +134,7 @@ def main():
         path = scene_bench.resolve("matpreview_glass.xml")
         text = path.read_text()
         mi.file_resolver().prepend(str(path.parent))
-        over = {"alpha": "0.6"}
+        over = {"alpha": repr(args.alpha)}
         sources = {m: scene_bench._drop_duplicates(scene_bench.swap(text, m, over), over) for m in [None] + models}
         configs = [(None, "after")] + [(m, label) for m in models for label in ("before", "after")]
 
@@ -153,8 +155,8 @@ def main():
         jit_bsdf.DIELECTRIC_WALKS.clear()
         jit_bsdf.DIELECTRIC_WALKS.update(after)
         ref = t[(None, "after")]
-        print("per frame, matpreview_glass.xml α 0.6, 320×240, %d spp: built-in %.2f s CPU (median of %d); "
-              "× built-in:" % (args.spp, ref, args.repeats))
+        print("per frame, matpreview_glass.xml α %g, 320×240, %d spp: built-in %.2f s CPU (median of %d); "
+              "× built-in:" % (args.alpha, args.spp, ref, args.repeats))
         print("| model | before | after |\n|---|---|---|")
         for m in models:
             print("| `%s` | %.2f | %.2f |" % (m, t[(m, "before")] / ref, t[(m, "after")] / ref))

@@ -13,10 +13,10 @@ import drjit as dr
 import mitsuba as mi
 
 from . import heitz, invariance_recursion, walk
-from .dielectric import eta_seen, radiance_scale, reflect_or_refract_unit
+from .dielectric import eta_seen, fresnel_dielectric, radiance_scale, reflect_or_refract_unit, transmit_half_vector
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
 from .gradients import LoopValues
-from .microfacet import BECKMANN
+from .microfacet import BECKMANN, dot, normalized
 from .invariance_recursion import over_run, push_down, run_slots
 from .posfree_dielectric import vertex_reflect, vertex_transmit
 from .rng import Stream, clean_uniform
@@ -31,24 +31,33 @@ class PieceChain:
     not materialised), ``a`` (pieces), ``has_up``, ``hit`` (H_m). Pass :meth:`state` through the walk's
     loop and rebuild with :meth:`from_state`."""
 
-    def __init__(self, rates, pi, a, has_up, scale, hit, unrolled=False):
+    def __init__(self, rates, pi, a, has_up, scale, hit, unrolled=False, packets=True):
         self.rates, self.pi = list(rates), list(pi)
         self.a, self.has_up, self.scale, self.hit = a, has_up, scale, hit
         self.n = len(self.rates)
         # How its passes are traced (``over_run``): a Python bool of the trace, not loop state.
         self.unrolled = unrolled
+        # Whether its pushes, draws and the first run's steps on it (``refraction``, ``extend_run_packets``) run
+        # in per-packet branches (``branched``): the eval walk's do (−8 % per call, benches/README.md, "The
+        # invariance walk through glass"); the sample walk's do not (its first vertex, where every lane is,
+        # dominates it, and the branches cost it 2–4 %). The same bits either way.
+        self.packets = packets
+
+    @property
+    def branched(self):
+        return self.packets and not self.unrolled
 
     @staticmethod
-    def new(l0, n, unrolled=False):
+    def new(l0, n, unrolled=False, packets=True):
         return PieceChain([mi.Float(l0)] + [mi.Float(1.0) for _ in range(n - 1)], [mi.Float(0.0) for _ in range(n)],
-                          mi.UInt32(1), mi.Bool(False), mi.Float(1.0), mi.Float(1.0), unrolled)
+                          mi.UInt32(1), mi.Bool(False), mi.Float(1.0), mi.Float(1.0), unrolled, packets)
 
     def state(self):
         return (self.rates, self.pi, self.a, self.has_up, self.scale, self.hit)
 
     @staticmethod
-    def from_state(s, unrolled=False):
-        return PieceChain(*s, unrolled=unrolled)
+    def from_state(s, unrolled=False, packets=True):
+        return PieceChain(*s, unrolled=unrolled, packets=packets)
 
     def pi_at(self, c, on):
         """π(c) (normalised) of the slot c (a Python int) where ``on``."""
@@ -100,6 +109,45 @@ class PieceChain:
         self.hit = dr.select(active, self.hit * cont, self.hit)
         return dr.select(active, cont, 0.0)
 
+    def push_up_packets(self, lam, active):
+        """``push_up`` only in the packets that have a lane of ``active`` (a symbolic ``dr.if_stmt``; the
+        other lanes keep the chain and get 0, as ``push_up`` leaves and gives them: the same bits). A chain
+        that is not ``branched`` (unrolled: forward mode fails on a branch; the sample walk's) pushes everywhere."""
+        if not self.branched:
+            return self.push_up(lam, active)
+        n = self.n
+
+        def run(lam, *s):
+            chain = PieceChain(self.rates, s[:n], self.a, s[n + 1], s[n], s[n + 2])
+            cont = chain.push_up(lam, active)
+            return (cont,) + tuple(chain.pi) + (chain.scale, chain.has_up, chain.hit)
+
+        def kept(lam, *s):
+            return (dr.zeros(mi.Float, dr.width(lam)),) + s
+
+        out = dr.if_stmt((lam,) + tuple(self.pi) + (self.scale, self.has_up, self.hit), active, run, kept,
+                         label="msx_invariance_push_up")
+        self.pi, (self.scale, self.has_up, self.hit) = list(out[1:n + 1]), out[n + 1:]
+        return out[0]
+
+    def push_down_packets(self, l, active):
+        """``push_down`` only in the packets that have a lane of ``active`` (as ``push_up_packets``)."""
+        if not self.branched:
+            return self.push_down(l, active)
+        n = self.n
+
+        # Slot 0 (L_0) is never written: it stays out of the branch, as it was out of the loop's changes.
+        def run(l, a, *rates):
+            rates, a, ok = push_down([self.rates[0]] + list(rates), a, self.has_up, l, active, False)
+            return (ok, a) + tuple(rates[1:])
+
+        def kept(l, a, *rates):
+            return (dr.zeros(mi.Bool, dr.width(l)), a) + rates
+
+        out = dr.if_stmt((l, self.a) + tuple(self.rates[1:]), active, run, kept, label="msx_invariance_push_down")
+        self.a, self.rates = out[1], [self.rates[0]] + list(out[2:])
+        return out[0]
+
     def exit_given_hits(self, lam, active):
         """E[e^{−Λ τ}] given the hits: the probability of leaving along an upward direction with
         Λ = ``lam`` from the current vertex (0 where not active, Λ < 0 or ∞)."""
@@ -118,6 +166,22 @@ class PieceChain:
 
 
 def draw_depth(chain, c_min, key, counter, active, traced=False, reparam=False):
+    """``draw_depth_all`` only in the packets that have a lane of ``active`` (a symbolic ``dr.if_stmt``
+    branches per packet); the other lanes get what ``draw_depth_all`` gives them there, (0, 0, counter + 1,
+    1): the same bits. A chain that is not ``branched`` (unrolled: a walk differentiated in forward mode, which
+    fails on a branch; the sample walk's) and the traced draws take ``draw_depth_all`` itself."""
+    if traced or not chain.branched:
+        return draw_depth_all(chain, c_min, key, counter, active, traced, reparam)
+
+    def skipped(counter):
+        zero = dr.zeros(mi.Float, dr.width(counter))
+        return zero, zero, counter + 1, zero + 1.0
+
+    return dr.if_stmt((counter,), active, lambda c: draw_depth_all(chain, c_min, key, c, active), skipped,
+                      label="msx_invariance_draw_depth")
+
+
+def draw_depth_all(chain, c_min, key, counter, active, traced=False, reparam=False):
     """τ of ``PieceChain.sample_depth``: the piece c ≥ c_min from π (one number), then τ = X_0 + … + X_c
     with fresh X_i ~ Exp(L_i) (one number each; L = ∞ adds no depth). Returns (τ, mass Σ_{c ≥ c_min} π(c),
     counter, ratio). ``traced`` (docs/gradients.md): the draw is made with the chain's values detached and
@@ -187,14 +251,47 @@ def transmit_exit(chain, lambda_t, key, counter, active, traced=False, reparam=F
     return dr.select(run, e, 0.0), counter
 
 
+def next_event_exits(chain, lambda_o, key, counter, nee, same):
+    """(``exit_given_hits`` where ``nee & same``, ``transmit_exit`` where ``nee & ~same``, counter) of a plain
+    walk, each inside a symbolic ``dr.if_stmt`` that a packet without a lane of it skips: its other lanes get
+    what the function gives them there (0, and the counter one pair on: ``draw_depth``), the same bits."""
+
+    def reflected(lo):
+        return chain.exit_given_hits(lo, nee & same)
+
+    def across(lo, counter):
+        return transmit_exit(chain, lo, key, counter, nee & ~same)
+
+    def zero(lo, *counter):
+        z = dr.zeros(mi.Float, dr.width(lo))
+        return (z, counter[0] + 1) if counter else z
+
+    exit_r = dr.if_stmt((lambda_o,), nee & same, reflected, zero, label="msx_invariance_exit_reflected")
+    exit_t, counter = dr.if_stmt((lambda_o, counter), nee & ~same, across, zero, label="msx_invariance_exit_across")
+    return exit_r, exit_t, counter
+
+
 def refraction(chain, o, refr, handed, key, counter, traced=False, reparam=False):
     """Where the first run refracts (``refr``): the vertex depth drawn from the chain's law (``draw_depth``),
     and what Heitz's walk continues from, ``handed`` = (refracted, its direction, its height): the refracted
     ray −``o`` and the flipped height. Returns (handed, counter, the draw's density ratio)."""
-    tau, _, counter, ratio = draw_depth(chain, 0, key, counter, refr, traced, reparam)
-    refracted, h_dir, h_t = handed
-    handed = (refracted | refr, dr.select(refr, -o, h_dir), dr.select(refr, heitz.flip_height(-tau), h_t))
-    return handed, counter, ratio
+    if traced or not chain.branched:
+        tau, _, counter, ratio = draw_depth(chain, 0, key, counter, refr, traced, reparam)
+        refracted, h_dir, h_t = handed
+        handed = (refracted | refr, dr.select(refr, -o, h_dir), dr.select(refr, heitz.flip_height(-tau), h_t))
+        return handed, counter, ratio
+
+    # A plain walk: the draw and the flip only in the packets that have a refracting lane (a symbolic
+    # if_stmt); the other lanes keep what they hand over and move the counter one pair on (the same bits).
+    def run(counter, refracted, h_dir, h_t):
+        tau, _, counter, _ = draw_depth_all(chain, 0, key, counter, refr)
+        return counter, refracted | refr, dr.select(refr, -o, h_dir), dr.select(refr, heitz.flip_height(-tau), h_t)
+
+    def kept(counter, *handed):
+        return (counter + 1,) + handed
+
+    counter, *handed = dr.if_stmt((counter,) + tuple(handed), refr, run, kept, label="msx_invariance_refraction")
+    return tuple(handed), counter, mi.Float(1.0)
 
 
 def extend_run(mf, chain, d, active, over_lambda=False):
@@ -205,12 +302,61 @@ def extend_run(mf, chain, d, active, over_lambda=False):
     up = d[2] > 0.0
     lam = mf.lambda_(d)
     active &= ~(up & dr.isnan(lam))
-    cont = chain.push_up(lam, active & up, over_lambda)
+    if over_lambda:
+        cont = chain.push_up(lam, active & up, over_lambda)
+    else:  # only in the packets with a lane of it (the same bits)
+        cont = chain.push_up_packets(lam, active & up)
     l = mf.abs_lambda(d)
-    pushed = chain.push_down(l, active & ~up & dr.isfinite(l))
+    pushed = chain.push_down_packets(l, active & ~up & dr.isfinite(l))
     if over_lambda:
         return active, up, cont, pushed, l
     return active, up, cont, pushed
+
+
+def extend_run_packets(mf, chain, d, active):
+    """``extend_run`` of a plain walk only in the packets that have a lane of ``active`` (a symbolic
+    ``dr.if_stmt``; the other lanes keep the chain, and get what ``extend_run`` gives them there: not active,
+    0, not pushed; the same bits). A chain that is not ``branched`` extends everywhere."""
+    if not chain.branched:
+        return extend_run(mf, chain, d, active)
+    n = chain.n
+
+    def flat(c):  # slot 0 (L_0) is never written: it stays out of the branch
+        return tuple(c.rates[1:]) + tuple(c.pi) + (c.a, c.has_up, c.scale, c.hit)
+
+    def run(d, active, *s):
+        c = PieceChain([chain.rates[0]] + list(s[:n - 1]), s[n - 1:2 * n - 1], *s[2 * n - 1:])
+        active, _, cont, pushed = extend_run(mf, c, d, active)
+        return (active, cont, pushed) + flat(c)
+
+    def kept(d, active, *s):
+        return (active, dr.zeros(mi.Float, dr.width(active)), dr.zeros(mi.Bool, dr.width(active))) + s
+
+    out = dr.if_stmt((d, active) + flat(chain), active, run, kept, label="msx_invariance_extend_run")
+    rest = out[3:]
+    chain.rates = [chain.rates[0]] + list(rest[:n - 1])
+    chain.pi = list(rest[n - 1:2 * n - 1])
+    chain.a, chain.has_up, chain.scale, chain.hit = rest[2 * n - 1:]
+    return out[0], d[2] > 0.0, out[1], out[2]
+
+
+def phase_next_event(mf, w, o, eta, transmit):
+    """Heitz's phase function towards ``o`` (``heitz.dielectric_phase_transmit`` where ``transmit``, else
+    ``heitz.dielectric_phase_reflect``) with one half vector, one visible-normal density and one Fresnel factor
+    per lane: each lane rounds the operations of its own branch's function (the same bits), at about half the
+    cost of computing both and selecting (as ``posfree_dielectric.vertex_next_event``)."""
+    h, length = normalized(dr.select(transmit, transmit_half_vector(w, o, eta), w + o))
+    c, co = dot(w, h), dot(o, h)
+    d = mf.d_visible(w, h)
+    p = d / (4.0 * c)
+    ok_r = (length > 1e-12) & (c > 0.0) & (h[2] > 0.0) & dr.isfinite(p) & (p > 0.0)
+    # The reflection's Fresnel argument where its term is valid (its other lanes give 0 either way).
+    f = fresnel_dielectric(dr.select(transmit | ok_r, c, 1.0), eta)
+    v_r = dr.select(ok_r, p * f, 0.0)
+    denom = c + eta * co
+    v_t = eta * eta * (1.0 - f) * d * (-co) / (denom * denom)
+    ok_t = (length > 1e-12) & (c > 0.0) & (co < 0.0) & (f < 1.0) & dr.isfinite(v_t) & (v_t > 0.0)
+    return dr.select(transmit, dr.select(ok_t, v_t, 0.0), v_r)
 
 
 def dielectric_valid(w, eta):
@@ -352,11 +498,13 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
             l_w = dr.detach(mfa.abs_lambda(-w))
             l_w = dr.select(dr.isfinite(l_w), l_w, 0.0)
         else:
-            phase = dr.select(same, heitz.dielectric_phase_reflect(mfa, w, wo_l_, ea),
-                              heitz.dielectric_phase_transmit(mfa, w, wo_l_, ea))
+            phase = phase_next_event(mfa, w, wo_l_, ea, ~same)
         nee = active & (phase > 0.0)
-        exit_r = chain.exit_given_hits(lo, nee & same)
-        exit_t, counter = transmit_exit(chain, lo, key, counter, nee & ~same, traced, dirs)
+        if traced:
+            exit_r = chain.exit_given_hits(lo, nee & same)
+            exit_t, counter = transmit_exit(chain, lo, key, counter, nee & ~same, traced, dirs)
+        else:  # each only in the packets that have a lane of it (a symbolic if_stmt; the same bits)
+            exit_r, exit_t, counter = next_event_exits(chain, lo, key, counter, nee, same)
         result = dr.select(nee, result + thr * phase * dr.select(same, exit_r, exit_t), result)
         active &= order < last
         rng = Stream(key, counter)
@@ -414,7 +562,7 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
             active, up, cont, pushed, l_d = extend_run(mfa, chain, d, active, over_lambda=True)
             thr = dr.select(active, dr.select(up, thr * cont, thr / dr.select(up, 1.0, l_d)), thr)
         else:
-            active, up, cont, pushed = extend_run(mfa, chain, d, active)
+            active, up, cont, pushed = extend_run_packets(mfa, chain, d, active)
             thr = dr.select(active & up, thr * cont, thr)
         active &= (~up | (cont > 0.0)) & (up | pushed)
         if dirs:
@@ -466,18 +614,18 @@ def sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
     w0 = dr.select(outside, wi, -wi)
     l0 = mf.abs_lambda(-w0)
     start = dielectric_valid(wi, eta) & dr.isfinite(l0) & (last > 0)
-    chain0 = PieceChain.new(l0, slots)
+    chain0 = PieceChain.new(l0, slots, packets=False)  # no per-packet branches (PieceChain)
 
     def body(j, w, done, active, counter, u, refracted, h_dir, h_t, chain_state):
         ua, u1, u2 = u
-        chain = PieceChain.from_state(chain_state)
+        chain = PieceChain.from_state(chain_state, packets=False)
         m, cos_wm, valid = heitz.visible_normal(mf, w, u1, u2)
         active &= valid
         o, d, crossed = reflect_or_refract_unit(w, m, cos_wm, e, ua)
         refr = active & crossed
         (refracted, h_dir, h_t), counter, _ = refraction(chain, o, refr, (refracted, h_dir, h_t), key, counter)
         active &= ~refr
-        active, up, cont, pushed = extend_run(mf, chain, d, active)
+        active, up, cont, pushed = extend_run_packets(mf, chain, d, active)
         rng = Stream(key, counter)
         u_exit, c = rng.next2()
         leaves = active & up & (u_exit >= cont)

@@ -16,13 +16,12 @@ packets none of whose lanes walk) — and how many of their lanes walk.
 """
 
 import argparse
-import os
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from scene_bench import LLVM19, _drop_duplicates, resize, resolve, swap  # noqa: E402
+from scene_bench import _drop_duplicates, resize, resolve, start_engine, swap  # noqa: E402
 
 SITES = ("eval_pdf", "sample")
 
@@ -50,17 +49,10 @@ def main(argv=None):
     ap.add_argument("--records", type=int, default=1 << 23)
     ap.add_argument("--set", action="append", default=[], help="name=value set on every swapped BSDF")
     args = ap.parse_args(argv)
-    if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(LLVM19):
-        os.environ["DRJIT_LIBLLVM_PATH"] = LLVM19
-    import drjit as dr
-    import mitsuba as mi
+    dr, mi = start_engine()
     import numpy as np
-
-    mi.set_variant("llvm_ad_rgb")
-    import msx
     from msx.jit import auto as jit_auto
 
-    msx.register()
     overrides = dict(kv.split("=", 1) for kv in args.set)
     path = resolve(args.scene)
     mi.file_resolver().prepend(str(path.parent))

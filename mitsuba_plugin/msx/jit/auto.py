@@ -19,8 +19,8 @@ import mitsuba as mi
 
 from . import walk
 from .microfacet import BECKMANN, dot, half_vector, reflect
+from .posfree import CORRELATED, continue_up
 from .rng import Stream, clean_uniform
-from .walk import vertex_numbers
 
 
 class OrderOneRule:
@@ -149,7 +149,6 @@ def conductor_vertex(mf, fresnel):
     """A vertex of ``correlated``'s walk sampler (the ``vertex`` of ``posfree.sample_walk`` with the correlated
     segments, in the same arithmetic): ``vertex(w, weight, u, L_j, rng, active)`` → (d, weight, leaves,
     continues, Λ(d))."""
-    from .posfree import CORRELATED, continue_up
 
     def vertex(w, weight, u, l, rng, active):
         u_exit, u1, u2 = u
@@ -175,7 +174,7 @@ def sample(mf, fresnel, wi, sample1, u1, u2, one, max_bounces, key, walk_pdf):
     finish in closed form from it, the walking lanes take the walk up at vertex 1 (``walk.sample_walk`` with its
     stream's counter where the first vertex leaves it) behind a symbolic ``dr.if_stmt``, so that a packet with
     no walking lane runs no loop, no stream and no MIS density; a packet of both kinds draws the first normal
-    once. Bit-identical to running the capped walk on every lane (python_tests/test_jit_auto.py)."""
+    once. Bit-identical to running the capped walk on every lane (python_tests/test_auto_order_one.py)."""
     vertex = conductor_vertex(mf, fresnel)
     start = wi[2] != 0.0
     ones = dr.full(mi.Spectrum, 1.0, dr.width(wi))
@@ -196,7 +195,7 @@ def sample(mf, fresnel, wi, sample1, u1, u2, one, max_bounces, key, walk_pdf):
 
     def walking(d, weight, done, active, lam):
         rng = Stream(key, mi.UInt32(0))
-        numbers = vertex_numbers(rng)  # the stream as the walk's loop leaves it after vertex 0
+        numbers = walk.vertex_numbers(rng)  # the stream as the walk's loop leaves it after vertex 0
         wo, weight, valid = walk.sample_walk(-d, numbers, active, lam, vertex, max_bounces, key, weight,
                                              "msx_posfree_conductor_sample", start=(1, rng.counter), done=done)
         return wo, walk_pdf(wo), weight, valid

@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from scene_bench import _drop_duplicates, resize, resolve, start_engine, swap  # noqa: E402
 
-SITES = ("eval_pdf", "sample")
+SITES = ("eval_pdf", "sample", "eval_pdf's branch (ω_o below: closed form)")
 
 
 def packet_runs(records, width):

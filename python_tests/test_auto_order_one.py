@@ -252,19 +252,24 @@ def z_check(label, a, b):
 @pytest.mark.parametrize("alpha", (0.1, 0.3))
 def test_walk_lanes_are_correlated_bit_for_bit(alpha):
     """Lanes of every incidence, mixed in the same packets: where the rule does not reduce, ``auto``'s eval,
-    pdf and sample are ``correlated``'s (same streams), where it does, order 1 in closed form."""
+    pdf and sample are ``correlated``'s (same streams), where it does, order 1 in closed form; a quarter of the
+    ω_o below the surface (``eval`` takes the closed form there: 0, as the walk)."""
     n = 1 << 14
     rng = np.random.default_rng(7)
     mu = rng.uniform(0.02, 1.0, n)
     phi = rng.uniform(0, 2 * math.pi, n)
     s = np.sqrt(1 - mu * mu)
     wi = f32(np.stack([s * np.cos(phi), s * np.sin(phi), mu], axis=1))
-    wo = f32(random_wo(n, 8))
+    wo = random_wo(n, 8)
+    below = rng.random(n) < 0.25  # emitter samples below the surface: 0 from both branches (jit/bsdf.py)
+    wo[below, 2] *= -1.0
+    wo = f32(wo)
     walks = ~reduced(alpha, wi[:, 2])
     assert 0.05 < walks.mean() < 0.95, walks.mean()
     a, c = Engine("jit", "auto", alpha), Engine("jit", "correlated", alpha)
     (va, pa), (vc, pc) = a.eval_pdf(wi, wo), c.eval_pdf(wi, wo)
     assert np.array_equal(va[:, walks], vc[:, walks]) and np.array_equal(pa[walks], pc[walks])
+    assert np.all(va[:, below] == 0.0) and np.all(pa[below] == 0.0) and np.any(vc[:, ~below] > 0.0)
     eta, k = cu_rgb()
     rv, rp = reference(wi[~walks], wo[~walks], alpha, eta, k)
     assert np.allclose(va[:, ~walks], rv, rtol=2e-4, atol=1e-6 * rv.max())

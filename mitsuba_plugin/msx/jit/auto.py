@@ -81,7 +81,8 @@ def record_calls(size=0):
     index · 2 + whether it walks, at the slot an atomic counter hands out, so with one thread
     (dr.set_thread_count(1)) a SIMD packet's call is a run of records of one packet's lanes (the lanes'
     index // the vector width). For measurement only (benches/auto_packets.py). Returns the list that
-    receives (site, records, counter) per traced call (site 0: ``eval``/``pdf``/``eval_pdf``, 1: ``sample``)."""
+    receives (site, records, counter) per traced call (site 0: ``eval``/``pdf``/``eval_pdf``, 1: ``sample``,
+    2: ``eval``'s branch, ``record_branch``)."""
     _RECORD[0] = [size, []] if size else None
     return _RECORD[0][1] if size else None
 
@@ -94,6 +95,13 @@ def _record(one, site):
     slot = dr.scatter_inc(counter, mi.UInt32(0))
     value = dr.arange(mi.UInt32, dr.width(one)) * 2 + dr.select(one, 0, 1)
     dr.scatter(records, mi.UInt32(value), slot, active=slot < size)
+
+
+def record_branch(one):
+    """Records the lanes of ``eval``'s branch (site 2: the closed form where ``one``) while ``record_calls``
+    records."""
+    if _RECORD[0] is not None:
+        _record(one, 2)
 
 
 def order_one(rule, mf, mu, full=True, site=0):

@@ -316,9 +316,13 @@ class ConductorModel:
     def auto_eval_pdf(self, call, wi, wo, key, want_value, want_pdf):
         """``auto``'s (value, pdf) (either None where not wanted): order 1 in closed form with its sampler's
         density on the lanes the rule reduces (src/models/auto/mod.rs), the full walk and the walks' MIS
-        density elsewhere — behind a symbolic if, so that a packet whose lanes all reduce runs no walk."""
+        density elsewhere — behind a symbolic if, so that a packet whose lanes all reduce runs no walk. A lane
+        whose ω_o is not above the surface takes the closed form too: both give 0 there (the PT walk does not
+        start, the MIS density is 0; auto runs the PT estimator only), and an emitter sample below the surface
+        then makes no packet walk."""
         walk, mf = self.walk, call.mf
-        one = auto.order_one(self.rule, mf, wi[2], full=wi[2] > 0.0)
+        one = auto.order_one(self.rule, mf, wi[2], full=wi[2] > 0.0) | ~(wo[2] > 0.0)
+        auto.record_branch(one)
 
         def closed():
             return ((auto.order_one_eval(mf, call.fresnel, wi, wo),) if want_value else ()) + \

@@ -87,6 +87,21 @@ def resolve(name):
     return Path(msx.scene_path(name))
 
 
+def start_engine():
+    """drjit and Mitsuba in ``llvm_ad_rgb`` with msx registered (libLLVM 19 where DRJIT_LIBLLVM_PATH is unset):
+    (drjit, mitsuba)."""
+    if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(LLVM19):
+        os.environ["DRJIT_LIBLLVM_PATH"] = LLVM19
+    import drjit as dr
+    import mitsuba as mi
+
+    mi.set_variant("llvm_ad_rgb")
+    import msx
+
+    msx.register()
+    return dr, mi
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("scenes", nargs="+")
@@ -97,16 +112,9 @@ def main(argv=None):
     ap.add_argument("--set", action="append", default=[], help="name=value set on every swapped BSDF (e.g. alpha=0.8)")
     ap.add_argument("-D", "--define", action="append", default=[], help="scene default key=value")
     args = ap.parse_args(argv)
-    if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(LLVM19):
-        os.environ["DRJIT_LIBLLVM_PATH"] = LLVM19
-    import drjit as dr
-    import mitsuba as mi
-
-    mi.set_variant("llvm_ad_rgb")
-    import msx
+    dr, mi = start_engine()
     from msx.jit import auto as jit_auto
 
-    msx.register()
     overrides = dict(kv.split("=", 1) for kv in args.set)
     defines = dict(kv.split("=", 1) for kv in args.define)
     models = [None] + [m for m in args.models.split(",") if m]
@@ -125,6 +133,7 @@ def main(argv=None):
         del probe
         params = dict(defines)
         times = {m: [] for m in models}
+        cpu = {}  # the process's CPU time of each timed render (less sensitive to other work on the cores)
         means = {}
         walked = {}
         if True:
@@ -141,11 +150,12 @@ def main(argv=None):
                     img = mi.render(scene, spp=args.spp, seed=rep)
                     dr.eval(img)
                     dr.sync_thread()
-                    t0 = time.perf_counter()
+                    t0, c0 = time.perf_counter(), time.process_time()
                     img = mi.render(scene, spp=args.spp, seed=100 + rep)
                     dr.eval(img)
                     dr.sync_thread()
                     times[m].append(time.perf_counter() - t0)
+                    cpu.setdefault(m, []).append(time.process_time() - c0)
                     means.setdefault(m, []).append(float(dr.mean(img, axis=None).array[0]))
                     del scene, img
                 print("%s: round %d/%d done" % (path.name, rep + 1, args.repeats), file=sys.stderr)
@@ -154,12 +164,15 @@ def main(argv=None):
         label = ", ".join("%s=%s" % kv for kv in overrides.items())
         print("\n%s (%d×%d, %d spp%s): built-in %.3f s" % (path.name, width, height, args.spp,
                                                           ", " + label if label else "", base_t))
-        print("| model | time × built-in | image mean × built-in | calls that walk |")
-        print("|---|---|---|---|")
+        base_c = statistics.median(cpu[None])
+        print("| model | time × built-in | CPU time × built-in | image mean × built-in | calls that walk |")
+        print("|---|---|---|---|---|")
         for m in models[1:]:
-            print("| %s | %.2f | %.4f | %s |" % (m, statistics.median(times[m]) / base_t,
-                                                 statistics.mean(means[m]) / base_m,
-                                                 "%.1f %%" % (100 * walked[m]) if m in walked else ""))
+            print("| %s | %.2f | %.2f | %.4f | %s |" % (m, statistics.median(times[m]) / base_t,
+                                                       statistics.median(cpu[m]) / base_c,
+                                                       statistics.mean(means[m]) / base_m,
+                                                       "%.1f %%" % (100 * walked[m]) if m in walked else ""))
+        print("load average at the end: %s" % " ".join(open("/proc/loadavg").read().split()[:3]))
 
 
 if __name__ == "__main__":

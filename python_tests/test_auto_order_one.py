@@ -252,19 +252,24 @@ def z_check(label, a, b):
 @pytest.mark.parametrize("alpha", (0.1, 0.3))
 def test_walk_lanes_are_correlated_bit_for_bit(alpha):
     """Lanes of every incidence, mixed in the same packets: where the rule does not reduce, ``auto``'s eval,
-    pdf and sample are ``correlated``'s (same streams), where it does, order 1 in closed form."""
+    pdf and sample are ``correlated``'s (same streams), where it does, order 1 in closed form; a quarter of the
+    ω_o below the surface (``eval`` takes the closed form there: 0, as the walk)."""
     n = 1 << 14
     rng = np.random.default_rng(7)
     mu = rng.uniform(0.02, 1.0, n)
     phi = rng.uniform(0, 2 * math.pi, n)
     s = np.sqrt(1 - mu * mu)
     wi = f32(np.stack([s * np.cos(phi), s * np.sin(phi), mu], axis=1))
-    wo = f32(random_wo(n, 8))
+    wo = random_wo(n, 8)
+    below = rng.random(n) < 0.25  # emitter samples below the surface: 0 from both branches (jit/bsdf.py)
+    wo[below, 2] *= -1.0
+    wo = f32(wo)
     walks = ~reduced(alpha, wi[:, 2])
     assert 0.05 < walks.mean() < 0.95, walks.mean()
     a, c = Engine("jit", "auto", alpha), Engine("jit", "correlated", alpha)
     (va, pa), (vc, pc) = a.eval_pdf(wi, wo), c.eval_pdf(wi, wo)
     assert np.array_equal(va[:, walks], vc[:, walks]) and np.array_equal(pa[walks], pc[walks])
+    assert np.all(va[:, below] == 0.0) and np.all(pa[below] == 0.0) and np.any(vc[:, ~below] > 0.0)
     eta, k = cu_rgb()
     rv, rp = reference(wi[~walks], wo[~walks], alpha, eta, k)
     assert np.allclose(va[:, ~walks], rv, rtol=2e-4, atol=1e-6 * rv.max())
@@ -276,3 +281,51 @@ def test_walk_lanes_are_correlated_bit_for_bit(alpha):
         out.append((np.array(bs.wo).T, np.array(w).T, np.array(bs.pdf)))
     for x, y in zip(*out):
         assert np.array_equal(x[walks], y[walks])
+
+
+@pytest.mark.parametrize("alpha", (0.1, 0.3))
+def test_sample_is_the_capped_walk_bit_for_bit(alpha):
+    """jit/auto.py ``sample`` (the first vertex on every lane, the walk taken up at vertex 1 behind a per-packet
+    branch) gives the bits of its definition: ``correlated``'s walk sampler capped at one vertex on the lanes
+    the rule reduces, their weight F·L_0/(L_0 + Λ(ω_o)) and density ``order_one_pdf``, and the full walk with
+    the walks' MIS density elsewhere. Lanes of every incidence mixed in the same packets, below and at the
+    horizon too; a cap of one vertex for every lane as well."""
+    import drjit as dr
+    from msx.jit import auto, mis, posfree
+    from msx.jit.microfacet import BECKMANN, ConductorFresnel, Microfacet
+
+    n = 1 << 14
+    rng = np.random.default_rng(11)
+    mu = rng.uniform(-0.3, 1.0, n)
+    mu[:64] = 0.0
+    phi = rng.uniform(0, 2 * math.pi, n)
+    s = np.sqrt(1 - mu * mu)
+    wi = mi.Vector3f(*[mi.Float(np.asarray(c, np.float32)) for c in (s * np.cos(phi), s * np.sin(phi), mu)])
+    s1, u1, u2 = (mi.Float(rng.random(n).astype(np.float32)) for _ in range(3))
+    key = mi.UInt32(rng.integers(0, 2 ** 32, n, dtype=np.uint64).astype(np.uint32))
+    eta, k = cu_rgb()
+    fresnel = ConductorFresnel(mi.Spectrum(*eta), mi.Spectrum(*k))
+    mf = Microfacet(BECKMANN, mi.Float(alpha), mi.Float(alpha))
+    walker = posfree.CONDUCTOR_WALKS["correlated"]
+
+    def walk_pdf(wo):
+        return mis.conductor_pdf(walker.exit, walker.below, mf, wi, wo)
+
+    rule = auto.OrderOneRule("conductor", "beckmann", 0.01)
+    one = auto.order_one(rule, mf, wi[2], full=wi[2] > 0.0)
+    walks = ~np.array(one)
+    assert 0.05 < walks.mean() < 0.95, walks.mean()
+    for max_bounces in (64, 1):
+        got = auto.sample(mf, fresnel, wi, s1, u1, u2, one, max_bounces, key, walk_pdf)
+        wo, weight, valid = walker.sample_walk(mf, fresnel, wi, s1, u1, u2,
+                                               dr.select(one, mi.UInt32(1), mi.UInt32(max_bounces)), key)
+        pdf = auto.order_one_pdf(mf, wi, wo)
+        l0 = mf.abs_lambda(-wi)
+        ok = (pdf > 0.0) & dr.isfinite(pdf) & dr.all(dr.isfinite(wo))
+        ref = (wo, dr.select(one, pdf, walk_pdf(wo)),
+               dr.select(one, dr.select(ok, weight * (l0 / (l0 + mf.lambda_(wo))), 0.0), weight),
+               dr.select(one, ok, valid))
+        for x, y, what in zip(got, ref, ("wo", "pdf", "weight", "valid")):
+            a, b = np.array(x), np.array(y)
+            assert np.array_equal(a, b, equal_nan=a.dtype != bool), (alpha, max_bounces, what)
+        assert np.array(got[3])[walks].any() and np.array(got[3])[~walks].any()

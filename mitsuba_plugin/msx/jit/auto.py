@@ -9,14 +9,18 @@ the threshold of its cell (μ below the grid, and a conductor's ω_i below the s
 On a conductor an order-1 lane computes order 1 in closed form (``order_one_*`` below; jit/bsdf.py
 ``ConductorModel``), with the visible-normal reflection density as its ``pdf`` and sampler: in ``eval`` and
 ``pdf`` the walk runs behind a symbolic ``dr.if_stmt``, which the LLVM backend skips in a packet none of whose
-lanes walk; ``sample`` runs the walk sampler capped at one vertex on those lanes (benches/README.md, "``auto``
-at single's price"). Dielectric and diffuse microsurfaces run the capped walk.
+lanes walk; ``sample`` draws the walk's first vertex on every lane and takes the walk up from there behind
+such a branch (``sample``; benches/README.md, "``auto`` at single's price"). Dielectric and diffuse
+microsurfaces run the capped walk.
 """
 
 import drjit as dr
 import mitsuba as mi
 
-from .microfacet import BECKMANN, dot, half_vector
+from . import walk
+from .microfacet import BECKMANN, dot, half_vector, reflect
+from .posfree import CORRELATED, continue_up
+from .rng import Stream, clean_uniform
 
 
 class OrderOneRule:
@@ -65,15 +69,52 @@ def walked_fraction(counter):
     return walks / calls if calls else float("nan")
 
 
-def order_one(rule, mf, mu, full=True):
+# benches/auto_packets.py's records of auto's calls in execution order while recording (``record_calls``):
+# [size, [(site, records, counter) per traced call]].
+_RECORD = [None]
+
+
+def record_calls(size=0):
+    """Starts recording each lane of ``auto``'s calls in the kernels traced from now on, in the order the
+    kernel executes them (``size`` records per traced call at most; 0 stops). Each traced call gets its own
+    buffer (drjit cannot ``scatter_inc`` one counter from two places of a kernel): a record is the lane's
+    index · 2 + whether it walks, at the slot an atomic counter hands out, so with one thread
+    (dr.set_thread_count(1)) a SIMD packet's call is a run of records of one packet's lanes (the lanes'
+    index // the vector width). For measurement only (benches/auto_packets.py). Returns the list that
+    receives (site, records, counter) per traced call (site 0: ``eval``/``pdf``/``eval_pdf``, 1: ``sample``,
+    2: ``eval``'s branch, ``record_branch``)."""
+    _RECORD[0] = [size, []] if size else None
+    return _RECORD[0][1] if size else None
+
+
+def _record(one, site):
+    size, calls = _RECORD[0]
+    records, counter = dr.zeros(mi.UInt32, size), dr.zeros(mi.UInt32, 1)
+    dr.make_opaque(records, counter)
+    calls.append((site, records, counter))
+    slot = dr.scatter_inc(counter, mi.UInt32(0))
+    value = dr.arange(mi.UInt32, dr.width(one)) * 2 + dr.select(one, 0, 1)
+    dr.scatter(records, mi.UInt32(value), slot, active=slot < size)
+
+
+def record_branch(one):
+    """Records the lanes of ``eval``'s branch (site 2: the closed form where ``one``) while ``record_calls``
+    records."""
+    if _RECORD[0] is not None:
+        _record(one, 2)
+
+
+def order_one(rule, mf, mu, full=True, site=0):
     """Per lane: whether the call is reduced to order 1 (the rule, where ``full`` allows it), counted while
-    ``count_calls`` counts."""
+    ``count_calls`` counts (and recorded as call ``site`` while ``record_calls`` records)."""
     one = rule.order_one_suffices(dr.maximum(mf.alpha_u, mf.alpha_v), mu) & full
     counter = _COUNTER[0]
     if counter is not None:
         # One per lane: a literal value and index would make a scatter of width 1 outside a loop.
         dr.scatter_reduce(dr.ReduceOp.Add, counter, dr.full(mi.UInt32, 1, dr.width(one)), mi.UInt32(0))
         dr.scatter_reduce(dr.ReduceOp.Add, counter, mi.UInt32(1), mi.UInt32(1), active=~one)
+    if _RECORD[0] is not None:
+        _record(one, site)
     return one
 
 
@@ -104,21 +145,67 @@ def order_one_eval(mf, fresnel, wi, wo):
     return dr.select(ok, fresnel.eval(cos_wh) * (d * last / (4.0 * dr.abs(wi[2]))), 0.0)
 
 
-def order_one_pdf(mf, wi, wo):
-    """The density of order 1's sample (``order_one_finish``): the visible-normal reflection density
+def order_one_pdf(mf, wi, wo, l0=None):
+    """The density of order 1's sample (``sample``): the visible-normal reflection density
     D_ωi(h)/(4 ω_i·h) = D(h)/(4 cos θ_i L_0) (``Microfacet.reflect_pdf`` with A(ω_i) = cos θ_i·L_0, sharing
-    D and L_0 with ``order_one_eval``)."""
-    _, d, l0, ok = _order_one_terms(mf, wi, wo)
-    return dr.select(ok, d / (4.0 * wi[2] * l0), 0.0)
+    D and L_0 with ``order_one_eval``; ``l0``: L_0 where the caller has it)."""
+    _, d, l0_, ok = _order_one_terms(mf, wi, wo)
+    return dr.select(ok, d / (4.0 * wi[2] * (l0_ if l0 is None else l0)), 0.0)
 
 
-def order_one_finish(mf, wi, wo, fresnel_weight):
-    """Order 1's sample (twin of ``order_one_sample`` in src/models/auto/mod.rs) from the walk sampler capped
-    at one vertex: its ω_o, the reflection of ω_i about the visible normal drawn with (u1, u2), and its weight
-    F(ω_i·m), times the exit probability L_0/(L_0 + Λ_o) in place of the walk's random exit (weight = eval/pdf),
-    with ``order_one_pdf``, the density of that draw. Returns (ω_o, pdf, weight, valid)."""
-    pdf = order_one_pdf(mf, wi, wo)
+def conductor_vertex(mf, fresnel):
+    """A vertex of ``correlated``'s walk sampler (the ``vertex`` of ``posfree.sample_walk`` with the correlated
+    segments, in the same arithmetic): ``vertex(w, weight, u, L_j, rng, active)`` → (d, weight, leaves,
+    continues, Λ(d))."""
+
+    def vertex(w, weight, u, l, rng, active):
+        u_exit, u1, u2 = u
+        m, valid = mf.sample_visible(w, u1, u2)
+        cos_wm = dot(w, m)
+        valid &= cos_wm > 0.0
+        d_next = reflect(w, m)
+        weight = weight * fresnel.eval(cos_wm)
+        lam = mf.abs_lambda(d_next)
+        leaves = (d_next[2] > 0.0) & (u_exit >= continue_up(CORRELATED, l, lam))
+        return d_next, weight, valid & leaves, valid & ~leaves, lam
+
+    return vertex
+
+
+def sample(mf, fresnel, wi, sample1, u1, u2, one, max_bounces, key, walk_pdf):
+    """``auto``'s sample on a conductor: (ω_o, pdf, weight, valid), the values of ``correlated``'s walk sampler
+    (``posfree.sample_walk``) capped at one vertex on the lanes ``one`` and their order 1's weight and density
+    (twin of ``order_one_sample`` in src/models/auto/mod.rs), the full walk and ``walk_pdf(ω_o)`` elsewhere.
+
+    The walk's first vertex (the visible normal drawn with (u1, u2), the reflection, F and Λ of the reflected
+    direction, the exit decision with ``sample1``) is computed here once for every lane; the order-1 lanes
+    finish in closed form from it, the walking lanes take the walk up at vertex 1 (``walk.sample_walk`` with its
+    stream's counter where the first vertex leaves it) behind a symbolic ``dr.if_stmt``, so that a packet with
+    no walking lane runs no loop, no stream and no MIS density; a packet of both kinds draws the first normal
+    once. Bit-identical to running the capped walk on every lane (python_tests/test_auto_order_one.py)."""
+    vertex = conductor_vertex(mf, fresnel)
+    start = wi[2] != 0.0
+    ones = dr.full(mi.Spectrum, 1.0, dr.width(wi))
     l0 = mf.abs_lambda(-wi)
-    weight = fresnel_weight * (l0 / (l0 + mf.lambda_(wo)))
-    valid = (pdf > 0.0) & dr.isfinite(pdf) & dr.all(dr.isfinite(wo))
-    return wo, pdf, dr.select(valid, weight, 0.0), valid
+    u = tuple(clean_uniform(mi.Float(x)) for x in (sample1, u1, u2))
+    d, weight, done, active, lam = vertex(mi.Vector3f(wi), ones, u, l0, None, start)
+    # A lane that does not start keeps the walk's initial state (the loop never runs it).
+    d = dr.select(start, d, -wi)
+    weight = dr.select(start, weight, ones)
+    done &= start
+    active &= start & (1 < max_bounces)
+
+    def reduced(d, weight, done, active, lam):
+        pdf = order_one_pdf(mf, wi, d, l0)
+        valid = (pdf > 0.0) & dr.isfinite(pdf) & dr.all(dr.isfinite(d))
+        # Λ(ω_o) = lam wherever ω_o points up; below, pdf = 0 and the weight is 0.
+        return d, pdf, dr.select(valid, weight * (l0 / (l0 + lam)), 0.0), valid
+
+    def walking(d, weight, done, active, lam):
+        rng = Stream(key, mi.UInt32(0))
+        numbers = walk.vertex_numbers(rng)  # the stream as the walk's loop leaves it after vertex 0
+        wo, weight, valid = walk.sample_walk(-d, numbers, active, lam, vertex, max_bounces, key, weight,
+                                             "msx_posfree_conductor_sample", start=(1, rng.counter), done=done)
+        return wo, walk_pdf(wo), weight, valid
+
+    return dr.if_stmt((d, weight, done, active, lam), one, reduced, walking, label="msx_auto_order_one_sample")

@@ -316,9 +316,13 @@ class ConductorModel:
     def auto_eval_pdf(self, call, wi, wo, key, want_value, want_pdf):
         """``auto``'s (value, pdf) (either None where not wanted): order 1 in closed form with its sampler's
         density on the lanes the rule reduces (src/models/auto/mod.rs), the full walk and the walks' MIS
-        density elsewhere — behind a symbolic if, so that a packet whose lanes all reduce runs no walk."""
+        density elsewhere — behind a symbolic if, so that a packet whose lanes all reduce runs no walk. A lane
+        whose ω_o is not above the surface takes the closed form too: both give 0 there (the PT walk does not
+        start, the MIS density is 0; auto runs the PT estimator only), and an emitter sample below the surface
+        then makes no packet walk."""
         walk, mf = self.walk, call.mf
-        one = auto.order_one(self.rule, mf, wi[2], full=wi[2] > 0.0)
+        one = auto.order_one(self.rule, mf, wi[2], full=wi[2] > 0.0) | ~(wo[2] > 0.0)
+        auto.record_branch(one)
 
         def closed():
             return ((auto.order_one_eval(mf, call.fresnel, wi, wo),) if want_value else ()) + \
@@ -384,17 +388,12 @@ class ConductorModel:
         if walk is None:
             wo, pdf, weight, valid = self.analytic.sample(mf, call.fresnel, wi, u1, u2)
         elif self.rule is not None:
-            # auto: the walk sampler, capped at one vertex where order 1 suffices, then those lanes' weight in
-            # expectation of the exit and their density (jit/auto.py ``order_one_finish``). Not behind an if
-            # as ``eval`` is: in a packet of both kinds of lanes the closed form's own visible-normal draw
-            # would come on top of the walk's (measured: benches/README.md, "auto at single's price").
-            one = auto.order_one(self.rule, mf, wi[2], full=wi[2] > 0.0)
-            wo, weight, valid = walk.sample_walk(mf, call.fresnel, wi, s1, u1, u2,
-                                                 dr.select(one, mi.UInt32(1), mi.UInt32(self.max_bounces)), key)
-            wo, pdf, weight, valid = dr.if_stmt(
-                (wo, weight, valid), one, lambda wo, w, v: auto.order_one_finish(mf, wi, wo, w),
-                lambda wo, w, v: (wo, mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo, self.mis_density), w, v),
-                label="msx_auto_order_one_sample")
+            # auto: the walk's first vertex on every lane, order 1 in closed form from it where it suffices, the
+            # rest of the walk behind a per-packet branch (jit/auto.py ``sample``).
+            one = auto.order_one(self.rule, mf, wi[2], full=wi[2] > 0.0, site=1)
+            wo, pdf, weight, valid = auto.sample(
+                mf, call.fresnel, wi, s1, u1, u2, one, self.max_bounces, key,
+                lambda wo: mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo, self.mis_density))
         else:
             wo, weight, valid = walk.sample_walk(mf, call.fresnel, wi, s1, u1, u2, self.bounces(call, wi), key)
             pdf = mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo, self.mis_density)

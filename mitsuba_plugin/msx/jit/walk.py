@@ -79,7 +79,7 @@ def vertex_numbers(rng):
     return c, a, b
 
 
-def sample_walk(wi, first, active, exit_state, vertex, max_bounces, key, weight, label):
+def sample_walk(wi, first, active, exit_state, vertex, max_bounces, key, weight, label, start=(0, 0), done=False):
     """The loop of a sampling walk that leaves the microsurface by an exit probability, one vertex per
     iteration (the loop of ``sample_conductor`` with ``vertex_numbers``; the invariance model's walks on
     conductor and Lambertian facets): the walk arrives along −``wi`` with the lane's ``weight`` and the
@@ -87,7 +87,9 @@ def sample_walk(wi, first, active, exit_state, vertex, max_bounces, key, weight,
     numbers (u_exit, u1, u2): ``first`` at j = 0, the lane's stream after it.
     ``vertex(w, weight, u, exit_state, rng, active)`` → (d, weight, leaves, active, exit_state) scatters the
     arriving w = −d_j into d = d_{j+1} (drawing any further numbers from ``rng``) and says where the walk
-    leaves along d. More than ``max_bounces`` vertices is invalid. Returns (ω_o, weight, valid)."""
+    leaves along d. More than ``max_bounces`` vertices is invalid. ``start`` = (j, counter), ``done``: a walk
+    taken up at vertex j > 0 (jit/auto.py runs vertex 0 itself), its stream's counter and whether it has already
+    left (the lanes not ``active``). Returns (ω_o, weight, valid)."""
 
     def body(j, w, weight, done, active, counter, u, exit_state):
         rng = Stream(key, counter)
@@ -97,7 +99,7 @@ def sample_walk(wi, first, active, exit_state, vertex, max_bounces, key, weight,
         return dict(j=j + 1, w=-d, weight=weight, done=done, active=active, counter=rng.counter, u=u,
                     exit_state=exit_state)
 
-    state = dict(j=mi.UInt32(0), w=mi.Vector3f(wi), weight=weight, done=mi.Bool(False), active=mi.Bool(active),
-                 counter=mi.UInt32(0), u=tuple(clean_uniform(mi.Float(x)) for x in first), exit_state=exit_state)
+    state = dict(j=mi.UInt32(start[0]), w=mi.Vector3f(wi), weight=weight, done=mi.Bool(done), active=mi.Bool(active),
+                 counter=mi.UInt32(start[1]), u=tuple(clean_uniform(mi.Float(x)) for x in first), exit_state=exit_state)
     out = while_loop(state, body, label=label)
     return -out["w"], out["weight"], out["done"]

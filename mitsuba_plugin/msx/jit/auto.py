@@ -18,8 +18,8 @@ import drjit as dr
 import mitsuba as mi
 
 from . import walk
-from .microfacet import BECKMANN, dot, half_vector, reflect
-from .posfree import CORRELATED, continue_up
+from .microfacet import BECKMANN, dot, half_vector
+from .posfree import CORRELATED, sample_vertex
 from .rng import Stream, clean_uniform
 
 
@@ -153,25 +153,6 @@ def order_one_pdf(mf, wi, wo, l0=None):
     return dr.select(ok, d / (4.0 * wi[2] * (l0_ if l0 is None else l0)), 0.0)
 
 
-def conductor_vertex(mf, fresnel):
-    """A vertex of ``correlated``'s walk sampler (the ``vertex`` of ``posfree.sample_walk`` with the correlated
-    segments, in the same arithmetic): ``vertex(w, weight, u, L_j, rng, active)`` → (d, weight, leaves,
-    continues, Λ(d))."""
-
-    def vertex(w, weight, u, l, rng, active):
-        u_exit, u1, u2 = u
-        m, valid = mf.sample_visible(w, u1, u2)
-        cos_wm = dot(w, m)
-        valid &= cos_wm > 0.0
-        d_next = reflect(w, m)
-        weight = weight * fresnel.eval(cos_wm)
-        lam = mf.abs_lambda(d_next)
-        leaves = (d_next[2] > 0.0) & (u_exit >= continue_up(CORRELATED, l, lam))
-        return d_next, weight, valid & leaves, valid & ~leaves, lam
-
-    return vertex
-
-
 def sample(mf, fresnel, wi, sample1, u1, u2, one, max_bounces, key, walk_pdf):
     """``auto``'s sample on a conductor: (ω_o, pdf, weight, valid), the values of ``correlated``'s walk sampler
     (``posfree.sample_walk``) capped at one vertex on the lanes ``one`` and their order 1's weight and density
@@ -183,7 +164,7 @@ def sample(mf, fresnel, wi, sample1, u1, u2, one, max_bounces, key, walk_pdf):
     stream's counter where the first vertex leaves it) behind a symbolic ``dr.if_stmt``, so that a packet with
     no walking lane runs no loop, no stream and no MIS density; a packet of both kinds draws the first normal
     once. Bit-identical to running the capped walk on every lane (python_tests/test_auto_order_one.py)."""
-    vertex = conductor_vertex(mf, fresnel)
+    vertex = sample_vertex(CORRELATED, mf, fresnel)
     start = wi[2] != 0.0
     ones = dr.full(mi.Spectrum, 1.0, dr.width(wi))
     l0 = mf.abs_lambda(-wi)

@@ -134,7 +134,6 @@ class PieceChain:
         """``push_down`` only in the packets that have a lane of ``active`` (as ``push_up_packets``)."""
         if not self.branched:
             return self.push_down(l, active)
-        n = self.n
 
         # Slot 0 (L_0) is never written: it stays out of the branch, as it was out of the loop's changes.
         def run(l, a, *rates):

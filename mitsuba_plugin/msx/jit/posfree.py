@@ -224,11 +224,11 @@ def pt_walk(segments, mf, fresnel, wo, lambda_o, w, l, thr, active, first_vertex
     return walk.while_loop(state, body, label=label)["result"]
 
 
-def sample_walk(segments, mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
-    """Random-walk sampler (Wang §4.3): at each upward direction the walk leaves with probability
-    1 − continue_up, so the weight is the product of the Fresnel terms. The first vertex uses Mitsuba's
-    (sample1, sample2), later ones the lane's stream (``walk.sample_walk``, whose exit state here is L_j).
-    Returns (ω_o, weight, valid)."""
+def sample_vertex(segments, mf, fresnel):
+    """A vertex of the random-walk sampler (``sample_walk``; also ``auto``'s sampler, jit/auto.py):
+    ``vertex(w, weight, u, L_j, rng, active)`` → (d, weight, leaves, continues, Λ(d)) for ``walk.sample_walk``:
+    the visible normal drawn with (u1, u2) of ``u``, the reflection, its Fresnel factor, and the exit with
+    probability 1 − continue_up at an upward direction decided by u_exit."""
 
     def vertex(w, weight, u, l, rng, active):
         u_exit, u1, u2 = u
@@ -242,7 +242,16 @@ def sample_walk(segments, mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
         leaves = up & (u_exit >= continue_up(segments, l, lam))
         return d_next, weight, valid & leaves, valid & ~leaves, lam
 
-    return walk.sample_walk(wi, (sample1, u1, u2), wi[2] != 0.0, mf.abs_lambda(-wi), vertex, max_bounces, key,
+    return vertex
+
+
+def sample_walk(segments, mf, fresnel, wi, sample1, u1, u2, max_bounces, key):
+    """Random-walk sampler (Wang §4.3): at each upward direction the walk leaves with probability
+    1 − continue_up, so the weight is the product of the Fresnel terms. The first vertex uses Mitsuba's
+    (sample1, sample2), later ones the lane's stream (``walk.sample_walk``, whose exit state here is L_j).
+    Returns (ω_o, weight, valid)."""
+    return walk.sample_walk(wi, (sample1, u1, u2), wi[2] != 0.0, mf.abs_lambda(-wi),
+                            sample_vertex(segments, mf, fresnel), max_bounces, key,
                             dr.full(mi.Spectrum, 1.0, dr.width(wi)), "msx_posfree_conductor_sample")
 
 

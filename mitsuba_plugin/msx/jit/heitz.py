@@ -40,7 +40,7 @@ import mitsuba as mi
 from . import mis, walk
 from .dielectric import eta_seen, fresnel_dielectric, radiance_scale, scatter_unit, transmit_half_vector
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
-from .gradients import LoopValues
+from .gradients import LoopValues, trimmed
 from .microfacet import BECKMANN, GGX, INV_PI, ConductorFresnel, dot, half_vector, normalized, reflect
 from .model import ConductorWalk, DielectricWalk, DiffuseWalk
 from .posfree import horizon_circle
@@ -241,8 +241,13 @@ def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None, direction_ta
     last = max_bounces  # a Python int, or a UInt32 per lane (model 'auto' style caps)
     lambda_o = mf.lambda_(wo)
     start = valid_incidence(wi) & valid_incidence(wo) & (last > 0)
-    traced = mf_sample is not None
-    piped_values = traced or walk.carries_gradients(mf, lambda_o, *facets.values())
+    carries = walk.carries_gradients(mf, lambda_o, *facets.values())
+    # Traced with nothing differentiated (prb's primal pass and its adjoint pass's ``sample``: gradients
+    # suspended), the walk is the one as written bit for bit: the same heights and normals (drawn from equal
+    # statistics and directions), each density ratio exactly 1 (x/x). It runs as that, without the values in
+    # its loop state and the ratios (benches/README.md, "Gradient steps of the walks ≤ 3× the built-in").
+    traced = mf_sample is not None and (carries or dr.grad_enabled(wi) or dr.grad_enabled(wo) or not trimmed())
+    piped_values = traced or carries
     edges = (traced and direction_tangent is not None and getattr(facets, "horizon_edges", False)
              and mf.dist != BECKMANN)
     edge_key = mix32(key ^ EDGE_SALT) if edges else None

@@ -240,10 +240,11 @@ def cosine_share(exit, mf, wi):
     return dr.detach(dr.clip(1.0 - e1, COSINE_SHARE_MIN, COSINE_SHARE_MAX))
 
 
-def proposal_pdf(exit, mf, wi, wo):
-    """The density ``sample`` draws ω_o from while differentiated: (1 − c)·D_ωi reflection + c·cos/π."""
+def proposal_pdf(exit, mf, wi, wo, c=None):
+    """The density ``sample`` draws ω_o from while differentiated: (1 − c)·D_ωi reflection + c·cos/π (``c``: the
+    cosine share when the caller has it)."""
     mf = detached(mf)
-    c = cosine_share(exit, mf, wi)
+    c = cosine_share(exit, mf, wi) if c is None or not trimmed() else c
     pdf = (1.0 - c) * mf.reflect_pdf(wi, wo) + c * dr.maximum(wo[2], 0.0) * INV_PI
     return dr.select((wo[2] > 0.0) & (wi[2] > 0.0), pdf, 0.0)
 
@@ -256,4 +257,4 @@ def proposal_sample(exit, mf, wi, sample1, u1, u2):
     m, valid_m = mf.sample_visible(wi, u1, u2)
     wo = dr.select(cosine, mi.warp.square_to_cosine_hemisphere(mi.Point2f(u1, u2)), reflect(wi, m))
     valid = (cosine | valid_m) & (wo[2] > 0.0) & (wi[2] > 0.0)
-    return wo, proposal_pdf(exit, mf, wi, wo), valid
+    return wo, proposal_pdf(exit, mf, wi, wo, c), valid

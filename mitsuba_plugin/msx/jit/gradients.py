@@ -103,8 +103,9 @@ def trimmed():
     """Whether the arrangement leaves out what a call records but does not need where nothing it is given is
     differentiated ("trim", the default; not "plain", "replace", "noopt", "lean", kept to measure against): no
     tangent coordinates for directions that do not move (:class:`TangentCoordinates`), no second clamp of
-    clamped α values (:func:`clamped`), and Heitz's walk on conductor and Lambertian facets run as written
-    when traced with nothing differentiated (``heitz.eval_from``)."""
+    clamped α values (:func:`clamped`), the proposal's cosine share looked up once (:func:`proposal_sample`),
+    and Heitz's walk on conductor and Lambertian facets run as written when traced with nothing differentiated,
+    its ω_o out of the loop state when ω_o carries no derivative (``heitz.eval_from``)."""
     return ARRANGEMENT not in ("plain", "replace", "noopt", "lean")
 
 

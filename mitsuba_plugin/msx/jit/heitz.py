@@ -248,6 +248,9 @@ def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None, direction_ta
     # its loop state and the ratios (benches/README.md, "Gradient steps of the walks ≤ 3× the built-in").
     traced = mf_sample is not None and (carries or dr.grad_enabled(wi) or dr.grad_enabled(wo) or not trimmed())
     piped_values = traced or carries
+    # Traced, ω_o travels in the loop's state when it may carry a derivative (a fixed ω_o is read from outside
+    # the loop, as the walk as written reads it: the same value).
+    pipe_wo = traced and (dr.grad_enabled(wo) or not trimmed())
     edges = (traced and direction_tangent is not None and getattr(facets, "horizon_edges", False)
              and mf.dist != BECKMANN)
     edge_key = mix32(key ^ EDGE_SALT) if edges else None
@@ -258,7 +261,7 @@ def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None, direction_ta
         if edges:  # ... then the coordinate s and the tangents of −wr and of ω_o
             values, (s_dir, tw, two) = values[:-3], values[-3:]
         # Traced, ω_o travels in the state too, after the facets' values (it may carry a derivative).
-        values, wo_ = (values[:-1], values[-1]) if traced else (values, wo)
+        values, wo_ = (values[:-1], values[-1]) if pipe_wo else (values, wo)
         f = facets.with_values(values) if piped_values else facets
         if edges:
             u_phi, u_eh = Stream(edge_key, counter).next2()
@@ -293,7 +296,7 @@ def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None, direction_ta
 
     state = dict(order=mi.UInt32(1), wr=-mi.Vector3f(wi), t=mi.Float(0.0), thr=mi.Spectrum(1.0),
                  result=dr.zeros(mi.Spectrum), active=mi.Bool(start), counter=mi.UInt32(0),
-                 piped=LoopValues.state(mf, lambda_o, *facets.values(), *((mi.Vector3f(wo),) if traced else ()))
+                 piped=LoopValues.state(mf, lambda_o, *facets.values(), *((mi.Vector3f(wo),) if pipe_wo else ()))
                  if piped_values else ())
     if edges:
         s_dir, t_i, t_o = direction_tangent

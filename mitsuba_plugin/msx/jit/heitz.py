@@ -57,13 +57,14 @@ EDGE_SALT = mix32_int(0x45444745)
 # ------------------------------------------------------------------ height machinery
 
 
-def sample_height(mf, w, t, u):
+def sample_height(mf, w, t, u, lam=None, lam_abs=None):
     """Next intersection of a ray along ``w`` from height t with U = ``u`` (Rust ``sample_height``):
-    (t', hit); hit False when the ray leaves the microsurface."""
+    (t', hit); hit False when the ray leaves the microsurface. ``lam``, ``lam_abs``: Λ(w) and |Λ(w)| when the
+    caller has them (the same variables: recorded once)."""
     e = optical_depth(u)
     up = w[2] > 0.0
-    lam_up = mf.lambda_(w)  # ≥ 0 for an upward w
-    lam_abs = mf.abs_lambda(w)  # ≥ 1 downward, ∞ horizontal
+    lam_up = mf.lambda_(w) if lam is None else lam  # ≥ 0 for an upward w
+    lam_abs = mf.abs_lambda(w) if lam_abs is None else lam_abs  # ≥ 1 downward, ∞ horizontal
     t_up = t + e / lam_up
     t_down = t - e / lam_abs
     hit_up = (lam_up > 0.0) & (t_up < 0.0)
@@ -86,7 +87,7 @@ def sample_height_hit(mf, w, t, u):
     t_up_res = dr.select(leaves | bad, t, dr.select(horizontal, t, dr.minimum(t_up, 0.0)))
     p_up = dr.select(leaves, 0.0, dr.select(horizontal, 1.0, dr.select(bad, 0.0, dr.minimum(p_hit, 1.0))))
     # Downward: always hits (unless the height is NaN).
-    t_down, hit_down = sample_height(mf, w, t, u)
+    t_down, hit_down = sample_height(mf, w, t, u, lam=lam)
     t_res = dr.select(up, t_up_res, dr.select(hit_down, t_down, t))
     p_res = dr.select(up, p_up, dr.select(hit_down, 1.0, 0.0))
     return t_res, p_res
@@ -549,7 +550,7 @@ def sample_height_hit_over_area(mf, w, t, u):
     leaves = ~(lam > 0.0) | (t >= 0.0) | (lam == dr.inf)  # (a horizontal w: A(w) = 0·∞, the lane ends)
     bad = ~(p_hit > 0.0) | ~(z > -1.0) | dr.isnan(t_up) | ~dr.isfinite(g)
     miss_up = leaves | bad
-    t_down, hit_down = sample_height(mf, w, t, u)
+    t_down, hit_down = sample_height(mf, w, t, u, lam_abs=lam)
     hit_down &= dr.isfinite(lam)
     t_res = dr.select(up, dr.select(miss_up, t, t_up), dr.select(hit_down, t_down, t))
     q = dr.select(up, dr.select(miss_up, 0.0, g), dr.select(hit_down, 1.0 / dr.select(hit_down, lam, 1.0), 0.0))

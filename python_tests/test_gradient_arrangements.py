@@ -1,7 +1,7 @@
 """The arrangements of ``jit/gradients.attach`` (``gradients.ARRANGEMENT``, docs/gradients.md, "What a gradient
 step costs") give the same values and derivatives, bit for bit (a reverse derivative, a sum over the lanes in
-an order drjit does not fix, up to the rounding of that sum): "lean" (the default: the value carries the
-tangents by ``dr.replace_grad``, the walks' loops recorded once) and "trim" (the default: "lean" without what a
+an order drjit does not fix, up to the rounding of that sum): "lean" (the value carries the tangents by
+``dr.replace_grad``, the walks' loops recorded once) and "trim" (the default: "lean" without what a
 call records where nothing it is given is differentiated) against "plain" (the arrangement before). Checked
 through a symbolic call, as a render calls the BSDF: ``eval``'s value and its forward-mode and reverse-mode
 derivatives (the one ``prb``'s adjoint pass propagates through the call), the ``sample`` weight, and the calls

@@ -19,12 +19,12 @@ Sections (scene, parameter):
 
     python3 benches/gradient_bench.py [--scene copper|glass|normalmap|all] [--param alpha|eta|all]
                                       [--size 64] [--spp 16] [--repeats 7] [--models correlated,heitz]
-                                      [--arrangements plain,lean]
+                                      [--arrangements plain,lean,trim]
 
 ``--models`` keeps the msx rows whose model is listed (the built-in's row always runs); ``--arrangements``
 runs every msx row once per arrangement of ``jit/gradients.attach`` (``gradients.ARRANGEMENT``: "plain", the
-arrangement before the step's cost was cut, or "lean", the default; docs/gradients.md), interleaved with the
-others, labelled "[plain]" or "[lean]".
+arrangement before the step's cost was cut, "lean", or "trim", the default; docs/gradients.md), interleaved with
+the others, labelled "[plain]", "[lean]" or "[trim]".
 """
 
 import argparse
@@ -135,7 +135,7 @@ def main():
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--models", default=None, help="comma-separated msx models to keep (default: all)")
-    ap.add_argument("--arrangements", default=None, help="comma-separated: plain, lean (default: the module's)")
+    ap.add_argument("--arrangements", default=None, help="comma-separated: plain, lean, trim (default: the module's)")
     args = ap.parse_args()
     if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(LLVM19):
         os.environ["DRJIT_LIBLLVM_PATH"] = LLVM19
@@ -220,7 +220,7 @@ def main():
             gc.collect()  # free the previous scene (reference cycles through the Python plugin)
             scene = mi.load_dict(scene_dicts[name](bsdf, args.size))
             params = mi.traverse(scene)
-            gradients.ARRANGEMENT = arrangements.get(label, "lean")
+            gradients.ARRANGEMENT = arrangements.get(label, "trim")
             try:
                 step(scene, params, KEYS[p], targets[name], 4 * r + 2)  # compiles the kernels (or loads them)
                 gc.collect()

@@ -6,8 +6,10 @@ its loop, the BSDF entry points each pass calls per path vertex, the walk loops 
 (``dr.while_loop``) and the forward-mode passes ``gradients.attach`` adds (each one more loop in the kernel,
 carrying the walk's state and its tangent).
 
-    python3 benches/gradient_profile.py [--models correlated,heitz] [--arrangements plain,lean] [--size 64]
-                                        [--spp 16] [--repeats 5]
+    python3 benches/gradient_profile.py [--models correlated,heitz,invariance:bdpt] [--arrangements lean,trim]
+                                        [--size 64] [--spp 16] [--repeats 5]
+
+A model written ``name:bdpt`` runs with ``estimator="bdpt"``.
 
 The step's wall time minus its kernels' run and compile time is the tracing: Python recording prb's loop (twice,
 drjit's OptimizeLoops) and in it the BSDF calls, their walks and forward passes. ``--arrangements`` runs each
@@ -31,7 +33,7 @@ def main():
     ap.add_argument("--size", type=int, default=64)
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--arrangements", default="lean")
+    ap.add_argument("--arrangements", default="trim")
     args = ap.parse_args()
     if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(LLVM19):
         os.environ["DRJIT_LIBLLVM_PATH"] = LLVM19
@@ -75,9 +77,12 @@ def main():
     configs = {"roughconductor": {"type": "roughconductor", **cu}}
     arrangement = {}
     for m in args.models.split(","):
+        model, _, estimator = m.partition(":")
         for a in args.arrangements.split(","):
-            configs[f"msx {m} [{a}]"] = {"type": "msx_posfree", "model": m, **cu}
-            arrangement[f"msx {m} [{a}]"] = a
+            label = f"msx {model}{' ' + estimator if estimator else ''} [{a}]"
+            configs[label] = {"type": "msx_posfree", "model": model, **cu,
+                              **({"estimator": estimator} if estimator else {})}
+            arrangement[label] = a
     target = mi.render(mi.load_dict(scene_dict(configs["roughconductor"], args.size)), spp=64, seed=99)
     dr.eval(target)
     key = "ball.bsdf.alpha.value"
@@ -101,7 +106,7 @@ def main():
             scene = mi.load_dict(scene_dict(bsdf, args.size))
             params = mi.traverse(scene)
             obj = scene.shapes()[0].bsdf()
-            gradients.ARRANGEMENT = arrangement.get(label, "lean")
+            gradients.ARRANGEMENT = arrangement.get(label, "trim")
             calls = collections.Counter()
             originals = {}
             if label != "roughconductor" and r == 0:  # count the entry points prb traces, per pass

@@ -1,9 +1,12 @@
 """The arrangements of ``jit/gradients.attach`` (``gradients.ARRANGEMENT``, docs/gradients.md, "What a gradient
 step costs") give the same values and derivatives, bit for bit (a reverse derivative, a sum over the lanes in
-an order drjit does not fix, up to the rounding of that sum): "lean" (the default: the value carries the
-tangents by ``dr.replace_grad``, the walks' loops recorded once) against "plain" (the arrangement before). Checked
+an order drjit does not fix, up to the rounding of that sum): "lean" (the value carries the tangents by
+``dr.replace_grad``, the walks' loops recorded once) and "trim" (the default: "lean" without what a
+call records where nothing it is given is differentiated) against "plain" (the arrangement before). Checked
 through a symbolic call, as a render calls the BSDF: ``eval``'s value and its forward-mode and reverse-mode
-derivatives (the one ``prb``'s adjoint pass propagates through the call), and the ``sample`` weight."""
+derivatives (the one ``prb``'s adjoint pass propagates through the call), the ``sample`` weight, and the calls
+of a differentiated configuration with gradients suspended, as ``prb``'s primal pass makes them (and its
+adjoint pass its ``sample``)."""
 
 import pytest
 
@@ -26,6 +29,7 @@ CASES = [
     ("conductor correlated", {"material": "Cu", "model": "correlated"}, "alpha.value"),
     ("conductor correlated bdpt", {"material": "Cu", "model": "correlated", "estimator": "bdpt"}, "alpha.value"),
     ("conductor heitz eta", {"material": "Cu", "model": "heitz"}, "eta.value"),
+    ("conductor heitz", {"material": "Cu", "model": "heitz"}, "alpha.value"),
     ("conductor invariance", {"material": "Cu", "model": "invariance"}, "alpha.value"),
     ("dielectric correlated", {"surface": "dielectric", "model": "correlated", "int_ior": 1.5}, "alpha.value"),
     ("diffuse heitz", {"surface": "diffuse", "model": "heitz",
@@ -78,15 +82,24 @@ def results(bsdf_props, key, arrangement):
     _, w = ptr.sample(ctx, si, u[0], mi.Point2f(u[1], u[2]))
     dr.forward_from(p[key])
     out += [np.array(dr.detach(w)), np.array(dr.grad(w))]
+    dr.enable_grad(p[key])
+    p.update()
+    with dr.suspend_grad():  # the traced configuration, gradients suspended: prb's primal pass
+        value, pdf = ptr.eval_pdf(ctx, si, wo)
+        bs, w = ptr.sample(ctx, si, u[0], mi.Point2f(u[1], u[2]))
+        out += [np.array(value), np.array(pdf), np.array(bs.wo), np.array(bs.pdf), np.array(w)]
     return out
 
 
+@pytest.mark.parametrize("arrangement", ["lean", "trim"])
 @pytest.mark.parametrize("label, props, key", CASES, ids=[c[0] for c in CASES])
-def test_lean_arrangement_equals_plain_bit_for_bit(label, props, key):
+def test_arrangement_equals_plain_bit_for_bit(label, props, key, arrangement):
     plain = results(props, key, "plain")
-    lean = results(props, key, "lean")
+    lean = results(props, key, arrangement)
     names = ("eval value", "eval forward derivative", "eval reverse derivative", "sample weight",
-             "sample weight forward derivative")
+             "sample weight forward derivative", "suspended eval value", "suspended pdf", "suspended sample ω_o",
+             "suspended sample pdf", "suspended sample weight")
+    assert len(plain) == len(names)
     for name, a, b in zip(names, plain, lean):
         assert np.all(np.isfinite(a)) and np.all(np.isfinite(b)), (label, name)
         if name in ("eval reverse derivative", "sample weight forward derivative"):

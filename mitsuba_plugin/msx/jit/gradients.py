@@ -28,8 +28,20 @@ from .microfacet import INV_PI, Microfacet, reflect
 COSINE_SHARE_MIN, COSINE_SHARE_MAX = 0.05, 0.95
 
 
+def clamped(dist, alpha_u, alpha_v):
+    """The statistics of α values that a ``Microfacet`` has clamped already (its own, or the loop state's copy
+    of them): built without clamping them again, which changes no bit of a value or of a derivative (the
+    clamp is the identity there, derivative 1) but recorded three operations per α each time, in every walk
+    loop body (benches/README.md, "Gradient steps of the walks ≤ 3× the built-in")."""
+    if not trimmed():
+        return Microfacet(dist, alpha_u, alpha_v)
+    mf = Microfacet.__new__(Microfacet)
+    mf.dist, mf.alpha_u, mf.alpha_v = dist, alpha_u, alpha_v
+    return mf
+
+
 def detached(mf):
-    return Microfacet(mf.dist, dr.detach(mf.alpha_u), dr.detach(mf.alpha_v))
+    return clamped(mf.dist, dr.detach(mf.alpha_u), dr.detach(mf.alpha_v))
 
 
 class LoopValues:
@@ -44,8 +56,8 @@ class LoopValues:
     def __init__(self, dist, piped):
         self.alpha_u, self.alpha_v, self.lambda_o = piped[:3]
         self.rest = tuple(piped[3:])
-        self.mf = Microfacet(dist, self.alpha_u, self.alpha_v)
-        self.mf_sample = Microfacet(dist, dr.detach(self.alpha_u), dr.detach(self.alpha_v))
+        self.mf = clamped(dist, self.alpha_u, self.alpha_v)
+        self.mf_sample = clamped(dist, dr.detach(self.alpha_u), dr.detach(self.alpha_v))
 
     @staticmethod
     def state(mf, lambda_o, *rest):
@@ -76,13 +88,25 @@ def record_dropped(on=True):
     return _DROPPED[0]
 
 
-# How :func:`attach` arranges its work (docs/gradients.md, "What a gradient step costs"): "lean" (the default)
+# How :func:`attach` arranges its work (docs/gradients.md, "What a gradient step costs"): "lean"
 # records the walks' loops without drjit's loop optimisation (one recording of a loop body instead of two) and
 # returns the value with the derivative attached by ``dr.replace_grad``, so that the forward pass is code of the
 # kernel only where a derivative is propagated; "plain" is the arrangement before, "replace" and "noopt" each
 # change alone (kept to measure against: benches/gradient_bench.py --arrangements, or the environment variable
-# MSX_GRADIENT_ARRANGEMENT, read at import). All give the same values and derivatives; any other name is "lean".
-ARRANGEMENT = os.environ.get("MSX_GRADIENT_ARRANGEMENT", "lean")
+# MSX_GRADIENT_ARRANGEMENT, read at import). "trim" (the default since 2026-11-28) is "lean" without the work a
+# call records where nothing it is given is differentiated (:func:`trimmed`). All give the same values and
+# derivatives; any other name is "trim".
+ARRANGEMENT = os.environ.get("MSX_GRADIENT_ARRANGEMENT", "trim")
+
+
+def trimmed():
+    """Whether the arrangement leaves out what a call records but does not need where nothing it is given is
+    differentiated ("trim", the default; not "plain", "replace", "noopt", "lean", kept to measure against): no
+    tangent coordinates for directions that do not move (:class:`TangentCoordinates`), no second clamp of
+    clamped α values (:func:`clamped`), the proposal's cosine share looked up once (:func:`proposal_sample`),
+    and Heitz's walk on conductor and Lambertian facets run as written when traced with nothing differentiated,
+    its ω_o out of the loop state when ω_o carries no derivative (``heitz.eval_from``)."""
+    return ARRANGEMENT not in ("plain", "replace", "noopt", "lean")
 
 
 def attach(estimate, params, primal=None):
@@ -181,13 +205,22 @@ class TangentCoordinates:
     the directions ω̄ + s_t·t + s_b·b from the values ``attach`` passes (equal to the directions in value)."""
 
     def __init__(self, *directions):
-        self.frames = [(dr.detach(d), mi.Frame3f(dr.detach(d))) for d in directions]
         self.values = []
+        if trimmed() and not any(dr.grad_enabled(d) for d in directions):
+            # No direction moves (α or the material differentiated alone, and every call with gradients
+            # suspended): no coordinates, and the walks get the directions themselves, not ω̄ + 0·t + 0·b —
+            # the frames and the rebuilt directions were recorded in every call (benches/README.md, "Gradient
+            # steps of the walks ≤ 3× the built-in").
+            self.frames, self.fixed = None, directions
+            return
+        self.frames = [(dr.detach(d), mi.Frame3f(dr.detach(d))) for d in directions]
         for d, (base, fr) in zip(directions, self.frames):
             offset = d - base
             self.values += [dr.dot(offset, fr.s), dr.dot(offset, fr.t)]
 
     def directions(self, coords):
+        if self.frames is None:
+            return self.fixed
         return tuple(base + coords[2 * k] * fr.s + coords[2 * k + 1] * fr.t
                      for k, (base, fr) in enumerate(self.frames))
 
@@ -208,10 +241,11 @@ def cosine_share(exit, mf, wi):
     return dr.detach(dr.clip(1.0 - e1, COSINE_SHARE_MIN, COSINE_SHARE_MAX))
 
 
-def proposal_pdf(exit, mf, wi, wo):
-    """The density ``sample`` draws ω_o from while differentiated: (1 − c)·D_ωi reflection + c·cos/π."""
+def proposal_pdf(exit, mf, wi, wo, c=None):
+    """The density ``sample`` draws ω_o from while differentiated: (1 − c)·D_ωi reflection + c·cos/π (``c``: the
+    cosine share when the caller has it)."""
     mf = detached(mf)
-    c = cosine_share(exit, mf, wi)
+    c = cosine_share(exit, mf, wi) if c is None or not trimmed() else c
     pdf = (1.0 - c) * mf.reflect_pdf(wi, wo) + c * dr.maximum(wo[2], 0.0) * INV_PI
     return dr.select((wo[2] > 0.0) & (wi[2] > 0.0), pdf, 0.0)
 
@@ -224,4 +258,4 @@ def proposal_sample(exit, mf, wi, sample1, u1, u2):
     m, valid_m = mf.sample_visible(wi, u1, u2)
     wo = dr.select(cosine, mi.warp.square_to_cosine_hemisphere(mi.Point2f(u1, u2)), reflect(wi, m))
     valid = (cosine | valid_m) & (wo[2] > 0.0) & (wi[2] > 0.0)
-    return wo, proposal_pdf(exit, mf, wi, wo), valid
+    return wo, proposal_pdf(exit, mf, wi, wo, c), valid

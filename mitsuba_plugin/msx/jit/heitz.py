@@ -40,7 +40,7 @@ import mitsuba as mi
 from . import mis, walk
 from .dielectric import eta_seen, fresnel_dielectric, radiance_scale, scatter_unit, transmit_half_vector
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
-from .gradients import LoopValues
+from .gradients import LoopValues, trimmed
 from .microfacet import BECKMANN, GGX, INV_PI, ConductorFresnel, dot, half_vector, normalized, reflect
 from .model import ConductorWalk, DielectricWalk, DiffuseWalk
 from .posfree import horizon_circle
@@ -57,13 +57,14 @@ EDGE_SALT = mix32_int(0x45444745)
 # ------------------------------------------------------------------ height machinery
 
 
-def sample_height(mf, w, t, u):
+def sample_height(mf, w, t, u, lam=None, lam_abs=None):
     """Next intersection of a ray along ``w`` from height t with U = ``u`` (Rust ``sample_height``):
-    (t', hit); hit False when the ray leaves the microsurface."""
+    (t', hit); hit False when the ray leaves the microsurface. ``lam``, ``lam_abs``: Λ(w) and |Λ(w)| when the
+    caller has them (the same variables: recorded once)."""
     e = optical_depth(u)
     up = w[2] > 0.0
-    lam_up = mf.lambda_(w)  # ≥ 0 for an upward w
-    lam_abs = mf.abs_lambda(w)  # ≥ 1 downward, ∞ horizontal
+    lam_up = mf.lambda_(w) if lam is None else lam  # ≥ 0 for an upward w
+    lam_abs = mf.abs_lambda(w) if lam_abs is None else lam_abs  # ≥ 1 downward, ∞ horizontal
     t_up = t + e / lam_up
     t_down = t - e / lam_abs
     hit_up = (lam_up > 0.0) & (t_up < 0.0)
@@ -86,7 +87,7 @@ def sample_height_hit(mf, w, t, u):
     t_up_res = dr.select(leaves | bad, t, dr.select(horizontal, t, dr.minimum(t_up, 0.0)))
     p_up = dr.select(leaves, 0.0, dr.select(horizontal, 1.0, dr.select(bad, 0.0, dr.minimum(p_hit, 1.0))))
     # Downward: always hits (unless the height is NaN).
-    t_down, hit_down = sample_height(mf, w, t, u)
+    t_down, hit_down = sample_height(mf, w, t, u, lam=lam)
     t_res = dr.select(up, t_up_res, dr.select(hit_down, t_down, t))
     p_res = dr.select(up, p_up, dr.select(hit_down, 1.0, 0.0))
     return t_res, p_res
@@ -241,8 +242,16 @@ def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None, direction_ta
     last = max_bounces  # a Python int, or a UInt32 per lane (model 'auto' style caps)
     lambda_o = mf.lambda_(wo)
     start = valid_incidence(wi) & valid_incidence(wo) & (last > 0)
-    traced = mf_sample is not None
-    piped_values = traced or walk.carries_gradients(mf, lambda_o, *facets.values())
+    carries = walk.carries_gradients(mf, lambda_o, *facets.values())
+    # Traced with nothing differentiated (prb's primal pass and its adjoint pass's ``sample``: gradients
+    # suspended), the walk is the one as written bit for bit: the same heights and normals (drawn from equal
+    # statistics and directions), each density ratio exactly 1 (x/x). It runs as that, without the values in
+    # its loop state and the ratios (benches/README.md, "Gradient steps of the walks ≤ 3× the built-in").
+    traced = mf_sample is not None and (carries or dr.grad_enabled(wi) or dr.grad_enabled(wo) or not trimmed())
+    piped_values = traced or carries
+    # Traced, ω_o travels in the loop's state when it may carry a derivative (a fixed ω_o is read from outside
+    # the loop, as the walk as written reads it: the same value).
+    pipe_wo = traced and (dr.grad_enabled(wo) or not trimmed())
     edges = (traced and direction_tangent is not None and getattr(facets, "horizon_edges", False)
              and mf.dist != BECKMANN)
     edge_key = mix32(key ^ EDGE_SALT) if edges else None
@@ -253,7 +262,7 @@ def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None, direction_ta
         if edges:  # ... then the coordinate s and the tangents of −wr and of ω_o
             values, (s_dir, tw, two) = values[:-3], values[-3:]
         # Traced, ω_o travels in the state too, after the facets' values (it may carry a derivative).
-        values, wo_ = (values[:-1], values[-1]) if traced else (values, wo)
+        values, wo_ = (values[:-1], values[-1]) if pipe_wo else (values, wo)
         f = facets.with_values(values) if piped_values else facets
         if edges:
             u_phi, u_eh = Stream(edge_key, counter).next2()
@@ -288,7 +297,7 @@ def eval_from(mf, facets, wi, wo, max_bounces, key, mf_sample=None, direction_ta
 
     state = dict(order=mi.UInt32(1), wr=-mi.Vector3f(wi), t=mi.Float(0.0), thr=mi.Spectrum(1.0),
                  result=dr.zeros(mi.Spectrum), active=mi.Bool(start), counter=mi.UInt32(0),
-                 piped=LoopValues.state(mf, lambda_o, *facets.values(), *((mi.Vector3f(wo),) if traced else ()))
+                 piped=LoopValues.state(mf, lambda_o, *facets.values(), *((mi.Vector3f(wo),) if pipe_wo else ()))
                  if piped_values else ())
     if edges:
         s_dir, t_i, t_o = direction_tangent
@@ -541,7 +550,7 @@ def sample_height_hit_over_area(mf, w, t, u):
     leaves = ~(lam > 0.0) | (t >= 0.0) | (lam == dr.inf)  # (a horizontal w: A(w) = 0·∞, the lane ends)
     bad = ~(p_hit > 0.0) | ~(z > -1.0) | dr.isnan(t_up) | ~dr.isfinite(g)
     miss_up = leaves | bad
-    t_down, hit_down = sample_height(mf, w, t, u)
+    t_down, hit_down = sample_height(mf, w, t, u, lam_abs=lam)
     hit_down &= dr.isfinite(lam)
     t_res = dr.select(up, dr.select(miss_up, t, t_up), dr.select(hit_down, t_down, t))
     q = dr.select(up, dr.select(miss_up, 0.0, g), dr.select(hit_down, 1.0 / dr.select(hit_down, lam, 1.0), 0.0))

@@ -79,10 +79,18 @@ def resize(mi, scene, width, height):
 
 
 def resolve(name):
+    """The scene file of ``name`` (a path, or a shipped scene's name), with the generated assets a shipped scene
+    refers to (``$assets``, msx/assets.py) written beside it when missing: a checkout's ``scenes/`` has none
+    until ``python3 -m msx assets scenes/assets`` or this."""
     p = Path(name)
-    if p.exists():
-        return p.resolve()
     import msx
+
+    if p.exists():
+        if "$assets" in p.read_text():
+            from msx import assets
+
+            assets.ensure(p.resolve().parent / "assets")
+        return p.resolve()
 
     return Path(msx.scene_path(name))
 

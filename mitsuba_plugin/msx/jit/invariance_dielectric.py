@@ -613,11 +613,11 @@ def sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
     w0 = dr.select(outside, wi, -wi)
     l0 = mf.abs_lambda(-w0)
     start = dielectric_valid(wi, eta) & dr.isfinite(l0) & (last > 0)
-    chain0 = PieceChain.new(l0, slots, packets=False)  # no per-packet branches (PieceChain)
+    chain0 = PieceChain.new(l0, slots)
 
-    def body(j, w, done, active, counter, u, refracted, h_dir, h_t, chain_state):
+    def body(j, w, done, active, counter, u, refracted, h_dir, h_t, chain_state, packets=True):
         ua, u1, u2 = u
-        chain = PieceChain.from_state(chain_state, packets=False)
+        chain = PieceChain.from_state(chain_state, packets=packets)
         m, cos_wm, valid = heitz.visible_normal(mf, w, u1, u2)
         active &= valid
         o, d, crossed = reflect_or_refract_unit(w, m, cos_wm, e, ua)
@@ -638,6 +638,9 @@ def sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
     state = dict(j=mi.UInt32(0), w=mi.Vector3f(w0), done=mi.Bool(False), active=mi.Bool(start), counter=mi.UInt32(0),
                  u=tuple(clean_uniform(mi.Float(x)) for x in (sample1, u1, u2)), refracted=mi.Bool(False),
                  h_dir=mi.Vector3f(0.0, 0.0, 1.0), h_t=mi.Float(0.0), chain_state=chain0.state())
+    # The first vertex, where every lane is, outside the loop: on the new chain (literals but L_0) drjit folds
+    # the passes over the run away; the loop takes the lanes that go on, its pieces in per-packet branches.
+    state = body(**state, packets=False)
     out = walk.while_loop(state, body, label="msx_invariance_dielectric_sample")
     j, w, done, counter, refracted, h_dir, h_t = (out[k] for k in ("j", "w", "done", "counter", "refracted", "h_dir",
                                                                     "h_t"))

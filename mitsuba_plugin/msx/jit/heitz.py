@@ -144,6 +144,26 @@ def dielectric_phase_reflect(mf, wi, wo, eta):
     return dr.select(ok, p * fresnel_dielectric(dr.select(ok, c, 1.0), eta), 0.0)
 
 
+def phase_next_event(mf, w, o, eta, transmit):
+    """Heitz's phase function towards ``o`` (``heitz.dielectric_phase_transmit`` where ``transmit``, else
+    ``heitz.dielectric_phase_reflect``) with one half vector, one visible-normal density and one Fresnel factor
+    per lane: each lane rounds the operations of its own branch's function (the same bits), at about half the
+    cost of computing both and selecting (as ``posfree_dielectric.vertex_next_event``; the plain glass walks' next event here and in
+    jit/invariance_dielectric.py)."""
+    h, length = normalized(dr.select(transmit, transmit_half_vector(w, o, eta), w + o))
+    c, co = dot(w, h), dot(o, h)
+    d = mf.d_visible(w, h)
+    p = d / (4.0 * c)
+    ok_r = (length > 1e-12) & (c > 0.0) & (h[2] > 0.0) & dr.isfinite(p) & (p > 0.0)
+    # The reflection's Fresnel argument where its term is valid (its other lanes give 0 either way).
+    f = fresnel_dielectric(dr.select(transmit | ok_r, c, 1.0), eta)
+    v_r = dr.select(ok_r, p * f, 0.0)
+    denom = c + eta * co
+    v_t = eta * eta * (1.0 - f) * d * (-co) / (denom * denom)
+    ok_t = (length > 1e-12) & (c > 0.0) & (co < 0.0) & (f < 1.0) & dr.isfinite(v_t) & (v_t > 0.0)
+    return dr.select(transmit, dr.select(ok_t, v_t, 0.0), v_r)
+
+
 def visible_normal(mf, wi, u1, u2, where=None):
     """A visible normal of ``wi`` (Rust ``visible_normal``): (m, ωi·m, valid). ``where`` (a mask, plain
     walks only): drawn only there, (ωi, 0, False) elsewhere; a packet with no lane of it skips the sampler."""
@@ -631,9 +651,11 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
         # Next-event estimation towards ω_o.
         if dirs:  # Heitz's phase functions times L: the position-free vertex values
             p = dr.select(same, vertex_reflect(mfa, e, wi_l, wo_l), vertex_transmit(mfa, e, wi_l, wo_l))
-        else:
+        elif traced:
             p = dr.select(same, dielectric_phase_reflect(mfa, wi_l, wo_l, e),
                           dielectric_phase_transmit(mfa, wi_l, wo_l, e))
+        else:  # one half vector, D and Fresnel factor per lane (the same bits)
+            p = phase_next_event(mfa, wi_l, wo_l, e, ~same)
         t_o = dr.select(same, t, flip_height(t))
         contrib = p * masking_at(lo, t_o)
         result = dr.select(active & (contrib > 0.0), result + thr * contrib, result)

@@ -13,10 +13,10 @@ import drjit as dr
 import mitsuba as mi
 
 from . import heitz, invariance_recursion, walk
-from .dielectric import eta_seen, fresnel_dielectric, radiance_scale, reflect_or_refract_unit, transmit_half_vector
+from .dielectric import eta_seen, radiance_scale, reflect_or_refract_unit
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
 from .gradients import LoopValues
-from .microfacet import BECKMANN, dot, normalized
+from .microfacet import BECKMANN
 from .invariance_recursion import over_run, push_down, run_slots
 from .posfree_dielectric import vertex_reflect, vertex_transmit
 from .rng import Stream, clean_uniform
@@ -339,25 +339,6 @@ def extend_run_packets(mf, chain, d, active):
     return out[0], d[2] > 0.0, out[1], out[2]
 
 
-def phase_next_event(mf, w, o, eta, transmit):
-    """Heitz's phase function towards ``o`` (``heitz.dielectric_phase_transmit`` where ``transmit``, else
-    ``heitz.dielectric_phase_reflect``) with one half vector, one visible-normal density and one Fresnel factor
-    per lane: each lane rounds the operations of its own branch's function (the same bits), at about half the
-    cost of computing both and selecting (as ``posfree_dielectric.vertex_next_event``)."""
-    h, length = normalized(dr.select(transmit, transmit_half_vector(w, o, eta), w + o))
-    c, co = dot(w, h), dot(o, h)
-    d = mf.d_visible(w, h)
-    p = d / (4.0 * c)
-    ok_r = (length > 1e-12) & (c > 0.0) & (h[2] > 0.0) & dr.isfinite(p) & (p > 0.0)
-    # The reflection's Fresnel argument where its term is valid (its other lanes give 0 either way).
-    f = fresnel_dielectric(dr.select(transmit | ok_r, c, 1.0), eta)
-    v_r = dr.select(ok_r, p * f, 0.0)
-    denom = c + eta * co
-    v_t = eta * eta * (1.0 - f) * d * (-co) / (denom * denom)
-    ok_t = (length > 1e-12) & (c > 0.0) & (co < 0.0) & (f < 1.0) & dr.isfinite(v_t) & (v_t > 0.0)
-    return dr.select(transmit, dr.select(ok_t, v_t, 0.0), v_r)
-
-
 def dielectric_valid(w, eta):
     return dr.all(dr.isfinite(w)) & (w[2] != 0.0) & dr.isfinite(eta) & (eta > 0.0)
 
@@ -497,7 +478,7 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
             l_w = dr.detach(mfa.abs_lambda(-w))
             l_w = dr.select(dr.isfinite(l_w), l_w, 0.0)
         else:
-            phase = phase_next_event(mfa, w, wo_l_, ea, ~same)
+            phase = heitz.phase_next_event(mfa, w, wo_l_, ea, ~same)
         nee = active & (phase > 0.0)
         if traced:
             exit_r = chain.exit_given_hits(lo, nee & same)

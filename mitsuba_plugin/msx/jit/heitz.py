@@ -103,10 +103,16 @@ def masking_at(lambda_w, t):
 
 def flip_height(t):
     """The height seen from the other side of the interface, ln(1 − e^t), without cancellation (Rust
-    ``flip_height``): log1p(−e^t) below −ln 2, ln(−expm1(t)) above."""
-    low = log1p(-dr.exp(t))
-    high = dr.log(-expm1(dr.minimum(t, 0.0)))
-    return dr.select(t < -LN_2, low, high)
+    ``flip_height``): log1p(−e^t) below −ln 2, ln(−expm1(t)) above. Written with one exponential and one
+    logarithm for both forms (``special.log1p`` and ``expm1`` inlined, the logarithm's argument selected per
+    lane): each lane rounds its own form's operations, as computing both and selecting (the same bits; e^t is
+    taken of min(t, 0), equal to t where the first form is chosen)."""
+    t0 = dr.minimum(t, 0.0)
+    first = t < -LN_2
+    x = -dr.exp(t0)
+    u = 1.0 + x
+    ln = dr.log(dr.select(first, u, -expm1(t0)))
+    return dr.select(first, dr.select(u == 1.0, x, ln * x / (u - 1.0)), ln)
 
 
 # ------------------------------------------------------------------ phase function

@@ -150,15 +150,15 @@ def dielectric_phase_reflect(mf, wi, wo, eta):
     return dr.select(ok, p * fresnel_dielectric(dr.select(ok, c, 1.0), eta), 0.0)
 
 
-def phase_next_event(mf, w, o, eta, transmit):
+def phase_next_event(mf, w, o, eta, transmit, lam_up=None):
     """Heitz's phase function towards ``o`` (``heitz.dielectric_phase_transmit`` where ``transmit``, else
     ``heitz.dielectric_phase_reflect``) with one half vector, one visible-normal density and one Fresnel factor
     per lane: each lane rounds the operations of its own branch's function (the same bits), at about half the
-    cost of computing both and selecting (as ``posfree_dielectric.vertex_next_event``; the plain glass walks' next event here and in
-    jit/invariance_dielectric.py)."""
+    cost of computing both and selecting (as ``posfree_dielectric.vertex_next_event``); the next event of the
+    plain glass walks here and in jit/invariance_dielectric.py. ``lam_up``: as ``Microfacet.d_visible``'s."""
     h, length = normalized(dr.select(transmit, transmit_half_vector(w, o, eta), w + o))
     c, co = dot(w, h), dot(o, h)
-    d = mf.d_visible(w, h)
+    d = mf.d_visible(w, h, lam_up)
     p = d / (4.0 * c)
     ok_r = (length > 1e-12) & (c > 0.0) & (h[2] > 0.0) & dr.isfinite(p) & (p > 0.0)
     # The reflection's Fresnel argument where its term is valid (its other lanes give 0 either way).
@@ -660,8 +660,8 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
         elif traced:
             p = dr.select(same, dielectric_phase_reflect(mfa, wi_l, wo_l, e),
                           dielectric_phase_transmit(mfa, wi_l, wo_l, e))
-        else:  # one half vector, D and Fresnel factor per lane (the same bits)
-            p = phase_next_event(mfa, wi_l, wo_l, e, ~same)
+        else:  # one half vector, D and Fresnel factor per lane; Λ of the height step's direction (the same bits)
+            p = phase_next_event(mfa, wi_l, wo_l, e, ~same, mfs.lambda_up(mfs.alpha_tan2(wr)))
         t_o = dr.select(same, t, flip_height(t))
         contrib = p * masking_at(lo, t_o)
         result = dr.select(active & (contrib > 0.0), result + thr * contrib, result)

@@ -80,14 +80,20 @@ def sample_height_hit(mf, w, t, u):
     # Upward: Exp(1) truncated to [0, −Λt), E = −ln(1 − U·P_hit).
     p_hit = -expm1(lam * t)
     u = dr.clip(u, 0.0, ONE_MINUS_EPS)
-    t_up = t - log1p(-u * p_hit) / lam
+    # One logarithm for both directions, its argument selected per lane: ln(1 − U·P_hit) upward (``log1p``
+    # inlined), ln(1 − U) downward (``optical_depth``); each lane rounds its own direction's operations.
+    z = -u * p_hit
+    v = 1.0 + z
+    ln = dr.log(dr.select(up, v, 1.0 - u))
+    t_up = t - dr.select(v == 1.0, z, ln * z / (v - 1.0)) / lam
     leaves = ~(lam > 0.0) | (t >= 0.0)
     horizontal = lam == dr.inf
     bad = ~(p_hit > 0.0) | dr.isnan(t_up)
     t_up_res = dr.select(leaves | bad, t, dr.select(horizontal, t, dr.minimum(t_up, 0.0)))
     p_up = dr.select(leaves, 0.0, dr.select(horizontal, 1.0, dr.select(bad, 0.0, dr.minimum(p_hit, 1.0))))
-    # Downward: always hits (unless the height is NaN).
-    t_down, hit_down = sample_height(mf, w, t, u, lam=lam)
+    # Downward: always hits (unless the height is NaN): ``sample_height``'s step, E = −ln(1 − U).
+    t_down = t - (-ln) / mf.abs_lambda(w)
+    hit_down = ~dr.isnan(t_down)
     t_res = dr.select(up, t_up_res, dr.select(hit_down, t_down, t))
     p_res = dr.select(up, p_up, dr.select(hit_down, 1.0, 0.0))
     return t_res, p_res

@@ -312,31 +312,38 @@ def extend_run(mf, chain, d, active, over_lambda=False):
     return active, up, cont, pushed
 
 
-def extend_run_packets(mf, chain, d, active):
+def extend_run_packets(mf, chain, d, active, lam_up=False):
     """``extend_run`` of a plain walk only in the packets that have a lane of ``active`` (a symbolic
     ``dr.if_stmt``; the other lanes keep the chain, and get what ``extend_run`` gives them there: not active,
-    0, not pushed; the same bits). A chain that is not ``branched`` extends everywhere."""
+    0, not pushed; the same bits). A chain that is not ``branched`` extends everywhere. ``lam_up``: also
+    returns ``Microfacet.lambda_up`` of d (which ``extend_run`` computes; 0 where not extended), the next
+    vertex's Λ for its next event (``Microfacet.d_visible``)."""
     if not chain.branched:
-        return extend_run(mf, chain, d, active)
+        out = extend_run(mf, chain, d, active)
+        return out + (mf.lambda_up(mf.alpha_tan2(d)),) if lam_up else out
     n = chain.n
 
     def flat(c):  # slot 0 (L_0) is never written: it stays out of the branch
         return tuple(c.rates[1:]) + tuple(c.pi) + (c.a, c.has_up, c.scale, c.hit)
 
+    more = 1 if lam_up else 0
+
     def run(d, active, *s):
         c = PieceChain([chain.rates[0]] + list(s[:n - 1]), s[n - 1:2 * n - 1], *s[2 * n - 1:])
         active, _, cont, pushed = extend_run(mf, c, d, active)
-        return (active, cont, pushed) + flat(c)
+        lam = (mf.lambda_up(mf.alpha_tan2(d)),) if lam_up else ()
+        return (active, cont, pushed) + lam + flat(c)
 
     def kept(d, active, *s):
-        return (active, dr.zeros(mi.Float, dr.width(active)), dr.zeros(mi.Bool, dr.width(active))) + s
+        zero = dr.zeros(mi.Float, dr.width(active))
+        return (active, zero, dr.zeros(mi.Bool, dr.width(active))) + (zero,) * more + s
 
     out = dr.if_stmt((d, active) + flat(chain), active, run, kept, label="msx_invariance_extend_run")
-    rest = out[3:]
+    rest = out[3 + more:]
     chain.rates = [chain.rates[0]] + list(rest[:n - 1])
     chain.pi = list(rest[n - 1:2 * n - 1])
     chain.a, chain.has_up, chain.scale, chain.hit = rest[2 * n - 1:]
-    return out[0], d[2] > 0.0, out[1], out[2]
+    return (out[0], d[2] > 0.0, out[1], out[2]) + tuple(out[3:3 + more])
 
 
 def dielectric_valid(w, eta):
@@ -457,7 +464,7 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
              & (last > 0))
     chain0 = PieceChain.new(l0, slots, unrolled=traced)
 
-    def body(j, w, thr, result, active, counter, refracted, h_dir, h_t, chain_state, piped):
+    def body(j, w, thr, result, active, counter, refracted, h_dir, h_t, chain_state, piped, lam_w):
         mfa, mfs, lo, ea, es, wo_l_ = mf, mf, lambda_o, e, e, wo_l
         if traced:  # the differentiated values come through the state
             lv = LoopValues(mf.dist, piped)
@@ -477,8 +484,8 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
             phase = dr.select(same, vertex_reflect(mfa, ea, w, wo_l_), vertex_transmit(mfa, ea, w, wo_l_))
             l_w = dr.detach(mfa.abs_lambda(-w))
             l_w = dr.select(dr.isfinite(l_w), l_w, 0.0)
-        else:
-            phase = heitz.phase_next_event(mfa, w, wo_l_, ea, ~same)
+        else:  # a plain walk's Λ of w comes from the previous vertex (``lam_w``)
+            phase = heitz.phase_next_event(mfa, w, wo_l_, ea, ~same, None if traced else lam_w)
         nee = active & (phase > 0.0)
         if traced:
             exit_r = chain.exit_given_hits(lo, nee & same)
@@ -541,8 +548,11 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
         if dirs:  # thr becomes the throughput over L of the next w = −d
             active, up, cont, pushed, l_d = extend_run(mfa, chain, d, active, over_lambda=True)
             thr = dr.select(active, dr.select(up, thr * cont, thr / dr.select(up, 1.0, l_d)), thr)
-        else:
+        elif traced:
             active, up, cont, pushed = extend_run_packets(mfa, chain, d, active)
+            thr = dr.select(active & up, thr * cont, thr)
+        else:
+            active, up, cont, pushed, lam_w = extend_run_packets(mfa, chain, d, active, lam_up=True)
             thr = dr.select(active & up, thr * cont, thr)
         active &= (~up | (cont > 0.0)) & (up | pushed)
         if dirs:
@@ -550,12 +560,15 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
         elif traced:
             piped = lv.piped(eta_a, h_tw)
         return dict(j=j + 1, w=-d, thr=thr, result=result, active=active, counter=counter, refracted=refracted,
-                    h_dir=h_dir, h_t=h_t, chain_state=chain.state(), piped=piped)
+                    h_dir=h_dir, h_t=h_t, chain_state=chain.state(), piped=piped, lam_w=lam_w)
 
     thr0 = mi.Float(1.0)
+    # A plain walk carries Λ of w (``Microfacet.lambda_up``; (α tan θ)² is even in w: of −w0, as l0's) for the
+    # next event's visible-normal density: the same bits as computing it there, without a Λ per vertex.
+    lam_w0 = () if traced else mf.lambda_up(mf.alpha_tan2(-w0))
     state = dict(j=mi.UInt32(0), w=mi.Vector3f(w0), thr=thr0, result=mi.Float(0.0), active=mi.Bool(start),
                  counter=mi.UInt32(0), refracted=mi.Bool(False), h_dir=mi.Vector3f(0.0, 0.0, 1.0), h_t=mi.Float(0.0),
-                 chain_state=chain0.state(), piped=())
+                 chain_state=chain0.state(), piped=(), lam_w=lam_w0)
     direction = None
     if dirs:
         s_dir, t_i, t_o = direction_tangent

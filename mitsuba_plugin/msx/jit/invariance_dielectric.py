@@ -464,7 +464,7 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
              & (last > 0))
     chain0 = PieceChain.new(l0, slots, unrolled=traced)
 
-    def body(j, w, thr, result, active, counter, refracted, h_dir, h_t, chain_state, piped, lam_w):
+    def body(j, w, thr, result, active, counter, refracted, h_dir, h_t, chain_state, piped, lam_w, packets=True):
         mfa, mfs, lo, ea, es, wo_l_ = mf, mf, lambda_o, e, e, wo_l
         if traced:  # the differentiated values come through the state
             lv = LoopValues(mf.dist, piped)
@@ -476,7 +476,7 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
                 eta_a, h_tw = lv.rest
             ea = eta_seen(eta_a, outside)
             es = dr.detach(ea)
-        chain = PieceChain.from_state(chain_state, chain0.unrolled)
+        chain = PieceChain.from_state(chain_state, chain0.unrolled, packets)
         order = j + 1
         # Next-event estimation: phase function × exact exit probability (along moving directions thr is the
         # throughput over L, and the phase function is taken times L).
@@ -580,6 +580,8 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
                                           mi.Vector3f(t_o))
     elif traced:
         state["piped"] = LoopValues.state(mf, lambda_o, mi.Float(eta), mi.Vector3f(0.0))
+    if not traced:  # the first vertex outside the loop, on the new chain (as ``sample``'s)
+        state = body(**state, packets=False)
     out = walk.while_loop(state, body, label="msx_invariance_dielectric_eval")
     j, thr, result, counter, refracted, h_dir, h_t = (out[k] for k in ("j", "thr", "result", "counter", "refracted",
                                                                         "h_dir", "h_t"))

@@ -231,7 +231,7 @@ def draw_depth_all(chain, c_min, key, counter, active, traced=False, reparam=Fal
     return tau, total, counter, ratio
 
 
-def transmit_exit(chain, lambda_t, key, counter, active, traced=False, reparam=False):
+def transmit_exit(chain, lambda_t, key, counter, active, traced=False, reparam=False, lb=None):
     """Unbiased estimate of E[(1 − e^{−τ})^{Λ'}] given the hits (Rust ``transmit_exit``): the top piece's
     mass exactly, π(0)·L_0·B(L_0, 1+Λ'), one depth drawn from the deeper pieces for the rest. Returns
     (estimate in [0, 1], counter). ``traced``: the deeper depth is drawn detached and weighed by its density
@@ -239,7 +239,9 @@ def transmit_exit(chain, lambda_t, key, counter, active, traced=False, reparam=F
     run = active & (lambda_t >= 0.0) & ~dr.isinf(lambda_t)
     p0 = chain.pi_at(0, run)
     l0 = chain.rates[0]
-    e = p0 * l_beta(l0, lambda_t, branch=not traced)  # L_0 ≥ 1: the series form is never needed
+    # L_0 ≥ 1: the series form is never needed. ``lb``: that factor when the caller has it (a plain walk
+    # computes it once per lane, before its loop: L_0 and Λ' do not change along the run).
+    e = p0 * (l_beta(l0, lambda_t, branch=not traced) if lb is None else lb)
     deeper = run & (chain.a > 1)
     tau, rest, counter, ratio = draw_depth(chain, 1, key, counter, deeper, traced, reparam)
     above = -expm1(-tau)  # 1 − e^{−τ}
@@ -250,16 +252,17 @@ def transmit_exit(chain, lambda_t, key, counter, active, traced=False, reparam=F
     return dr.select(run, e, 0.0), counter
 
 
-def next_event_exits(chain, lambda_o, key, counter, nee, same):
+def next_event_exits(chain, lambda_o, key, counter, nee, same, lb=None):
     """(``exit_given_hits`` where ``nee & same``, ``transmit_exit`` where ``nee & ~same``, counter) of a plain
     walk, each inside a symbolic ``dr.if_stmt`` that a packet without a lane of it skips: its other lanes get
-    what the function gives them there (0, and the counter one pair on: ``draw_depth``), the same bits."""
+    what the function gives them there (0, and the counter one pair on: ``draw_depth``), the same bits.
+    ``lb``: ``transmit_exit``'s."""
 
     def reflected(lo):
         return chain.exit_given_hits(lo, nee & same)
 
     def across(lo, counter):
-        return transmit_exit(chain, lo, key, counter, nee & ~same)
+        return transmit_exit(chain, lo, key, counter, nee & ~same, lb=lb)
 
     def zero(lo, *counter):
         z = dr.zeros(mi.Float, dr.width(lo))
@@ -463,6 +466,15 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
     start = (dielectric_valid(wi, eta) & dielectric_valid(wo, eta) & dr.isfinite(lambda_o) & dr.isfinite(l0)
              & (last > 0))
     chain0 = PieceChain.new(l0, slots, unrolled=traced)
+    lb_across = None
+    if not traced:  # the transmission's L_0·B(L_0, 1+Λ(ω_o)) (``transmit_exit``), once per lane where ω_o is across
+        def across_factor(l0, lo):
+            return l_beta(l0, lo, branch=True)
+
+        def none(l0, lo):
+            return dr.zeros(mi.Float, dr.width(l0))
+
+        lb_across = dr.if_stmt((l0, lambda_o), start & ~same, across_factor, none, label="msx_invariance_across_factor")
 
     def body(j, w, thr, result, active, counter, refracted, h_dir, h_t, chain_state, piped, lam_w, packets=True):
         mfa, mfs, lo, ea, es, wo_l_ = mf, mf, lambda_o, e, e, wo_l
@@ -491,7 +503,7 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
             exit_r = chain.exit_given_hits(lo, nee & same)
             exit_t, counter = transmit_exit(chain, lo, key, counter, nee & ~same, traced, dirs)
         else:  # each only in the packets that have a lane of it (a symbolic if_stmt; the same bits)
-            exit_r, exit_t, counter = next_event_exits(chain, lo, key, counter, nee, same)
+            exit_r, exit_t, counter = next_event_exits(chain, lo, key, counter, nee, same, lb_across)
         result = dr.select(nee, result + thr * phase * dr.select(same, exit_r, exit_t), result)
         active &= order < last
         rng = Stream(key, counter)

@@ -590,7 +590,7 @@ def sample_height_hit_over_area(mf, w, t, u):
 
 
 def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bounces, key, counter,
-                         mf_sample=None, tw=None, direction=None):
+                         mf_sample=None, tw=None, direction=None, lambda_o=None):
     """Heitz's dielectric eval walk from a state on (Rust ``eval_from`` with ``Mat::Dielectric``): the ray
     travels along ``wr`` (frame of its side, ``outside``) from height ``t`` towards the vertex of order
     ``order``, carrying ``thr``; the lane's stream goes on at ``counter``. Returns the contributions of
@@ -622,9 +622,11 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
     eta = mi.Float(eta)
     wo = mi.Vector3f(wo)
     wo_out = wo[2] > 0.0
-    # Λ(ω_o) in the frame of ω_o's side (D and Λ are even under v ↦ −v).
-    lambda_o = mf.lambda_(dr.select(wo_out, wo, -wo))
+    # Λ(ω_o) in the frame of ω_o's side (D and Λ are even under v ↦ −v); ``lambda_o``: that value when a plain
+    # caller has it (jit/invariance_dielectric.py: the same bits).
     traced = mf_sample is not None
+    if traced or lambda_o is None:
+        lambda_o = mf.lambda_(dr.select(wo_out, wo, -wo))
     eta_traced = traced and dr.grad_enabled(eta)  # the edge terms are derivatives in η only
     dirs = traced and direction is not None  # a pass along one coordinate of the directions
     dir_edges = dirs and mf.dist != BECKMANN  # Beckmann's D vanishes at horizontal normals: no edge

@@ -601,7 +601,8 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
     # the refracted direction's tangent in η (in s along moving directions).
     h_tw = (out["piped"][4] if dirs else out["piped"][-1]) if traced else None
     rest = heitz.dielectric_eval_from(mf, eta, wo, h_dir, h_t, ~outside, j + 1, thr, refracted, last, key,
-                                      counter, mf_sample=mf_sample, tw=h_tw, direction=direction)
+                                      counter, mf_sample=mf_sample, tw=h_tw, direction=direction,
+                                      lambda_o=lambda_o)  # Λ of the upward one of ±ω_o, as the walk's
     v = (result + dr.select(refracted, rest, 0.0)) * radiance_scale(eta, radiance, outside, wo[2] > 0.0)
     return dr.select(dr.isfinite(v) & (v > 0.0), v, 0.0)
 

@@ -50,28 +50,40 @@ def restore_arrangement():
     gradients.ARRANGEMENT = before
 
 
+def lanes(b, wi, seed, both_sides):
+    """The BSDF ``b``'s parameters and a symbolic call's pointer (one per lane, as a render calls it), the context,
+    LANES interactions with ω_i = ``wi``, random ω_o (above; on either side where ``both_sides``) and three
+    uniforms per lane."""
+    p = mi.traverse(b)
+    rng = np.random.default_rng(seed)
+    si = dr.zeros(mi.SurfaceInteraction3f, LANES)
+    si.wi = wi
+    si.p = mi.Point3f(mi.Float(np.arange(LANES, dtype=np.float32)), 0.0, 0.0)
+    d = rng.normal(size=(3, LANES)).astype(np.float32)
+    d[2] = np.abs(d[2]) * (1 if not both_sides else np.sign(rng.uniform(-1, 1, LANES)))
+    wo = dr.normalize(mi.Vector3f(*(mi.Float(x) for x in d)))
+    u = [mi.Float(x) for x in rng.uniform(0.0, 1.0, (3, LANES)).astype(np.float32)]
+    ptr = dr.gather(mi.BSDFPtr, mi.BSDFPtr(b), dr.zeros(mi.UInt32, LANES))
+    return p, ptr, mi.BSDFContext(), si, wo, u
+
+
+def eval_forward(ptr, ctx, si, wo, p, key):
+    """[eval's value, its forward derivative in the parameter ``key``] (gradients enabled on it, left so)."""
+    dr.enable_grad(p[key])
+    p.update()
+    value = ptr.eval(ctx, si, wo)
+    dr.forward_from(p[key])
+    return [np.array(dr.detach(value)), np.array(dr.grad(value))]
+
+
 def results(bsdf_props, key, arrangement):
     """eval's value, its forward and reverse derivatives, the sample weight and its forward derivative, at
     fixed lanes, under ``arrangement``."""
     gradients.ARRANGEMENT = arrangement
     b = mi.load_dict({"type": "msx_posfree", "distribution": "ggx", "alpha": 0.5, **bsdf_props})
-    p = mi.traverse(b)
-    rng = np.random.default_rng(7)
-    si = dr.zeros(mi.SurfaceInteraction3f, LANES)
-    si.wi = dr.normalize(mi.Vector3f(0.6, -0.2, 0.7))
-    si.p = mi.Point3f(mi.Float(np.arange(LANES, dtype=np.float32)), 0.0, 0.0)
-    d = rng.normal(size=(3, LANES)).astype(np.float32)
-    d[2] = np.abs(d[2]) * (1 if bsdf_props.get("surface") != "dielectric" else np.sign(rng.uniform(-1, 1, LANES)))
-    wo = dr.normalize(mi.Vector3f(*(mi.Float(x) for x in d)))
-    u = [mi.Float(x) for x in rng.uniform(0.0, 1.0, (3, LANES)).astype(np.float32)]
-    ptr = dr.gather(mi.BSDFPtr, mi.BSDFPtr(b), dr.zeros(mi.UInt32, LANES))
-    ctx = mi.BSDFContext()
-    out = []
-    dr.enable_grad(p[key])
-    p.update()
-    value = ptr.eval(ctx, si, wo)
-    dr.forward_from(p[key])
-    out += [np.array(dr.detach(value)), np.array(dr.grad(value))]
+    p, ptr, ctx, si, wo, u = lanes(b, dr.normalize(mi.Vector3f(0.6, -0.2, 0.7)), 7,
+                                   bsdf_props.get("surface") == "dielectric")
+    out = eval_forward(ptr, ctx, si, wo, p, key)
     dr.enable_grad(p[key])
     p.update()
     value = ptr.eval(ctx, si, wo)
@@ -150,24 +162,9 @@ def traced_invariance(props, monkeypatch, unrolled, slots=None, wi_moves=False):
     monkeypatch.setattr(dr, "if_stmt", counting_if_stmt)
     b = mi.load_dict({"type": "msx_posfree", "distribution": "ggx", "alpha": 4.0, "model": "invariance",
                       "material": "Cu", **props})
-    p = mi.traverse(b)
     key = "alpha.value"
-    rng = np.random.default_rng(11)
-    si = dr.zeros(mi.SurfaceInteraction3f, LANES)
-    si.p = mi.Point3f(mi.Float(np.arange(LANES, dtype=np.float32)), 0.0, 0.0)
-    si.wi = mi.Vector3f(0.0, 0.0, 1.0)
-    d = rng.normal(size=(3, LANES)).astype(np.float32)
-    d[2] = np.abs(d[2])
-    wo = dr.normalize(mi.Vector3f(*(mi.Float(x) for x in d)))
-    u = [mi.Float(x) for x in rng.uniform(0.0, 1.0, (3, LANES)).astype(np.float32)]
-    ptr = dr.gather(mi.BSDFPtr, mi.BSDFPtr(b), dr.zeros(mi.UInt32, LANES))
-    ctx = mi.BSDFContext()
-    out = []
-    dr.enable_grad(p[key])
-    p.update()
-    value = ptr.eval(ctx, si, wo)
-    dr.forward_from(p[key])
-    out += [np.array(dr.detach(value)), np.array(dr.grad(value))]
+    p, ptr, ctx, si, wo, u = lanes(b, mi.Vector3f(0.0, 0.0, 1.0), 11, False)
+    out = eval_forward(ptr, ctx, si, wo, p, key)
     if wi_moves:
         dr.disable_grad(p[key])
         p.update()

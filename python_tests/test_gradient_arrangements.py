@@ -50,28 +50,40 @@ def restore_arrangement():
     gradients.ARRANGEMENT = before
 
 
+def lanes(b, wi, seed, both_sides):
+    """The BSDF ``b``'s parameters and a symbolic call's pointer (one per lane, as a render calls it), the context,
+    LANES interactions with ω_i = ``wi``, random ω_o (above; on either side where ``both_sides``) and three
+    uniforms per lane."""
+    p = mi.traverse(b)
+    rng = np.random.default_rng(seed)
+    si = dr.zeros(mi.SurfaceInteraction3f, LANES)
+    si.wi = wi
+    si.p = mi.Point3f(mi.Float(np.arange(LANES, dtype=np.float32)), 0.0, 0.0)
+    d = rng.normal(size=(3, LANES)).astype(np.float32)
+    d[2] = np.abs(d[2]) * (1 if not both_sides else np.sign(rng.uniform(-1, 1, LANES)))
+    wo = dr.normalize(mi.Vector3f(*(mi.Float(x) for x in d)))
+    u = [mi.Float(x) for x in rng.uniform(0.0, 1.0, (3, LANES)).astype(np.float32)]
+    ptr = dr.gather(mi.BSDFPtr, mi.BSDFPtr(b), dr.zeros(mi.UInt32, LANES))
+    return p, ptr, mi.BSDFContext(), si, wo, u
+
+
+def eval_forward(ptr, ctx, si, wo, p, key):
+    """[eval's value, its forward derivative in the parameter ``key``] (gradients enabled on it, left so)."""
+    dr.enable_grad(p[key])
+    p.update()
+    value = ptr.eval(ctx, si, wo)
+    dr.forward_from(p[key])
+    return [np.array(dr.detach(value)), np.array(dr.grad(value))]
+
+
 def results(bsdf_props, key, arrangement):
     """eval's value, its forward and reverse derivatives, the sample weight and its forward derivative, at
     fixed lanes, under ``arrangement``."""
     gradients.ARRANGEMENT = arrangement
     b = mi.load_dict({"type": "msx_posfree", "distribution": "ggx", "alpha": 0.5, **bsdf_props})
-    p = mi.traverse(b)
-    rng = np.random.default_rng(7)
-    si = dr.zeros(mi.SurfaceInteraction3f, LANES)
-    si.wi = dr.normalize(mi.Vector3f(0.6, -0.2, 0.7))
-    si.p = mi.Point3f(mi.Float(np.arange(LANES, dtype=np.float32)), 0.0, 0.0)
-    d = rng.normal(size=(3, LANES)).astype(np.float32)
-    d[2] = np.abs(d[2]) * (1 if bsdf_props.get("surface") != "dielectric" else np.sign(rng.uniform(-1, 1, LANES)))
-    wo = dr.normalize(mi.Vector3f(*(mi.Float(x) for x in d)))
-    u = [mi.Float(x) for x in rng.uniform(0.0, 1.0, (3, LANES)).astype(np.float32)]
-    ptr = dr.gather(mi.BSDFPtr, mi.BSDFPtr(b), dr.zeros(mi.UInt32, LANES))
-    ctx = mi.BSDFContext()
-    out = []
-    dr.enable_grad(p[key])
-    p.update()
-    value = ptr.eval(ctx, si, wo)
-    dr.forward_from(p[key])
-    out += [np.array(dr.detach(value)), np.array(dr.grad(value))]
+    p, ptr, ctx, si, wo, u = lanes(b, dr.normalize(mi.Vector3f(0.6, -0.2, 0.7)), 7,
+                                   bsdf_props.get("surface") == "dielectric")
+    out = eval_forward(ptr, ctx, si, wo, p, key)
     dr.enable_grad(p[key])
     p.update()
     value = ptr.eval(ctx, si, wo)
@@ -120,3 +132,82 @@ def test_arrangement_equals_plain_bit_for_bit(label, props, key, arrangement):
         assert np.all(np.abs(rev - exact) <= bound), (label, rev, exact, bound)
     # Not a vacuous comparison: the call has a value and a derivative.
     assert np.any(plain[0] != 0.0) and np.any(plain[1] != 0.0) and np.any(plain[2] != 0.0), label
+
+
+
+def traced_invariance(props, monkeypatch, unrolled, slots=None, wi_moves=False):
+    """``invariance``'s eval through a symbolic call (as a render calls it) with α differentiated — its value
+    and forward derivative; the value and the derivative along a moving ω_i where ``wi_moves`` — and the calls
+    of that configuration with gradients suspended (prb's primal pass: the walk traced, nothing propagated), on
+    GGX α 4 at normal incidence (the longest runs, so that packets take the run's tail branch). ``unrolled``:
+    every pass over the run unrolled, as a walk whose derivative is propagated runs (``over_run``). Returns
+    the arrays and the number of run-tail branches recorded (differentiated calls, suspended calls)."""
+    from msx.jit import invariance_recursion
+    from msx.jit.invariance_recursion import MonotoneExit
+
+    if unrolled:
+        new = MonotoneExit.new
+        monkeypatch.setattr(MonotoneExit, "new", staticmethod(lambda l0, n, unrolled=False: new(l0, n, True)))
+    if slots is not None:
+        monkeypatch.setattr(invariance_recursion, "CONDUCTOR_RUN_SLOTS", slots)
+    branches = [0, 0]  # run-tail branches recorded; those given a value that carries a derivative
+    inner = dr.if_stmt
+
+    def counting_if_stmt(*a, **kw):
+        if kw.get("label") == "msx_run_tail":
+            branches[0] += 1
+            branches[1] += any(dr.grad_enabled(x) for x in kw.get("args", ()))
+        return inner(*a, **kw)
+
+    monkeypatch.setattr(dr, "if_stmt", counting_if_stmt)
+    b = mi.load_dict({"type": "msx_posfree", "distribution": "ggx", "alpha": 4.0, "model": "invariance",
+                      "material": "Cu", **props})
+    key = "alpha.value"
+    p, ptr, ctx, si, wo, u = lanes(b, mi.Vector3f(0.0, 0.0, 1.0), 11, False)
+    out = eval_forward(ptr, ctx, si, wo, p, key)
+    if wi_moves:
+        dr.disable_grad(p[key])
+        p.update()
+        tilt = mi.Float(0.0)
+        dr.enable_grad(tilt)
+        si.wi = dr.normalize(mi.Vector3f(tilt, 0.0, 1.0))
+        value = ptr.eval(ctx, si, wo)
+        dr.forward_from(tilt)
+        out += [np.array(dr.detach(value)), np.array(dr.grad(value))]
+        si.wi = mi.Vector3f(0.0, 0.0, 1.0)
+        dr.enable_grad(p[key])
+        p.update()
+    differentiated = branches[1]
+    before = branches[0]
+    with dr.suspend_grad():
+        value, pdf = ptr.eval_pdf(ctx, si, wo)
+        bs, w = ptr.sample(ctx, si, u[0], mi.Point2f(u[1], u[2]))
+        out += [np.array(value), np.array(pdf), np.array(bs.wo), np.array(w)]
+    return out, (differentiated, branches[0] - before)
+
+
+@pytest.mark.parametrize("label, props, wi_moves", [
+    ("pt", {}, False), ("bdpt", {"estimator": "bdpt"}, False), ("pt, ω_i moving", {"differentiate_directions": True}, True),
+], ids=["pt", "bdpt", "directions"])
+def test_invariance_run_branch_only_where_nothing_is_differentiated(label, props, wi_moves, monkeypatch):
+    """A traced ``invariance`` walk takes its run's tail in a branch only where no derivative goes through it
+    (``over_run``: drjit 1.5's forward mode through the branch drops tangents or aborts): in prb's primal pass
+    (gradients suspended) it does, and gives the same bits as with every pass unrolled; no branch is given a
+    value that carries a derivative (the BDPT's value, which is not differentiated, keeps its branches). The runs are long enough to take the branch — which the walk with fewer run
+    registers shows (it differs)."""
+    from msx.jit import invariance_recursion
+
+    branched, (n_diff, n_suspended) = traced_invariance(props, monkeypatch, unrolled=False, wi_moves=wi_moves)
+    assert n_diff == 0 and n_suspended > 0, (label, n_diff, n_suspended)
+    monkeypatch.undo()
+    unrolled, (_, n_unrolled) = traced_invariance(props, monkeypatch, unrolled=True, wi_moves=wi_moves)
+    assert n_unrolled == 0, (label, n_unrolled)
+    for i, (a, b) in enumerate(zip(branched, unrolled)):
+        assert np.all(np.isfinite(a)), (label, i)
+        assert np.array_equal(a, b), (label, i, np.max(np.abs(a - b)))
+    assert np.any(branched[1] != 0.0), "no derivative: the test shows nothing"
+    monkeypatch.undo()
+    short, _ = traced_invariance(props, monkeypatch, unrolled=False, wi_moves=wi_moves,
+                                 slots=invariance_recursion.RUN_SLOTS_ALWAYS)
+    k = 4 if wi_moves else 2  # the suspended eval's value
+    assert np.any(short[k] != branched[k]), "no run reached the branch: the test shows nothing"

@@ -195,7 +195,11 @@ def eval(mf, fresnel, wi, wo, max_bounces, key, mf_sample=None, direction_tangen
         light = LightVertex(mf, fresnel, wo, pdf_scale_o, u1, u2, mf_sample)
         light.lambda_o = lambda_o
     l0 = mf.abs_lambda(-wi)
-    dp0 = MonotoneExit.new(l0, slots, unrolled=mf_sample is not None)
+    # Unrolled passes only where a derivative is propagated through the walk (``over_run``): a traced walk
+    # with nothing differentiated — prb's primal passes — keeps the branches, the same bits.
+    material = () if fresnel.mirror else (fresnel.eta, fresnel.k)
+    unrolled = mf_sample is not None and walk.carries_gradients(mf, wi, wo, *material)
+    dp0 = MonotoneExit.new(l0, slots, unrolled=unrolled)
     return walk_from(mf, fresnel, wo, lambda_o, light, CONNECT_MAX_ORDER, mi.Vector3f(wi), 0.25 / (wi[2] * l0),
                      mi.Spectrum(1.0), dp0, start, 0, last, key, rng0.counter, mf_sample=mf_sample,
                      attached_mis=direction_tangent is not None, direction_tangent=direction_tangent)
@@ -231,8 +235,8 @@ def walk_from(mf, fresnel, wo, lambda_o, light, connect_max, w, pdf_scale, thr, 
     # The connection serves orders 2..connect_max: the first connect_max − 1 vertices of a walk, while a packet
     # of lanes runs 5 of them on average on Fig. 9 (benches/README.md, "`invariance` on Fig. 9"). Its work, with
     # its own pass over the run, sits in a ``dr.if_stmt`` that the packets skip at the later vertices and where
-    # no lane is active (``CONNECTION_BRANCH``); not where the run's passes are unrolled (``over_run``: drjit
-    # 1.5's forward mode fails on a branch in a loop).
+    # no lane is active (``CONNECTION_BRANCH``); not where the run's passes are unrolled (a derivative is
+    # propagated through the walk: drjit 1.5's forward mode cannot take a branch in a loop, ``over_run``).
     branchy = connects and not dp0.unrolled and CONNECTION_BRANCH
     edges = traced and direction_tangent is not None and mf.dist != BECKMANN
     edge_key = mix32(key ^ EDGE_SALT) if edges else None
@@ -400,7 +404,7 @@ class WholePath:
         with the exit table of d_0..d_{K_b} and the throughput Π F · H_{K_b}."""
         last = orders[1]
         # Differentiated (the sample weight's derivative), the run's passes are unrolled: drjit 1.5's forward
-        # mode fails on their branch inside the loop (``over_run``).
+        # mode cannot take their branch inside the loop (``over_run``).
         material = () if surface.fresnel.mirror else (surface.fresnel.eta, surface.fresnel.k)
         dp = MonotoneExit.new(cam[0].l, run_slots(last),
                               unrolled=walk.carries_gradients(surface.mf, surface.lambda_o, *material))

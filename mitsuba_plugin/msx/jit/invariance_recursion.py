@@ -59,8 +59,15 @@ def over_run(n, a, step, carry, reverse=True, unrolled=False):
     slots in use, a UInt32 per lane).
 
     ``unrolled``: every slot without the branch (the same bits), for a walk whose derivative is propagated
-    in forward mode through its loop (``mf_sample`` given): drjit 1.5's forward mode fails on the branch (it
-    tries to evaluate a symbolic variable). The run's owner (``MonotoneExit``, ``PieceChain``) carries it."""
+    in forward mode through its loop: drjit 1.5's forward mode cannot take the branch. Outside a symbolic
+    scope it fails ("jit_var_schedule: not permitted", it tries to evaluate a symbolic variable); inside
+    Mitsuba's symbolic calls it runs but drops the tangent of every value the steps read from their closure
+    (measured: ∂f/∂α −0.0912 for −0.0946 on a lane of the conductor walk), and with those values handed to
+    the branch as arguments the LLVM backend aborts the process ("Instruction does not dominate all uses").
+    A walk traced with ``mf_sample`` whose inputs carry no derivative — every call of ``prb``'s primal passes,
+    which suspend gradients, and the adjoint pass's ``sample`` — keeps the branch: no derivative goes through
+    it (``MonotoneExit.new``'s callers decide; ``walk.carries_gradients``). The run's owner (``MonotoneExit``,
+    ``PieceChain``) carries the flag."""
     lo = min(RUN_SLOTS_ALWAYS, n)
     head, tail_slots = list(range(lo)), list(range(lo, n))
     if reverse:

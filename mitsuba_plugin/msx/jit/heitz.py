@@ -80,14 +80,20 @@ def sample_height_hit(mf, w, t, u):
     # Upward: Exp(1) truncated to [0, −Λt), E = −ln(1 − U·P_hit).
     p_hit = -expm1(lam * t)
     u = dr.clip(u, 0.0, ONE_MINUS_EPS)
-    t_up = t - log1p(-u * p_hit) / lam
+    # One logarithm for both directions, its argument selected per lane: ln(1 − U·P_hit) upward (``log1p``
+    # inlined), ln(1 − U) downward (``optical_depth``); each lane rounds its own direction's operations.
+    z = -u * p_hit
+    v = 1.0 + z
+    ln = dr.log(dr.select(up, v, 1.0 - u))
+    t_up = t - dr.select(v == 1.0, z, ln * z / (v - 1.0)) / lam
     leaves = ~(lam > 0.0) | (t >= 0.0)
     horizontal = lam == dr.inf
     bad = ~(p_hit > 0.0) | dr.isnan(t_up)
     t_up_res = dr.select(leaves | bad, t, dr.select(horizontal, t, dr.minimum(t_up, 0.0)))
     p_up = dr.select(leaves, 0.0, dr.select(horizontal, 1.0, dr.select(bad, 0.0, dr.minimum(p_hit, 1.0))))
-    # Downward: always hits (unless the height is NaN).
-    t_down, hit_down = sample_height(mf, w, t, u, lam=lam)
+    # Downward: always hits (unless the height is NaN): ``sample_height``'s step, E = −ln(1 − U).
+    t_down = t - (-ln) / mf.abs_lambda(w)
+    hit_down = ~dr.isnan(t_down)
     t_res = dr.select(up, t_up_res, dr.select(hit_down, t_down, t))
     p_res = dr.select(up, p_up, dr.select(hit_down, 1.0, 0.0))
     return t_res, p_res
@@ -103,10 +109,16 @@ def masking_at(lambda_w, t):
 
 def flip_height(t):
     """The height seen from the other side of the interface, ln(1 − e^t), without cancellation (Rust
-    ``flip_height``): log1p(−e^t) below −ln 2, ln(−expm1(t)) above."""
-    low = log1p(-dr.exp(t))
-    high = dr.log(-expm1(dr.minimum(t, 0.0)))
-    return dr.select(t < -LN_2, low, high)
+    ``flip_height``): log1p(−e^t) below −ln 2, ln(−expm1(t)) above. Written with one exponential and one
+    logarithm for both forms (``special.log1p`` and ``expm1`` inlined, the logarithm's argument selected per
+    lane): each lane rounds its own form's operations, as computing both and selecting (the same bits; e^t is
+    taken of min(t, 0), equal to t where the first form is chosen)."""
+    t0 = dr.minimum(t, 0.0)
+    first = t < -LN_2
+    x = -dr.exp(t0)
+    u = 1.0 + x
+    ln = dr.log(dr.select(first, u, -expm1(t0)))
+    return dr.select(first, dr.select(u == 1.0, x, ln * x / (u - 1.0)), ln)
 
 
 # ------------------------------------------------------------------ phase function
@@ -142,6 +154,26 @@ def dielectric_phase_reflect(mf, wi, wo, eta):
     ``dielectric_phase`` with ``same = true``)."""
     p, c, ok = conductor_phase(mf, wi, wo)
     return dr.select(ok, p * fresnel_dielectric(dr.select(ok, c, 1.0), eta), 0.0)
+
+
+def phase_next_event(mf, w, o, eta, transmit, lam_up=None):
+    """Heitz's phase function towards ``o`` (``heitz.dielectric_phase_transmit`` where ``transmit``, else
+    ``heitz.dielectric_phase_reflect``) with one half vector, one visible-normal density and one Fresnel factor
+    per lane: each lane rounds the operations of its own branch's function (the same bits), at about half the
+    cost of computing both and selecting (as ``posfree_dielectric.vertex_next_event``); the next event of the
+    plain glass walks here and in jit/invariance_dielectric.py. ``lam_up``: as ``Microfacet.d_visible``'s."""
+    h, length = normalized(dr.select(transmit, transmit_half_vector(w, o, eta), w + o))
+    c, co = dot(w, h), dot(o, h)
+    d = mf.d_visible(w, h, lam_up)
+    p = d / (4.0 * c)
+    ok_r = (length > 1e-12) & (c > 0.0) & (h[2] > 0.0) & dr.isfinite(p) & (p > 0.0)
+    # The reflection's Fresnel argument where its term is valid (its other lanes give 0 either way).
+    f = fresnel_dielectric(dr.select(transmit | ok_r, c, 1.0), eta)
+    v_r = dr.select(ok_r, p * f, 0.0)
+    denom = c + eta * co
+    v_t = eta * eta * (1.0 - f) * d * (-co) / (denom * denom)
+    ok_t = (length > 1e-12) & (c > 0.0) & (co < 0.0) & (f < 1.0) & dr.isfinite(v_t) & (v_t > 0.0)
+    return dr.select(transmit, dr.select(ok_t, v_t, 0.0), v_r)
 
 
 def visible_normal(mf, wi, u1, u2, where=None):
@@ -558,7 +590,7 @@ def sample_height_hit_over_area(mf, w, t, u):
 
 
 def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bounces, key, counter,
-                         mf_sample=None, tw=None, direction=None):
+                         mf_sample=None, tw=None, direction=None, lambda_o=None):
     """Heitz's dielectric eval walk from a state on (Rust ``eval_from`` with ``Mat::Dielectric``): the ray
     travels along ``wr`` (frame of its side, ``outside``) from height ``t`` towards the vertex of order
     ``order``, carrying ``thr``; the lane's stream goes on at ``counter``. Returns the contributions of
@@ -590,9 +622,11 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
     eta = mi.Float(eta)
     wo = mi.Vector3f(wo)
     wo_out = wo[2] > 0.0
-    # Λ(ω_o) in the frame of ω_o's side (D and Λ are even under v ↦ −v).
-    lambda_o = mf.lambda_(dr.select(wo_out, wo, -wo))
+    # Λ(ω_o) in the frame of ω_o's side (D and Λ are even under v ↦ −v); ``lambda_o``: that value when a plain
+    # caller has it (jit/invariance_dielectric.py: the same bits).
     traced = mf_sample is not None
+    if traced or lambda_o is None:
+        lambda_o = mf.lambda_(dr.select(wo_out, wo, -wo))
     eta_traced = traced and dr.grad_enabled(eta)  # the edge terms are derivatives in η only
     dirs = traced and direction is not None  # a pass along one coordinate of the directions
     dir_edges = dirs and mf.dist != BECKMANN  # Beckmann's D vanishes at horizontal normals: no edge
@@ -631,9 +665,11 @@ def dielectric_eval_from(mf, eta, wo, wr, t, outside, order, thr, active, max_bo
         # Next-event estimation towards ω_o.
         if dirs:  # Heitz's phase functions times L: the position-free vertex values
             p = dr.select(same, vertex_reflect(mfa, e, wi_l, wo_l), vertex_transmit(mfa, e, wi_l, wo_l))
-        else:
+        elif traced:
             p = dr.select(same, dielectric_phase_reflect(mfa, wi_l, wo_l, e),
                           dielectric_phase_transmit(mfa, wi_l, wo_l, e))
+        else:  # one half vector, D and Fresnel factor per lane; Λ of the height step's direction (the same bits)
+            p = phase_next_event(mfa, wi_l, wo_l, e, ~same, mfs.lambda_up(mfs.alpha_tan2(wr)))
         t_o = dr.select(same, t, flip_height(t))
         contrib = p * masking_at(lo, t_o)
         result = dr.select(active & (contrib > 0.0), result + thr * contrib, result)

@@ -13,10 +13,10 @@ import drjit as dr
 import mitsuba as mi
 
 from . import heitz, invariance_recursion, walk
-from .dielectric import eta_seen, fresnel_dielectric, radiance_scale, reflect_or_refract_unit, transmit_half_vector
+from .dielectric import eta_seen, radiance_scale, reflect_or_refract_unit
 from .glass_traced import RR_TRACED_FLOOR, edge_point, eta_tangent_step, scatter_traced
 from .gradients import LoopValues
-from .microfacet import BECKMANN, dot, normalized
+from .microfacet import BECKMANN
 from .invariance_recursion import over_run, push_down, run_slots
 from .posfree_dielectric import vertex_reflect, vertex_transmit
 from .rng import Stream, clean_uniform
@@ -231,7 +231,7 @@ def draw_depth_all(chain, c_min, key, counter, active, traced=False, reparam=Fal
     return tau, total, counter, ratio
 
 
-def transmit_exit(chain, lambda_t, key, counter, active, traced=False, reparam=False):
+def transmit_exit(chain, lambda_t, key, counter, active, traced=False, reparam=False, lb=None):
     """Unbiased estimate of E[(1 − e^{−τ})^{Λ'}] given the hits (Rust ``transmit_exit``): the top piece's
     mass exactly, π(0)·L_0·B(L_0, 1+Λ'), one depth drawn from the deeper pieces for the rest. Returns
     (estimate in [0, 1], counter). ``traced``: the deeper depth is drawn detached and weighed by its density
@@ -239,7 +239,9 @@ def transmit_exit(chain, lambda_t, key, counter, active, traced=False, reparam=F
     run = active & (lambda_t >= 0.0) & ~dr.isinf(lambda_t)
     p0 = chain.pi_at(0, run)
     l0 = chain.rates[0]
-    e = p0 * l_beta(l0, lambda_t, branch=not traced)  # L_0 ≥ 1: the series form is never needed
+    # L_0 ≥ 1: the series form is never needed. ``lb``: that factor when the caller has it (a plain walk
+    # computes it once per lane, before its loop: L_0 and Λ' do not change along the run).
+    e = p0 * (l_beta(l0, lambda_t, branch=not traced) if lb is None else lb)
     deeper = run & (chain.a > 1)
     tau, rest, counter, ratio = draw_depth(chain, 1, key, counter, deeper, traced, reparam)
     above = -expm1(-tau)  # 1 − e^{−τ}
@@ -250,16 +252,17 @@ def transmit_exit(chain, lambda_t, key, counter, active, traced=False, reparam=F
     return dr.select(run, e, 0.0), counter
 
 
-def next_event_exits(chain, lambda_o, key, counter, nee, same):
+def next_event_exits(chain, lambda_o, key, counter, nee, same, lb=None):
     """(``exit_given_hits`` where ``nee & same``, ``transmit_exit`` where ``nee & ~same``, counter) of a plain
     walk, each inside a symbolic ``dr.if_stmt`` that a packet without a lane of it skips: its other lanes get
-    what the function gives them there (0, and the counter one pair on: ``draw_depth``), the same bits."""
+    what the function gives them there (0, and the counter one pair on: ``draw_depth``), the same bits.
+    ``lb``: ``transmit_exit``'s."""
 
     def reflected(lo):
         return chain.exit_given_hits(lo, nee & same)
 
     def across(lo, counter):
-        return transmit_exit(chain, lo, key, counter, nee & ~same)
+        return transmit_exit(chain, lo, key, counter, nee & ~same, lb=lb)
 
     def zero(lo, *counter):
         z = dr.zeros(mi.Float, dr.width(lo))
@@ -312,50 +315,38 @@ def extend_run(mf, chain, d, active, over_lambda=False):
     return active, up, cont, pushed
 
 
-def extend_run_packets(mf, chain, d, active):
+def extend_run_packets(mf, chain, d, active, lam_up=False):
     """``extend_run`` of a plain walk only in the packets that have a lane of ``active`` (a symbolic
     ``dr.if_stmt``; the other lanes keep the chain, and get what ``extend_run`` gives them there: not active,
-    0, not pushed; the same bits). A chain that is not ``branched`` extends everywhere."""
+    0, not pushed; the same bits). A chain that is not ``branched`` extends everywhere. ``lam_up``: also
+    returns ``Microfacet.lambda_up`` of d (which ``extend_run`` computes; 0 where not extended), the next
+    vertex's Λ for its next event (``Microfacet.d_visible``)."""
     if not chain.branched:
-        return extend_run(mf, chain, d, active)
+        out = extend_run(mf, chain, d, active)
+        return out + (mf.lambda_up(mf.alpha_tan2(d)),) if lam_up else out
     n = chain.n
 
     def flat(c):  # slot 0 (L_0) is never written: it stays out of the branch
         return tuple(c.rates[1:]) + tuple(c.pi) + (c.a, c.has_up, c.scale, c.hit)
 
+    more = 1 if lam_up else 0
+
     def run(d, active, *s):
         c = PieceChain([chain.rates[0]] + list(s[:n - 1]), s[n - 1:2 * n - 1], *s[2 * n - 1:])
         active, _, cont, pushed = extend_run(mf, c, d, active)
-        return (active, cont, pushed) + flat(c)
+        lam = (mf.lambda_up(mf.alpha_tan2(d)),) if lam_up else ()
+        return (active, cont, pushed) + lam + flat(c)
 
     def kept(d, active, *s):
-        return (active, dr.zeros(mi.Float, dr.width(active)), dr.zeros(mi.Bool, dr.width(active))) + s
+        zero = dr.zeros(mi.Float, dr.width(active))
+        return (active, zero, dr.zeros(mi.Bool, dr.width(active))) + (zero,) * more + s
 
     out = dr.if_stmt((d, active) + flat(chain), active, run, kept, label="msx_invariance_extend_run")
-    rest = out[3:]
+    rest = out[3 + more:]
     chain.rates = [chain.rates[0]] + list(rest[:n - 1])
     chain.pi = list(rest[n - 1:2 * n - 1])
     chain.a, chain.has_up, chain.scale, chain.hit = rest[2 * n - 1:]
-    return out[0], d[2] > 0.0, out[1], out[2]
-
-
-def phase_next_event(mf, w, o, eta, transmit):
-    """Heitz's phase function towards ``o`` (``heitz.dielectric_phase_transmit`` where ``transmit``, else
-    ``heitz.dielectric_phase_reflect``) with one half vector, one visible-normal density and one Fresnel factor
-    per lane: each lane rounds the operations of its own branch's function (the same bits), at about half the
-    cost of computing both and selecting (as ``posfree_dielectric.vertex_next_event``)."""
-    h, length = normalized(dr.select(transmit, transmit_half_vector(w, o, eta), w + o))
-    c, co = dot(w, h), dot(o, h)
-    d = mf.d_visible(w, h)
-    p = d / (4.0 * c)
-    ok_r = (length > 1e-12) & (c > 0.0) & (h[2] > 0.0) & dr.isfinite(p) & (p > 0.0)
-    # The reflection's Fresnel argument where its term is valid (its other lanes give 0 either way).
-    f = fresnel_dielectric(dr.select(transmit | ok_r, c, 1.0), eta)
-    v_r = dr.select(ok_r, p * f, 0.0)
-    denom = c + eta * co
-    v_t = eta * eta * (1.0 - f) * d * (-co) / (denom * denom)
-    ok_t = (length > 1e-12) & (c > 0.0) & (co < 0.0) & (f < 1.0) & dr.isfinite(v_t) & (v_t > 0.0)
-    return dr.select(transmit, dr.select(ok_t, v_t, 0.0), v_r)
+    return (out[0], d[2] > 0.0, out[1], out[2]) + tuple(out[3:3 + more])
 
 
 def dielectric_valid(w, eta):
@@ -475,8 +466,17 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
     start = (dielectric_valid(wi, eta) & dielectric_valid(wo, eta) & dr.isfinite(lambda_o) & dr.isfinite(l0)
              & (last > 0))
     chain0 = PieceChain.new(l0, slots, unrolled=traced)
+    lb_across = None
+    if not traced:  # the transmission's L_0·B(L_0, 1+Λ(ω_o)) (``transmit_exit``), once per lane where ω_o is across
+        def across_factor(l0, lo):
+            return l_beta(l0, lo, branch=True)
 
-    def body(j, w, thr, result, active, counter, refracted, h_dir, h_t, chain_state, piped):
+        def none(l0, lo):
+            return dr.zeros(mi.Float, dr.width(l0))
+
+        lb_across = dr.if_stmt((l0, lambda_o), start & ~same, across_factor, none, label="msx_invariance_across_factor")
+
+    def body(j, w, thr, result, active, counter, refracted, h_dir, h_t, chain_state, piped, lam_w, packets=True):
         mfa, mfs, lo, ea, es, wo_l_ = mf, mf, lambda_o, e, e, wo_l
         if traced:  # the differentiated values come through the state
             lv = LoopValues(mf.dist, piped)
@@ -488,7 +488,7 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
                 eta_a, h_tw = lv.rest
             ea = eta_seen(eta_a, outside)
             es = dr.detach(ea)
-        chain = PieceChain.from_state(chain_state, chain0.unrolled)
+        chain = PieceChain.from_state(chain_state, chain0.unrolled, packets)
         order = j + 1
         # Next-event estimation: phase function × exact exit probability (along moving directions thr is the
         # throughput over L, and the phase function is taken times L).
@@ -496,14 +496,14 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
             phase = dr.select(same, vertex_reflect(mfa, ea, w, wo_l_), vertex_transmit(mfa, ea, w, wo_l_))
             l_w = dr.detach(mfa.abs_lambda(-w))
             l_w = dr.select(dr.isfinite(l_w), l_w, 0.0)
-        else:
-            phase = phase_next_event(mfa, w, wo_l_, ea, ~same)
+        else:  # a plain walk's Λ of w comes from the previous vertex (``lam_w``)
+            phase = heitz.phase_next_event(mfa, w, wo_l_, ea, ~same, None if traced else lam_w)
         nee = active & (phase > 0.0)
         if traced:
             exit_r = chain.exit_given_hits(lo, nee & same)
             exit_t, counter = transmit_exit(chain, lo, key, counter, nee & ~same, traced, dirs)
         else:  # each only in the packets that have a lane of it (a symbolic if_stmt; the same bits)
-            exit_r, exit_t, counter = next_event_exits(chain, lo, key, counter, nee, same)
+            exit_r, exit_t, counter = next_event_exits(chain, lo, key, counter, nee, same, lb_across)
         result = dr.select(nee, result + thr * phase * dr.select(same, exit_r, exit_t), result)
         active &= order < last
         rng = Stream(key, counter)
@@ -560,8 +560,11 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
         if dirs:  # thr becomes the throughput over L of the next w = −d
             active, up, cont, pushed, l_d = extend_run(mfa, chain, d, active, over_lambda=True)
             thr = dr.select(active, dr.select(up, thr * cont, thr / dr.select(up, 1.0, l_d)), thr)
-        else:
+        elif traced:
             active, up, cont, pushed = extend_run_packets(mfa, chain, d, active)
+            thr = dr.select(active & up, thr * cont, thr)
+        else:
+            active, up, cont, pushed, lam_w = extend_run_packets(mfa, chain, d, active, lam_up=True)
             thr = dr.select(active & up, thr * cont, thr)
         active &= (~up | (cont > 0.0)) & (up | pushed)
         if dirs:
@@ -569,12 +572,15 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
         elif traced:
             piped = lv.piped(eta_a, h_tw)
         return dict(j=j + 1, w=-d, thr=thr, result=result, active=active, counter=counter, refracted=refracted,
-                    h_dir=h_dir, h_t=h_t, chain_state=chain.state(), piped=piped)
+                    h_dir=h_dir, h_t=h_t, chain_state=chain.state(), piped=piped, lam_w=lam_w)
 
     thr0 = mi.Float(1.0)
+    # A plain walk carries Λ of w (``Microfacet.lambda_up``; (α tan θ)² is even in w: of −w0, as l0's) for the
+    # next event's visible-normal density: the same bits as computing it there, without a Λ per vertex.
+    lam_w0 = () if traced else mf.lambda_up(mf.alpha_tan2(-w0))
     state = dict(j=mi.UInt32(0), w=mi.Vector3f(w0), thr=thr0, result=mi.Float(0.0), active=mi.Bool(start),
                  counter=mi.UInt32(0), refracted=mi.Bool(False), h_dir=mi.Vector3f(0.0, 0.0, 1.0), h_t=mi.Float(0.0),
-                 chain_state=chain0.state(), piped=())
+                 chain_state=chain0.state(), piped=(), lam_w=lam_w0)
     direction = None
     if dirs:
         s_dir, t_i, t_o = direction_tangent
@@ -586,6 +592,8 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
                                           mi.Vector3f(t_o))
     elif traced:
         state["piped"] = LoopValues.state(mf, lambda_o, mi.Float(eta), mi.Vector3f(0.0))
+    if not traced:  # the first vertex outside the loop, on the new chain (as ``sample``'s)
+        state = body(**state, packets=False)
     out = walk.while_loop(state, body, label="msx_invariance_dielectric_eval")
     j, thr, result, counter, refracted, h_dir, h_t = (out[k] for k in ("j", "thr", "result", "counter", "refracted",
                                                                         "h_dir", "h_t"))
@@ -593,7 +601,8 @@ def eval(mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=None, direction_
     # the refracted direction's tangent in η (in s along moving directions).
     h_tw = (out["piped"][4] if dirs else out["piped"][-1]) if traced else None
     rest = heitz.dielectric_eval_from(mf, eta, wo, h_dir, h_t, ~outside, j + 1, thr, refracted, last, key,
-                                      counter, mf_sample=mf_sample, tw=h_tw, direction=direction)
+                                      counter, mf_sample=mf_sample, tw=h_tw, direction=direction,
+                                      lambda_o=lambda_o)  # Λ of the upward one of ±ω_o, as the walk's
     v = (result + dr.select(refracted, rest, 0.0)) * radiance_scale(eta, radiance, outside, wo[2] > 0.0)
     return dr.select(dr.isfinite(v) & (v > 0.0), v, 0.0)
 
@@ -613,11 +622,11 @@ def sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
     w0 = dr.select(outside, wi, -wi)
     l0 = mf.abs_lambda(-w0)
     start = dielectric_valid(wi, eta) & dr.isfinite(l0) & (last > 0)
-    chain0 = PieceChain.new(l0, slots, packets=False)  # no per-packet branches (PieceChain)
+    chain0 = PieceChain.new(l0, slots)
 
-    def body(j, w, done, active, counter, u, refracted, h_dir, h_t, chain_state):
+    def body(j, w, done, active, counter, u, refracted, h_dir, h_t, chain_state, packets=True):
         ua, u1, u2 = u
-        chain = PieceChain.from_state(chain_state, packets=False)
+        chain = PieceChain.from_state(chain_state, packets=packets)
         m, cos_wm, valid = heitz.visible_normal(mf, w, u1, u2)
         active &= valid
         o, d, crossed = reflect_or_refract_unit(w, m, cos_wm, e, ua)
@@ -638,6 +647,9 @@ def sample(mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
     state = dict(j=mi.UInt32(0), w=mi.Vector3f(w0), done=mi.Bool(False), active=mi.Bool(start), counter=mi.UInt32(0),
                  u=tuple(clean_uniform(mi.Float(x)) for x in (sample1, u1, u2)), refracted=mi.Bool(False),
                  h_dir=mi.Vector3f(0.0, 0.0, 1.0), h_t=mi.Float(0.0), chain_state=chain0.state())
+    # The first vertex, where every lane is, outside the loop: on the new chain (literals but L_0) drjit folds
+    # the passes over the run away; the loop takes the lanes that go on, its pieces in per-packet branches.
+    state = body(**state, packets=False)
     out = walk.while_loop(state, body, label="msx_invariance_dielectric_sample")
     j, w, done, counter, refracted, h_dir, h_t = (out[k] for k in ("j", "w", "done", "counter", "refracted", "h_dir",
                                                                     "h_t"))

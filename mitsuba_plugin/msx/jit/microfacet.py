@@ -103,9 +103,10 @@ class Microfacet:
         lam = self.lambda_up(self.alpha_tan2(w))
         return dr.select(w[2] >= 0.0, 1.0 / (1.0 + lam), 1.0 / lam)
 
-    def projected_area(self, w):
-        """A(ω) = cos θ (1 + Λ(ω)), stable on the whole sphere."""
-        lam = self.lambda_up(self.alpha_tan2(w))
+    def projected_area(self, w, lam_up=None):
+        """A(ω) = cos θ (1 + Λ(ω)), stable on the whole sphere. ``lam_up``: ``lambda_up(alpha_tan2(±ω))`` when
+        the caller has it (of −ω: (α tan θ)² is even in ω, so the same value and bits)."""
+        lam = self.lambda_up(self.alpha_tan2(w)) if lam_up is None else lam_up
         return dr.select(w[2] >= 0.0, w[2] * (1.0 + lam), -w[2] * lam)
 
     def d(self, m):
@@ -133,10 +134,10 @@ class Microfacet:
         v = a * a * a / (math.pi * u * u)
         return dr.select(dr.isfinite(v), v, 0.0)
 
-    def d_visible(self, w, m):
-        """D_ω(m) = ⟨ω, m⟩ D(m) / A(ω)."""
+    def d_visible(self, w, m, lam_up=None):
+        """D_ω(m) = ⟨ω, m⟩ D(m) / A(ω) (``lam_up``: as ``projected_area``'s)."""
         cos = dot(w, m)
-        area = self.projected_area(w)
+        area = self.projected_area(w, lam_up)
         ok = (cos > 0.0) & (area > 0.0) & dr.isfinite(area)
         return dr.select(ok, cos * self.d(m) / area, 0.0)
 

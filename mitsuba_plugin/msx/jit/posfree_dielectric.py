@@ -244,6 +244,67 @@ def valid_inputs(eta, wi):
     return dr.isfinite(eta) & (eta > 0.0) & (wi[2] != 0.0) & dr.all(dr.isfinite(wi))
 
 
+def next_event(segments, mf, eta_f, w, l, o, lambda_o, traced=False):
+    """(last·v, last): the next event towards o (ω_o in the current frame) at a vertex the walk reached along
+    w with L = ``l``, without the throughput — by reflection where o is on the walk's side, by transmission
+    across (dielectric.rs ``next_event``). ``traced``: both vertex terms selected (a differentiated walk)."""
+    transmit = o[2] < 0.0
+    lst = last(segments, transmit, l, lambda_o, branch=not traced)
+    if traced:
+        return lst * dr.select(transmit, vertex_transmit(mf, eta_f, w, o), vertex_reflect(mf, eta_f, w, o)), lst
+    return lst * vertex_next_event(mf, eta_f, w, o, transmit), lst
+
+
+def lambda_out(mf, wo):
+    """ω_o's Λ in the frame of the medium it exits into (upward there)."""
+    return mf.lambda_(dr.select(wo[2] > 0.0, wo, -wo))
+
+
+# ------------------------------------------------------------------ order 1 in closed form
+# (``auto``'s reduced calls; twin of ``order_one_eval``, ``order_one_pdf``, ``order_one_sample`` in
+# src/models/posfree/dielectric.rs)
+
+
+def _order_one_start(eta, wi, wo):
+    return valid_inputs(eta, wi) & (wo[2] != 0.0) & dr.all(dr.isfinite(wo))
+
+
+def order_one_eval(segments, mf, eta, radiance, wi, wo):
+    """Order 1 of the PT estimator: the walk's next event at its first vertex (``eval_pt`` capped at one
+    vertex, the same operations: the same bits), Radiance mode's 1/η_r² included. Deterministic."""
+    eta, wi, wo = mi.Float(eta), mi.Vector3f(wi), mi.Vector3f(wo)
+    w, l, side, eta_f = initial_state(mf, eta, wi)
+    v, _ = next_event(segments, mf, eta_f, w, l, side * wo, lambda_out(mf, wo))
+    return dr.select(_order_one_start(eta, wi, wo), v, 0.0) * radiance_scale(eta, radiance, wi[2] > 0.0,
+                                                                              wo[2] > 0.0)
+
+
+def order_one_pdf(mf, eta, wi, wo):
+    """The density of ``order_one_sample``'s ω_o: v(ω_o)/L_0 (the visible normal of ω_i, then reflection with
+    probability F on ω_i's side or refraction across, with the branch's Jacobian)."""
+    eta, wi, wo = mi.Float(eta), mi.Vector3f(wi), mi.Vector3f(wo)
+    w, l, side, eta_f = initial_state(mf, eta, wi)
+    o = side * wo
+    p = vertex_next_event(mf, eta_f, w, o, o[2] < 0.0) / l
+    return dr.select(_order_one_start(eta, wi, wo) & dr.isfinite(p), p, 0.0)
+
+
+def order_one_sample(segments, mf, eta, radiance, wi, sample1, u1, u2):
+    """The walk's first vertex as ``sample_walk`` draws it from (sample1, u1, u2) (the same direction), where
+    the new direction leaves the surface: (ω_o, pdf, weight, valid) with pdf = ``order_one_pdf`` and weight =
+    eval/pdf = L_0·last × Radiance mode's 1/η_r² — the probability of the walk's exit there instead of a random
+    exit. Invalid where the direction goes down in its frame (the walk would go on) or has no density."""
+    eta, wi = mi.Float(eta), mi.Vector3f(wi)
+    w, l0, side, eta_f = initial_state(mf, eta, wi)
+    d, refracted, _, side, _, valid = scatter(mf, w, side, eta_f, mi.Float(sample1), mi.Float(u1), mi.Float(u2))
+    wo = side * d
+    pdf = order_one_pdf(mf, eta, wi, wo)
+    valid &= valid_inputs(eta, wi) & (d[2] > 0.0) & (pdf > 0.0)
+    weight = l0 * last(segments, refracted, l0, mf.abs_lambda(d), branch=True)
+    weight = weight * radiance_scale(eta, radiance, wi[2] > 0.0, wo[2] > 0.0)
+    return wo, pdf, dr.select(valid, weight, 0.0), valid
+
+
 # ------------------------------------------------------------------ the estimators
 
 
@@ -274,8 +335,7 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
     eta = mi.Float(eta)
     wi, wo = mi.Vector3f(wi), mi.Vector3f(wo)
     start = valid_inputs(eta, wi) & (wo[2] != 0.0) & dr.all(dr.isfinite(wo))
-    # ω_o's Λ in the frame of the medium it exits into (upward there).
-    lambda_o = mf.lambda_(dr.select(wo[2] > 0.0, wo, -wo))
+    lambda_o = lambda_out(mf, wo)
     w0, l0, side0, eta_f0 = initial_state(mf, eta, wi)
     traced = mf_sample is not None
     eta_traced = traced and dr.grad_enabled(eta)  # the edge terms are derivatives in η only
@@ -315,11 +375,7 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
             active &= alive
             result = dr.select(active, result + v, result)
         else:
-            lst = last(segments, transmit, l, lo, branch=not traced)
-            if traced:
-                v = lst * dr.select(transmit, vertex_transmit(mfa, efa, w, o), vertex_reflect(mfa, efa, w, o))
-            else:
-                v = lst * vertex_next_event(mfa, efa, w, o, transmit)
+            v, lst = next_event(segments, mfa, efa, w, l, o, lo, traced)
             thr, alive = walk.roulette_from(j >= RR_START, thr, u_rr,
                                             1.0 / roulette_importance(v, lst, RR_NEE_GAIN),
                                             RR_TRACED_FLOOR if traced else 0.0)

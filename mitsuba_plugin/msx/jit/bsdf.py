@@ -504,17 +504,21 @@ class DielectricModel:
         if walk is None:
             wo, pdf, weight, valid = self.analytic.sample(mf, eta, call.radiance, wi, s1, u1, u2)
         elif self.rule is not None:
-            # auto: the walk's first vertex in closed form where order 1 suffices, the whole walk elsewhere, each
-            # only in packets that have lanes of it.
-            def reduced():
-                return posfree_dielectric.order_one_sample(CORRELATED, mf, eta, call.radiance, wi, s1, u1, u2)
+            # auto: the walk's first vertex on every lane, order 1 in closed form from it where it suffices, the
+            # rest of the walk elsewhere, each only in packets that have lanes of it (a packet of both kinds
+            # draws the first normal once).
+            first = posfree_dielectric.sample_first_vertex(mf, eta, wi, s1, u1, u2, key)
 
-            def walking():
-                wo, weight, valid = walk.sample_walk(mf, eta, call.radiance, wi, s1, u1, u2, self.max_bounces, key)
+            def reduced(first):
+                return posfree_dielectric.order_one_finish(CORRELATED, mf, eta, call.radiance, wi, first)
+
+            def walking(first):
+                wo, weight, valid = walk.sample_walk(mf, eta, call.radiance, wi, s1, u1, u2, self.max_bounces, key,
+                                                     first_vertex=first)
                 return wo, mis.dielectric_pdf(mf, eta, wi, wo), weight, valid
 
-            wo, pdf, weight, valid = dr.if_stmt((), auto.order_one(self.rule, mf, wi[2], site=1), reduced, walking,
-                                                label="msx_auto_order_one_dielectric_sample")
+            wo, pdf, weight, valid = dr.if_stmt((first,), auto.order_one(self.rule, mf, wi[2], site=1), reduced,
+                                                walking, label="msx_auto_order_one_dielectric_sample")
         else:
             wo, weight, valid = walk.sample_walk(mf, eta, call.radiance, wi, s1, u1, u2, self.bounces(call, wi), key)
             pdf = mis.dielectric_pdf(mf, eta, wi, wo)

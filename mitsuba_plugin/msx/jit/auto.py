@@ -15,9 +15,10 @@ there behind such a branch (``sample``; benches/README.md, "``auto`` at single's
 On a dielectric, from either side (``SidedRule``), an order-1 lane does the same with
 jit/posfree_dielectric.py ``order_one_*`` (jit/bsdf.py ``DielectricModel``): ``eval`` the walk's first next
 event, ``pdf`` and ``sample`` the density of the walk's first vertex (the visible normal, then reflection or
-refraction by the Fresnel choice) and its direction with the weight eval/pdf; ``eval``/``pdf`` and ``sample``
-each behind a per-packet ``dr.if_stmt``, the walking branch of ``sample`` running the whole walk
-(benches/README.md, "``auto`` on glass at single's price"). The diffuse microsurface runs the capped walk.
+refraction by the Fresnel choice) and its direction with the weight eval/pdf; ``eval``/``pdf`` behind a
+per-packet ``dr.if_stmt``, and ``sample`` drawing the walk's first vertex once on every lane and finishing order 1
+or taking the walk up at its exit decision behind one (benches/README.md, "``auto`` on glass at single's
+price"). The diffuse microsurface runs the capped walk.
 """
 
 import drjit as dr

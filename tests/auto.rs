@@ -53,14 +53,16 @@ const DISTS: [Distribution; 2] = [Distribution::Ggx, Distribution::Beckmann];
 
 /// auto(ω_i, ω_o) is bit-identical to correlated with max_bounces = the cap
 /// (1 or the full 64; same seed and key), for eval, pdf and sample — except
-/// a conductor's order-1 calls, whose pdf is the visible-normal reflection
-/// density and whose sample reflects about the walk's first normal with the
-/// weight eval/pdf (src/models/auto/mod.rs `order_one_*`).
+/// the order-1 calls of a conductor and of a dielectric, whose pdf is the
+/// density of the walk's first vertex and whose sample takes the walk's first
+/// direction with the weight eval/pdf (src/models/auto/mod.rs `order_one_*`,
+/// posfree/dielectric.rs `order_one_*`; `dielectric_order_one_call`).
 #[test]
 fn auto_is_truncated_correlated() {
     let mut ck = Checker::new("auto == correlated with the table's bounce cap, 1 or all (bit-identical)");
     let mut rng = Sampler::new(1);
     let mut caps = std::collections::BTreeMap::new();
+    let mut glass_reduced = [0; 2]; // reduced dielectric calls from above, from below
     for surface in SURFACES {
         for dist in DISTS {
             for _ in 0..150 {
@@ -85,13 +87,18 @@ fn auto_is_truncated_correlated() {
                 };
                 let k = cap(surface, dist, &m, wi, 0.01, 64);
                 *caps.entry(k).or_insert(0) += 1;
+                if surface == Surface::Dielectric && k == 1 {
+                    glass_reduced[usize::from(below)] += 1;
+                }
                 let a = bsdf(surface, dist, Model::Auto, 64, 0.01);
                 let c = bsdf(surface, dist, Model::Correlated, k, 0.01);
                 let key = rng.next().to_bits();
                 let same_eval = a.eval(&m, wi, wo, key).0 == c.eval(&m, wi, wo, key).0;
                 let (s1, s2) = (rng.next(), (rng.next(), rng.next()));
                 let (x, y) = (a.sample(&m, wi, s1, s2), c.sample(&m, wi, s1, s2));
-                let (same_pdf, same_sample) = if surface == Surface::Conductor && k == 1 {
+                let (same_pdf, same_sample) = if surface == Surface::Dielectric && k == 1 {
+                    dielectric_order_one_call(&a, &c, &m, dist, wi, wo, key, (s1, s2))
+                } else if surface == Surface::Conductor && k == 1 {
                     // A conductor's order-1 call: the same eval (the walk's first next event is the closed
                     // form, in the same arithmetic), the visible-normal reflection density as pdf, and a
                     // sample along the walk's first reflection (the same numbers) weighted by eval/pdf.
@@ -139,6 +146,126 @@ fn auto_is_truncated_correlated() {
     }
     println!("caps chosen (tolerance 1 %): {caps:?}");
     ck.assert("both order 1 alone and the full model in use", caps.contains_key(&1) && caps.contains_key(&64));
+    ck.assert(&format!("reduced dielectric calls from above and below: {glass_reduced:?}"), glass_reduced.iter().all(|&n| n >= 10));
+    ck.finish();
+}
+
+/// The checks of one reduced dielectric call (`auto_is_truncated_correlated`; `a` auto, `c` correlated capped at
+/// one vertex): (pdf, sample) as expected. `pdf` is the density of the walk's first vertex — Walter 2007 with
+/// G = G1(ω_i) = 1/(1 + Λ_i), written independently in tests/common/dielectric.rs — to 1e-9 relative (where the
+/// transmission's Fresnel factor is well conditioned); `sample` is the capped walk's direction wherever the walk
+/// leaves there (it may also go on, where the closed form returns its direction all the same), with the pdf
+/// `pdf` reports and the weight eval/pdf.
+#[allow(clippy::too_many_arguments)]
+fn dielectric_order_one_call(
+    a: &Bsdf,
+    c: &Bsdf,
+    m: &Material,
+    dist: Distribution,
+    wi: DVec3,
+    wo: DVec3,
+    key: u64,
+    u: (f64, (f64, f64)),
+) -> (bool, bool) {
+    use common::dielectric::{lam_up, rel, walter, walter_h, well_conditioned};
+    let unit = |v: DVec3| v / v.length(); // as the Bsdf takes its directions
+    let density = |wo: DVec3| {
+        let (wi, wo) = (unit(wi), unit(wo));
+        // Walter's G carries χ⁺(v·h / v·n) of both directions: a facet seen from behind has no density.
+        let h = walter_h(m.ior, wi, wo);
+        if wi.dot(h) * wi.z <= 0.0 || wo.dot(h) * wo.z <= 0.0 {
+            return 0.0;
+        }
+        walter(dist, m.alpha_u, m.alpha_v, m.ior, wi, wo, 1.0 / (1.0 + lam_up(dist, m.alpha_u, m.alpha_v, wi)), false)
+    };
+    let close = |got: f64, want: f64| rel(got, want) <= 1e-9 || want.abs() < 1e-300 && got.abs() < 1e-300;
+    let pdf_ok = |wo: DVec3, got: f64| !well_conditioned(m.ior, unit(wi), unit(wo)) || close(got, density(wo));
+    let same_pdf = pdf_ok(wo, a.pdf(m, wi, wo));
+    let (x, y) = (a.sample(m, wi, u.0, u.1), c.sample(m, wi, u.0, u.1));
+    let same_sample = match (x, y) {
+        (Some(x), y) => {
+            let f = a.eval(m, wi, x.wo, key).0[0];
+            let ok = y.is_none_or(|y| y.wo == x.wo)
+                && (x.pdf - a.pdf(m, wi, x.wo)).abs() <= 1e-12 * x.pdf
+                && pdf_ok(x.wo, x.pdf)
+                && (x.weight.0[0] * x.pdf - f).abs() <= 1e-9 * f;
+            if !ok {
+                println!(
+                    "sample: pdf {} (pdf() {}, Walter {}), weight·pdf {} vs eval {f}, walk {:?}",
+                    x.pdf,
+                    a.pdf(m, wi, x.wo),
+                    density(x.wo),
+                    x.weight.0[0] * x.pdf,
+                    y.map(|y| y.wo)
+                );
+            }
+            ok
+        }
+        (None, None) => true,
+        (None, Some(_)) => false,
+    };
+    (same_pdf, same_sample)
+}
+
+/// Reduced dielectric calls (`auto`'s order 1 in closed form, both sides of the surface), per configuration:
+/// the cap is 1 there (asserted), and
+/// - the sampler draws from the density `pdf` reports: Pearson's χ² (tests/common/chi2.rs), Šidák over the
+///   configurations at a family-wise 1e-3;
+/// - its expectation is the capped walk's (`correlated` with max_bounces 1: a random exit in place of its
+///   probability) for test functions g of ω_o — E[g·weight] of both samplers, independent streams, within
+///   their standard errors (`Checker`, family-wise 3σ), Radiance mode in one case.
+#[test]
+fn dielectric_order_one_sampler() {
+    use common::chi2::{chi2_of, chi2_p_value};
+    // (distribution, α, tolerance, ω_i, Radiance mode)
+    let configs = [
+        (Distribution::Ggx, 0.3, 0.05, dir(0.7, 0.4), false),
+        (Distribution::Beckmann, 0.3, 0.05, -dir(0.5, 1.1), false),
+        (Distribution::Ggx, 0.2, 0.2, -dir(1.0, 2.0), true),
+        (Distribution::Beckmann, 0.5, 0.05, dir(1.0, 0.0), false),
+        (Distribution::Beckmann, 0.1, 0.01, dir(1.1, 0.3), true),
+    ];
+    let level = 1.0 - (1.0 - 1e-3f64).powf(1.0 / configs.len() as f64);
+    let mut ck = Checker::new("auto's reduced dielectric calls: sampler against its pdf (χ²) and the capped walk's expectation");
+    let n = 400_000;
+    for (i, &(dist, alpha, tol, wi, radiance)) in configs.iter().enumerate() {
+        let mut m = material(Surface::Dielectric, alpha, alpha, 1.5);
+        m.radiance = radiance;
+        let label = format!("{dist:?} α {alpha} tol {tol} ω_i {wi:.3}{}", if radiance { " radiance" } else { "" });
+        ck.assert(&format!("{label}: reduced to order 1"), cap(Surface::Dielectric, dist, &m, wi, tol, 64) == 1);
+        let a = bsdf(Surface::Dielectric, dist, Model::Auto, 64, tol);
+        let (stat, dof, worst) = chi2_of(&a, &a, &m, wi, 4100 + i as u64, 2_000_000);
+        let p = chi2_p_value(stat, dof);
+        println!("{label}: χ² = {stat:.1}, {dof} dof, p = {p:.4} (bound {level:.2e}); largest |O − E|/√E = {worst:.2}");
+        ck.assert(&format!("{label}: χ² p = {p:.3e} > {level:.2e}"), p > level);
+        let c = bsdf(Surface::Dielectric, dist, Model::Correlated, 1, tol);
+        // g: 1, x, z, the transmitted part.
+        let g = |w: DVec3| [1.0, w.x, w.z, if w.z * wi.z < 0.0 { 1.0 } else { 0.0 }];
+        let mean = |b: &Bsdf, seed: u64| {
+            let mut st = [Stat::default(); 4];
+            let mut rng = Sampler::new(seed + seed_offset());
+            for _ in 0..n {
+                let (s1, s2) = (rng.next(), rng.next2());
+                let s = b.sample(&m, wi, s1, s2);
+                for (k, st) in st.iter_mut().enumerate() {
+                    st.push(s.map_or(0.0, |s| g(s.wo)[k] * s.weight.0[0]));
+                }
+            }
+            st
+        };
+        let (closed, walk) = (mean(&a, 4200 + 2 * i as u64), mean(&c, 4201 + 2 * i as u64));
+        for (k, what) in ["1", "x", "z", "across"].iter().enumerate() {
+            println!(
+                "{label} E[{what}·weight]: closed {:.5} ± {:.1e}, walk {:.5} ± {:.1e}",
+                closed[k].mean(),
+                closed[k].se(),
+                walk[k].mean(),
+                walk[k].se()
+            );
+            ck.close(&format!("{label} E[{what}·weight]"), closed[k].est(), walk[k].est(), 0.0, 0.0);
+        }
+        ck.assert(&format!("{label}: the closed form has less variance"), closed[0].var() < walk[0].var());
+    }
     ck.finish();
 }
 

@@ -4,6 +4,7 @@
 //! reference formulas for D and Λ written independently of `msx::microfacet`.
 #![allow(dead_code)]
 
+pub mod chi2;
 pub mod dielectric;
 
 use glam::DVec3;

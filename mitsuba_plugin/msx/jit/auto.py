@@ -8,10 +8,17 @@ the threshold of its cell (μ below the grid, and a conductor's ω_i below the s
 
 On a conductor an order-1 lane computes order 1 in closed form (``order_one_*`` below; jit/bsdf.py
 ``ConductorModel``), with the visible-normal reflection density as its ``pdf`` and sampler: in ``eval`` and
-``pdf`` the walk runs behind a symbolic ``dr.if_stmt``, which the LLVM backend skips in a packet none of whose
-lanes walk; ``sample`` draws the walk's first vertex on every lane and takes the walk up from there behind
-such a branch (``sample``; benches/README.md, "``auto`` at single's price"). Dielectric and diffuse
-microsurfaces run the capped walk.
+``pdf`` the walk runs behind a symbolic ``dr.if_stmt`` (``eval_pdf``), which the LLVM backend skips in a packet
+none of whose lanes walk; ``sample`` draws the walk's first vertex on every lane and takes the walk up from
+there behind such a branch (``sample``; benches/README.md, "``auto`` at single's price").
+
+On a dielectric, from either side (``SidedRule``), an order-1 lane does the same with
+jit/posfree_dielectric.py ``order_one_*`` (jit/bsdf.py ``DielectricModel``): ``eval`` the walk's first next
+event, ``pdf`` and ``sample`` the density of the walk's first vertex (the visible normal, then reflection or
+refraction by the Fresnel choice) and its direction with the weight eval/pdf; ``eval``/``pdf`` behind a
+per-packet ``dr.if_stmt``, and ``sample`` drawing the walk's first vertex once on every lane and finishing order 1
+or taking the walk up at its exit decision behind one (benches/README.md, "``auto`` on glass at single's
+price"). The diffuse microsurface runs the capped walk.
 """
 
 import drjit as dr
@@ -48,6 +55,19 @@ class OrderOneRule:
         cell = dr.minimum(mi.UInt32(dr.maximum(x, 0.0)), self.n - 2)
         threshold = dr.gather(mi.Float, mi.Float(self.thresholds), cell)
         return (mu * mu >= self.lo) & (alpha <= threshold)
+
+
+class SidedRule:
+    """A dielectric's two rules, one per side of ω_i (the relative IOR seen from it: η outside, 1/η inside),
+    read as one: ``order_one_suffices(α, cos θ_i)`` takes the signed cosine."""
+
+    def __init__(self, distribution, tolerance, eta):
+        self.outside = OrderOneRule("dielectric", distribution, tolerance, eta)
+        self.inside = OrderOneRule("dielectric", distribution, tolerance, 1.0 / eta)
+
+    def order_one_suffices(self, alpha, cos_i):
+        return dr.select(cos_i > 0.0, self.outside.order_one_suffices(alpha, cos_i),
+                         self.inside.order_one_suffices(alpha, -cos_i))
 
 
 # benches/scene_bench.py's count of auto's calls: [calls, calls that walk], while counting (``count_calls``).
@@ -122,6 +142,17 @@ def cap(rule, mf, mu, max_bounces, full=True):
     """The bounce cap of each lane: 1 where order 1 suffices (and ``full`` allows the rule), else
     ``max_bounces``."""
     return dr.select(order_one(rule, mf, mu, full), mi.UInt32(1), mi.UInt32(max_bounces))
+
+
+def eval_pdf(one, closed, full, want_value, want_pdf, label):
+    """(value, pdf) (either None where not wanted) of ``closed()`` on the lanes ``one`` and of ``full()``
+    elsewhere — each a (value thunk, pdf thunk) pair — behind a symbolic ``dr.if_stmt``, so that a packet
+    whose lanes all reduce runs no walk (and one with no reduced lane no closed form)."""
+    def pick(pair):
+        return lambda: ((pair[0](),) if want_value else ()) + ((pair[1](),) if want_pdf else ())
+
+    out = list(dr.if_stmt((), one, pick(closed), pick(full), label=label))
+    return (out.pop(0) if want_value else None), (out.pop(0) if want_pdf else None)
 
 
 # ------------------------------------------------------------------ a conductor's order 1 in closed form

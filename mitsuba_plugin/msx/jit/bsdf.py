@@ -19,6 +19,7 @@ import mitsuba as mi
 from ..names import MODEL_INFO, PLUGIN
 from . import analytic, auto, gradients, heitz, invariance, mis, posfree, posfree_dielectric
 from .microfacet import ConductorFresnel
+from .posfree import CORRELATED
 from .rng import clean_uniform
 
 # The random walks of the engine, by surface and model name: each model module provides its own table.
@@ -323,17 +324,10 @@ class ConductorModel:
         walk, mf = self.walk, call.mf
         one = auto.order_one(self.rule, mf, wi[2], full=wi[2] > 0.0) | ~(wo[2] > 0.0)
         auto.record_branch(one)
-
-        def closed():
-            return ((auto.order_one_eval(mf, call.fresnel, wi, wo),) if want_value else ()) + \
-                ((auto.order_one_pdf(mf, wi, wo),) if want_pdf else ())
-
-        def full():
-            return ((self.estimate(mf, call.fresnel, wi, wo, self.max_bounces, key),) if want_value else ()) + \
-                ((mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo, self.mis_density),) if want_pdf else ())
-
-        out = list(dr.if_stmt((), one, closed, full, label="msx_auto_order_one"))
-        return (out.pop(0) if want_value else None), (out.pop(0) if want_pdf else None)
+        closed = (lambda: auto.order_one_eval(mf, call.fresnel, wi, wo), lambda: auto.order_one_pdf(mf, wi, wo))
+        full = (lambda: self.estimate(mf, call.fresnel, wi, wo, self.max_bounces, key),
+                lambda: mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo, self.mis_density))
+        return auto.eval_pdf(one, closed, full, want_value, want_pdf, "msx_auto_order_one")
 
     def differentiable_estimate(self, call, wi, wo, key):
         """The walk's PT estimate with its derivative in α, η and k (jit/gradients.py), and in the
@@ -409,16 +403,13 @@ class DielectricModel:
         self.analytic = DIELECTRIC_ANALYTIC.get(cfg.model)
         self.analytic_single = DIELECTRIC_ANALYTIC["single"]  # the sampler of the walks' MIS density
         self.max_bounces = cfg.max_bounces or DEFAULT_MAX_BOUNCES
-        self.rules = None
-        if cfg.model == "auto":  # the relative IOR seen from ω_i: η outside, 1/η inside
-            self.rules = tuple(auto.OrderOneRule("dielectric", cfg.distribution, cfg.auto_tolerance, e)
-                               for e in (cfg.ior, 1.0 / cfg.ior))
+        # auto: the rule at the relative IOR seen from ω_i (η outside, 1/η inside).
+        self.rule = auto.SidedRule(cfg.distribution, cfg.auto_tolerance, cfg.ior) if cfg.model == "auto" else None
 
     def bounces(self, call, wi):
-        if self.rules is None:
+        if self.rule is None:
             return self.max_bounces
-        outside, inside = (auto.cap(r, call.mf, dr.abs(wi[2]), self.max_bounces) for r in self.rules)
-        return dr.select(wi[2] > 0.0, outside, inside)
+        return auto.cap(self.rule, call.mf, wi[2], self.max_bounces)
 
     @staticmethod
     def tinted(call, wi, wo, value):
@@ -427,6 +418,9 @@ class DielectricModel:
     def eval_pdf(self, call, wi, wo, key, want_value=True, want_pdf=True):
         walk, mf, eta = self.walk, call.mf, call.eta
         value = pdf = None
+        if self.rule is not None and not call.traced:
+            value, pdf = self.auto_eval_pdf(call, wi, wo, key, want_value, want_pdf)
+            return (self.tinted(call, wi, wo, value) if want_value else None), pdf
         if want_value:
             if walk is None:
                 value = self.analytic.eval(mf, eta, call.radiance, wi, wo)
@@ -443,6 +437,20 @@ class DielectricModel:
             else:
                 pdf = mis.dielectric_pdf(mf, eta, wi, wo)
         return value, pdf
+
+    def auto_eval_pdf(self, call, wi, wo, key, want_value, want_pdf):
+        """``auto``'s (value, pdf) (either None where not wanted), untinted: order 1 in closed form with the
+        density of the walk's first vertex on the lanes the rule reduces (either side of the surface;
+        src/models/auto/mod.rs), the full walk and the walks' MIS density elsewhere — behind a symbolic if
+        (``auto.eval_pdf``), so that a packet whose lanes all reduce runs no walk."""
+        walk, mf, eta = self.walk, call.mf, call.eta
+        one = auto.order_one(self.rule, mf, wi[2])
+        auto.record_branch(one)
+        closed = (lambda: posfree_dielectric.order_one_eval(CORRELATED, mf, eta, call.radiance, wi, wo),
+                  lambda: posfree_dielectric.order_one_pdf(mf, eta, wi, wo))
+        full = (lambda: walk.eval_pt(mf, eta, call.radiance, wi, wo, self.max_bounces, key),
+                lambda: mis.dielectric_pdf(mf, eta, wi, wo))
+        return auto.eval_pdf(one, closed, full, want_value, want_pdf, "msx_auto_order_one_dielectric")
 
     def differentiable_estimate(self, call, wi, wo, key):
         """The walk's PT estimate with its derivative in α and η (jit/gradients.py), and in ω_i and ω_o where
@@ -495,6 +503,22 @@ class DielectricModel:
         walk, mf, eta = self.walk, call.mf, call.eta
         if walk is None:
             wo, pdf, weight, valid = self.analytic.sample(mf, eta, call.radiance, wi, s1, u1, u2)
+        elif self.rule is not None:
+            # auto: the walk's first vertex on every lane, order 1 in closed form from it where it suffices, the
+            # rest of the walk elsewhere, each only in packets that have lanes of it (a packet of both kinds
+            # draws the first normal once).
+            first = posfree_dielectric.sample_first_vertex(mf, eta, wi, s1, u1, u2, key)
+
+            def reduced(first):
+                return posfree_dielectric.order_one_finish(CORRELATED, mf, eta, call.radiance, wi, first)
+
+            def walking(first):
+                wo, weight, valid = walk.sample_walk(mf, eta, call.radiance, wi, s1, u1, u2, self.max_bounces, key,
+                                                     first_vertex=first)
+                return wo, mis.dielectric_pdf(mf, eta, wi, wo), weight, valid
+
+            wo, pdf, weight, valid = dr.if_stmt((first,), auto.order_one(self.rule, mf, wi[2], site=1), reduced,
+                                                walking, label="msx_auto_order_one_dielectric_sample")
         else:
             wo, weight, valid = walk.sample_walk(mf, eta, call.radiance, wi, s1, u1, u2, self.bounces(call, wi), key)
             pdf = mis.dielectric_pdf(mf, eta, wi, wo)

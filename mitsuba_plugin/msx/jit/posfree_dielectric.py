@@ -244,6 +244,92 @@ def valid_inputs(eta, wi):
     return dr.isfinite(eta) & (eta > 0.0) & (wi[2] != 0.0) & dr.all(dr.isfinite(wi))
 
 
+def next_event(segments, mf, eta_f, w, l, o, lambda_o, traced=False):
+    """(last·v, last): the next event towards o (ω_o in the current frame) at a vertex the walk reached along
+    w with L = ``l``, without the throughput — by reflection where o is on the walk's side, by transmission
+    across (dielectric.rs ``next_event``). ``traced``: both vertex terms selected (a differentiated walk)."""
+    transmit = o[2] < 0.0
+    lst = last(segments, transmit, l, lambda_o, branch=not traced)
+    if traced:
+        return lst * dr.select(transmit, vertex_transmit(mf, eta_f, w, o), vertex_reflect(mf, eta_f, w, o)), lst
+    return lst * vertex_next_event(mf, eta_f, w, o, transmit), lst
+
+
+def lambda_out(mf, wo):
+    """ω_o's Λ in the frame of the medium it exits into (upward there)."""
+    return mf.lambda_(dr.select(wo[2] > 0.0, wo, -wo))
+
+
+# ------------------------------------------------------------------ order 1 in closed form
+# (``auto``'s reduced calls; twins of ``order_one_eval``, ``order_one_pdf``, ``order_one_sample`` (here
+# ``order_one_finish``, from ``sample_first_vertex``) in
+# src/models/posfree/dielectric.rs)
+
+
+# Λ_o below which order 1's transmission factor L·B(L, 1+Λ_o) is 1 in float32: ln(L·B(L, 1+Λ)) =
+# −Λ·(ψ(L+1) − ψ(1)) + O(Λ²), and ψ(L+1) − ψ(1) < 1 + ln(L + 1) stays below 30 for any L a float32 Λ_i gives
+# (L < e^29), so at Λ < 1e-9 the logarithm is above −3e-8 and its exponential rounds to 1 (or its neighbour
+# below: at most one rounding step from ``l_beta``).
+ORDER_ONE_LAMBDA_NEGLIGIBLE = 1e-9
+
+
+def _order_one_last(segments, transmit, l, lambda_o):
+    """``last`` at the walk's first vertex with ``l_beta`` computed only in the packets that have a transmitting
+    lane whose Λ_o is not negligible (ORDER_ONE_LAMBDA_NEGLIGIBLE; its Stirling form is most of order 1's
+    cost, and on a smooth surface Λ_o underflows for most directions: Beckmann α 0.1 below ≈ 66° from the
+    normal)."""
+    if segments != CORRELATED:
+        return last(segments, transmit, l, lambda_o)
+    need = transmit & (lambda_o >= ORDER_ONE_LAMBDA_NEGLIGIBLE)
+    lb = dr.if_stmt((l, lambda_o), need, lambda l, lo: l_beta(l, lo),
+                    lambda l, lo: dr.full(mi.Float, 1.0, dr.width(l)), label="msx_posfree_order_one_across")
+    v = dr.select(transmit, dr.select(need, lb, 1.0) / l, 1.0 / (l + lambda_o))
+    return dr.select(dr.isfinite(v), dr.maximum(v, 0.0), 0.0)
+
+
+def _order_one_start(eta, wi, wo):
+    return valid_inputs(eta, wi) & (wo[2] != 0.0) & dr.all(dr.isfinite(wo))
+
+
+def order_one_eval(segments, mf, eta, radiance, wi, wo):
+    """Order 1 of the PT estimator: the walk's next event at its first vertex (``eval_pt`` capped at one
+    vertex, the same operations: the same bits), Radiance mode's 1/η_r² included. Deterministic."""
+    eta, wi, wo = mi.Float(eta), mi.Vector3f(wi), mi.Vector3f(wo)
+    w, l, side, eta_f = initial_state(mf, eta, wi)
+    o = side * wo
+    transmit = o[2] < 0.0
+    v = _order_one_last(segments, transmit, l, lambda_out(mf, wo)) * vertex_next_event(mf, eta_f, w, o, transmit)
+    return dr.select(_order_one_start(eta, wi, wo), v, 0.0) * radiance_scale(eta, radiance, wi[2] > 0.0,
+                                                                              wo[2] > 0.0)
+
+
+def order_one_pdf(mf, eta, wi, wo):
+    """The density of ``order_one_finish``'s ω_o: v(ω_o)/L_0 (the visible normal of ω_i, then reflection with
+    probability F on ω_i's side or refraction across, with the branch's Jacobian)."""
+    eta, wi, wo = mi.Float(eta), mi.Vector3f(wi), mi.Vector3f(wo)
+    w, l, side, eta_f = initial_state(mf, eta, wi)
+    o = side * wo
+    p = vertex_next_event(mf, eta_f, w, o, o[2] < 0.0) / l
+    return dr.select(_order_one_start(eta, wi, wo) & dr.isfinite(p), p, 0.0)
+
+
+def order_one_finish(segments, mf, eta, radiance, wi, first_vertex):
+    """Order 1's sample (twin of ``order_one_sample`` in dielectric.rs) from the walk's first vertex,
+    ``sample_first_vertex``'s: the same direction as the walk where the
+    new direction leaves the surface, (ω_o, pdf, weight, valid) with pdf = ``order_one_pdf`` and weight =
+    eval/pdf = L_0·last × Radiance mode's 1/η_r² — the probability of the walk's exit there instead of a random
+    exit. Invalid where the direction goes down in its frame (the walk would go on) or has no density."""
+    eta, wi = mi.Float(eta), mi.Vector3f(wi)
+    init, after, (d, refracted, _, valid, _, _, _) = first_vertex
+    l0 = init["l"]
+    wo = after["side"] * d
+    pdf = order_one_pdf(mf, eta, wi, wo)
+    valid &= init["active"] & (d[2] > 0.0) & (pdf > 0.0)
+    weight = l0 * _order_one_last(segments, refracted, l0, after["l"])
+    weight = weight * radiance_scale(eta, radiance, wi[2] > 0.0, wo[2] > 0.0)
+    return wo, pdf, dr.select(valid, weight, 0.0), valid
+
+
 # ------------------------------------------------------------------ the estimators
 
 
@@ -274,8 +360,7 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
     eta = mi.Float(eta)
     wi, wo = mi.Vector3f(wi), mi.Vector3f(wo)
     start = valid_inputs(eta, wi) & (wo[2] != 0.0) & dr.all(dr.isfinite(wo))
-    # ω_o's Λ in the frame of the medium it exits into (upward there).
-    lambda_o = mf.lambda_(dr.select(wo[2] > 0.0, wo, -wo))
+    lambda_o = lambda_out(mf, wo)
     w0, l0, side0, eta_f0 = initial_state(mf, eta, wi)
     traced = mf_sample is not None
     eta_traced = traced and dr.grad_enabled(eta)  # the edge terms are derivatives in η only
@@ -315,11 +400,7 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
             active &= alive
             result = dr.select(active, result + v, result)
         else:
-            lst = last(segments, transmit, l, lo, branch=not traced)
-            if traced:
-                v = lst * dr.select(transmit, vertex_transmit(mfa, efa, w, o), vertex_reflect(mfa, efa, w, o))
-            else:
-                v = lst * vertex_next_event(mfa, efa, w, o, transmit)
+            v, lst = next_event(segments, mfa, efa, w, l, o, lo, traced)
             thr, alive = walk.roulette_from(j >= RR_START, thr, u_rr,
                                             1.0 / roulette_importance(v, lst, RR_NEE_GAIN),
                                             RR_TRACED_FLOOR if traced else 0.0)
@@ -405,42 +486,84 @@ def eval_pt(segments, mf, eta, radiance, wi, wo, max_bounces, key, mf_sample=Non
     return result * radiance_scale(eta, radiance, wi[2] > 0.0, wo[2] > 0.0)
 
 
-def sample_walk(segments, mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key):
+def _sample_scatter(mf, key, first_numbers, j, w, side, eta_f, counter):
+    """A vertex of ``sample_walk``'s loop up to its new direction: (the loop's next state without ``done`` and
+    ``active``, and what the exit decision takes: (d in the new frame, refracted, F, valid (a visible normal),
+    u_choice, the stream's exit number, whether it is vertex 0))."""
+    s1, v1, v2 = first_numbers
+    rng = Stream(key, counter)
+    c_r, e_r = rng.next2()
+    a_r, b_r = rng.next2()
+    first = j == 0
+    u_choice = dr.select(first, s1, c_r)
+    d, refracted, f, side, eta_f, valid = scatter(mf, w, side, eta_f, u_choice,
+                                                  dr.select(first, v1, a_r), dr.select(first, v2, b_r))
+    state = dict(j=j + 1, w=-d, l=mf.abs_lambda(d), side=side, eta_f=eta_f, counter=rng.counter)
+    return state, (d, refracted, f, valid, u_choice, e_r, first)
+
+
+def _sample_leaves(segments, l, lam, vertex):
+    """Whether the new direction of ``_sample_scatter``'s ``vertex`` (Λ = ``lam``, arriving with L = ``l``)
+    goes up and leaves: its exit decision against the continue factor (sample1 rescaled within its branch at
+    vertex 0, the stream's number after it)."""
+    d, refracted, f, _, u_choice, e_r, first = vertex
+    c = continue_up(segments, refracted, l, lam, branch=True)
+    u = dr.select(refracted, (u_choice - f) / (1.0 - f), u_choice / f)
+    u = dr.select(dr.isfinite(u), dr.clip(u, 0.0, ONE_MINUS_EPS), e_r)
+    u_exit = dr.select(first, u, e_r)
+    return (d[2] > 0.0) & (u_exit >= c)
+
+
+def _sample_start(mf, eta, wi):
+    """The sampling walk's initial state (before vertex 0)."""
+    w0, l0, side0, eta_f0 = initial_state(mf, eta, wi)
+    return dict(j=mi.UInt32(0), w=w0, l=l0, side=side0, eta_f=eta_f0, done=mi.Bool(False),
+                active=mi.Bool(valid_inputs(eta, wi)), counter=mi.UInt32(0))
+
+
+def sample_walk(segments, mf, eta, radiance, wi, sample1, u1, u2, max_bounces, key, first_vertex=None):
     """Random-walk sampler: at each vertex m ~ D_w, reflect with probability F or refract, and an upward
     direction (in its medium's frame) leaves with probability 1 − c, so the weight is 1 (× Mitsuba's 1/η_r²
     for a transmission in Radiance mode). The first vertex uses (sample1, u1, u2); sample1, rescaled to
     [0, 1) within the chosen branch, also decides the first exit; later vertices use the lane's stream.
-    Returns (ω_o, weight, valid); invalid when no visible normal or the bounce cap is reached."""
+    Returns (ω_o, weight, valid); invalid when no visible normal or the bounce cap is reached.
+
+    ``first_vertex``: ``sample_first_vertex``'s result, from which the walk goes on (its exit decision, then
+    the loop from vertex 1: the same operations as the loop's vertex 0, the same bits)."""
     eta = mi.Float(eta)
     wi = mi.Vector3f(wi)
-    w0, l0, side0, eta_f0 = initial_state(mf, eta, wi)
-    s1, v1, v2 = mi.Float(sample1), mi.Float(u1), mi.Float(u2)
+    numbers = (mi.Float(sample1), mi.Float(u1), mi.Float(u2))
 
     def body(j, w, l, side, eta_f, done, active, counter):
-        rng = Stream(key, counter)
-        c_r, e_r = rng.next2()
-        a_r, b_r = rng.next2()
-        first = j == 0
-        u_choice = dr.select(first, s1, c_r)
-        d, refracted, f, side, eta_f, valid = scatter(mf, w, side, eta_f, u_choice,
-                                                      dr.select(first, v1, a_r), dr.select(first, v2, b_r))
-        up = d[2] > 0.0
-        lam = mf.abs_lambda(d)
-        c = continue_up(segments, refracted, l, lam, branch=True)
-        u = dr.select(refracted, (u_choice - f) / (1.0 - f), u_choice / f)
-        u = dr.select(dr.isfinite(u), dr.clip(u, 0.0, ONE_MINUS_EPS), e_r)
-        u_exit = dr.select(first, u, e_r)
-        leaves = up & (u_exit >= c)
-        done = valid & leaves
-        active = valid & ~leaves & (j + 1 < max_bounces)
-        return dict(j=j + 1, w=-d, l=lam, side=side, eta_f=eta_f, done=done, active=active, counter=rng.counter)
+        state, vertex = _sample_scatter(mf, key, numbers, j, w, side, eta_f, counter)
+        leaves = _sample_leaves(segments, l, state["l"], vertex)
+        valid = vertex[3]
+        return dict(state, done=valid & leaves, active=valid & ~leaves & (j + 1 < max_bounces))
 
-    state = dict(j=mi.UInt32(0), w=w0, l=l0, side=side0, eta_f=eta_f0, done=mi.Bool(False),
-                 active=mi.Bool(valid_inputs(eta, wi)), counter=mi.UInt32(0))
+    if first_vertex is None:
+        state = _sample_start(mf, eta, wi)
+    else:
+        init, after, vertex = first_vertex
+        start, valid = init["active"], vertex[3]
+        leaves = _sample_leaves(segments, init["l"], after["l"], vertex)
+        # A lane that does not start keeps the initial state (the loop never runs it).
+        state = {k: dr.select(start, v, init[k]) for k, v in after.items()}
+        state.update(done=start & valid & leaves, active=start & valid & ~leaves & (1 < max_bounces))
     out = walk.while_loop(state, body, label="msx_posfree_dielectric_sample")
     done = out["done"]
     wo = -out["side"] * out["w"]
     return wo, radiance_scale(eta, radiance, wi[2] > 0.0, wo[2] > 0.0), done
+
+
+def sample_first_vertex(mf, eta, wi, sample1, u1, u2, key):
+    """Vertex 0 of ``sample_walk`` on every lane, outside its loop, up to its new direction (the same
+    operations): (initial state, state after it, the vertex's values), for ``sample_walk(first_vertex=…)`` and
+    ``order_one_finish``."""
+    eta, wi = mi.Float(eta), mi.Vector3f(wi)
+    init = _sample_start(mf, eta, wi)
+    after, vertex = _sample_scatter(mf, key, (mi.Float(sample1), mi.Float(u1), mi.Float(u2)),
+                                    *(init[k] for k in ("j", "w", "side", "eta_f", "counter")))
+    return init, after, vertex
 
 
 # The dielectric walks this module provides, by model name (jit/bsdf.py collects them).

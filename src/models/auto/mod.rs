@@ -26,8 +26,21 @@
 //! exact one of these calls (the walks' MIS density, `mis.rs`, adds a cosine
 //! lobe for orders the call does not have). The Dr.Jit engine computes the same
 //! (jit/auto.py) and skips the walk in packets whose lanes all reduce
-//! (benches/README.md, "`auto` at single's price"). Dielectric and diffuse
-//! microsurfaces run the capped walk.
+//! (benches/README.md, "`auto` at single's price").
+//!
+//! **A dielectric's order-1 calls in closed form**, from either side (the
+//! rule at the relative IOR seen from ω_i): `eval` is posfree/dielectric.rs
+//! `order_one_eval`, the walk's first next event (reflection on ω_i's side,
+//! transmission across; Radiance mode's 1/η_r²), bit-identical to the capped
+//! walk; `pdf`/`sample` are `order_one_pdf`/`order_one_sample`: the density
+//! the walk's first vertex draws from — the visible normal of ω_i, then
+//! reflection with probability F or refraction — v/L_0 (v the vertex term,
+//! L_0 = 1 + Λ_i), and the walk's first direction (the same numbers) with the
+//! weight eval/pdf = L_0/(L_0 + Λ_o) (reflection) or L_0·B(L_0, 1 + Λ_o)
+//! (refraction): the probability of the walk's exit there instead of a random
+//! exit (tests/auto.rs: bits, χ², expectation against the capped walk;
+//! benches/README.md, "`auto` on glass at single's price"). The diffuse
+//! microsurface runs the capped walk.
 //!
 //! **Estimator.** `table.rs` beside this file: an upper bound (T₁ + 2
 //! standard errors, 1024 jittered visible normals; 4096 for the diffuse
@@ -89,9 +102,10 @@
 
 pub mod table;
 
-use super::posfree::{PosFree, Segments};
+use super::posfree::{dielectric, PosFree, Segments};
 use super::{Call, Sampled, ScatteringModel};
 use crate::config::{Distribution, Estimator, Surface};
+use crate::microfacet::dielectric::eta_seen;
 use crate::microfacet::{ConductorFresnel, Microfacet, Microsurface};
 use crate::spectrum::Spectrum;
 use glam::DVec3;
@@ -309,19 +323,27 @@ impl Auto {
     }
 }
 
+/// A call reduced to order 1 that takes the closed form (`order_one_*` below and
+/// posfree/dielectric.rs `order_one_*`).
+enum OrderOne {
+    Conductor(ConductorFresnel),
+    Dielectric { eta: f64, radiance: bool },
+}
+
 impl Auto {
-    /// Whether this call is reduced to order 1 and takes the closed form (`order_one_*` below): a conductor
-    /// with ω_i above whose rule says order 1 suffices, and whose counted orders include order 1. Elsewhere
-    /// (dielectric and diffuse microsurfaces included) the capped walk runs.
-    fn closed_order_one(&self, call: &Call, wi: DVec3) -> Option<ConductorFresnel> {
+    /// Whether this call is reduced to order 1 and takes the closed form: its counted orders include
+    /// order 1 and the rule says order 1 suffices — on a conductor with ω_i above, on a dielectric from
+    /// either side (at the relative IOR seen from ω_i, as `capped`). Elsewhere (diffuse microsurfaces
+    /// included) the capped walk runs.
+    fn closed_order_one(&self, call: &Call, wi: DVec3) -> Option<OrderOne> {
+        if !(call.orders.0 <= 1 && call.orders.1 >= 1) {
+            return None;
+        }
+        let alpha = call.mf.alpha_u.max(call.mf.alpha_v);
         match call.surf {
-            Microsurface::Conductor(fresnel)
-                if wi.z > 0.0
-                    && call.orders.0 <= 1
-                    && call.orders.1 >= 1
-                    && self.rule.order_one_suffices(call.mf.alpha_u.max(call.mf.alpha_v), wi.z, 1.0) =>
-            {
-                Some(fresnel)
+            Microsurface::Conductor(fresnel) if wi.z > 0.0 && self.rule.order_one_suffices(alpha, wi.z, 1.0) => Some(OrderOne::Conductor(fresnel)),
+            Microsurface::Dielectric { eta, radiance } if self.rule.order_one_suffices(alpha, wi.z.abs(), eta_seen(eta, wi.z > 0.0)) => {
+                Some(OrderOne::Dielectric { eta, radiance })
             }
             _ => None,
         }
@@ -380,23 +402,31 @@ pub fn order_one_sample(mf: &Microfacet, fresnel: &ConductorFresnel, wi: DVec3, 
 
 impl ScatteringModel for Auto {
     fn eval(&self, call: &Call, wi: DVec3, wo: DVec3) -> Spectrum {
-        if let Some(fresnel) = self.closed_order_one(call, wi) {
-            return order_one_eval(&call.mf, &fresnel, wi, wo);
+        match self.closed_order_one(call, wi) {
+            Some(OrderOne::Conductor(fresnel)) => order_one_eval(&call.mf, &fresnel, wi, wo),
+            Some(OrderOne::Dielectric { eta, radiance }) => {
+                Spectrum::splat(dielectric::order_one_eval(&call.mf, Segments::Correlated, eta, radiance, wi, wo))
+            }
+            None => self.full.eval(&self.capped(call, wi), wi, wo),
         }
-        self.full.eval(&self.capped(call, wi), wi, wo)
     }
 
     fn pdf(&self, call: &Call, wi: DVec3, wo: DVec3) -> f64 {
-        if self.closed_order_one(call, wi).is_some() {
-            return order_one_pdf(&call.mf, wi, wo);
+        match self.closed_order_one(call, wi) {
+            Some(OrderOne::Conductor(_)) => order_one_pdf(&call.mf, wi, wo),
+            Some(OrderOne::Dielectric { eta, .. }) => dielectric::order_one_pdf(&call.mf, eta, wi, wo),
+            None => self.full.pdf(call, wi, wo),
         }
-        self.full.pdf(call, wi, wo)
     }
 
     fn sample(&self, call: &Call, wi: DVec3, first: (f64, f64, f64)) -> Option<Sampled> {
-        if let Some(fresnel) = self.closed_order_one(call, wi) {
-            return order_one_sample(&call.mf, &fresnel, wi, first.1, first.2);
+        match self.closed_order_one(call, wi) {
+            Some(OrderOne::Conductor(fresnel)) => order_one_sample(&call.mf, &fresnel, wi, first.1, first.2),
+            Some(OrderOne::Dielectric { eta, radiance }) => {
+                let (wo, weight, pdf) = dielectric::order_one_sample(&call.mf, Segments::Correlated, eta, radiance, wi, first)?;
+                Some(Sampled { wo, weight: Spectrum::splat(weight), order: 1, pdf: Some(pdf) })
+            }
+            None => self.full.sample(&self.capped(call, wi), wi, first),
         }
-        self.full.sample(&self.capped(call, wi), wi, first)
     }
 }

@@ -236,6 +236,32 @@ fn valid_inputs(eta: f64, wi: DVec3) -> bool {
     valid_ior(eta) && wi.z != 0.0 && wi.is_finite()
 }
 
+/// The next event at a vertex the walk reached in `st`, without the
+/// throughput: (last·v, last) with ω_o on the walk's side reached by
+/// reflection, otherwise by transmission (Λ_o = `lambda_o` in ω_o's frame).
+#[inline]
+fn next_event(mf: &Microfacet, seg: Segments, st: &State, wo: DVec3, lambda_o: f64) -> (f64, f64) {
+    let o = st.side * wo; // ω_o in the current frame
+    let lst = last(seg, o.z < 0.0, st.l, lambda_o);
+    (lst * vertex_towards(mf, st, o), lst)
+}
+
+/// The vertex term towards o (current frame): reflection above, transmission below.
+#[inline]
+fn vertex_towards(mf: &Microfacet, st: &State, o: DVec3) -> f64 {
+    if o.z > 0.0 {
+        vertex_reflect(mf, st.eta_f, st.w, o)
+    } else {
+        vertex_transmit(mf, st.eta_f, st.w, o)
+    }
+}
+
+/// ω_o's Λ in the frame of the medium it exits into (upward there).
+#[inline]
+fn lambda_out(mf: &Microfacet, wo: DVec3) -> f64 {
+    mf.lambda(if wo.z > 0.0 { wo } else { -wo })
+}
+
 /// PT estimator with next-event estimation to ω_o at every vertex: one unbiased
 /// sample of f(ω_i, ω_o)·|cos θ_o| over the orders `opts.walk.orders`.
 pub fn eval_pt(mf: &Microfacet, eta: f64, radiance: bool, wi: DVec3, wo: DVec3, opts: &Options, rng: &mut Sampler) -> f64 {
@@ -265,21 +291,12 @@ fn pt_walk(
     rr_start: u32,
     rng: &mut Sampler,
 ) -> f64 {
-    // ω_o's Λ in the frame of the medium it exits into (upward there).
-    let wo_up = if wo.z > 0.0 { wo } else { -wo };
-    let lambda_o = mf.lambda(wo_up);
+    let lambda_o = lambda_out(mf, wo);
     let mut result = 0.0f64;
     for j in first_vertex..orders.1 {
         let order = j + 1;
-        // Next-event value at this vertex (without the throughput): ω_o on the
-        // walk's side is reached by reflection, otherwise by transmission.
-        let o = st.side * wo; // ω_o in the current frame
-        let lst = last(seg, o.z < 0.0, st.l, lambda_o);
-        let v = if order >= orders.0 {
-            lst * if o.z > 0.0 { vertex_reflect(mf, st.eta_f, st.w, o) } else { vertex_transmit(mf, st.eta_f, st.w, o) }
-        } else {
-            0.0
-        };
+        let (v, lst) = next_event(mf, seg, &st, wo, lambda_o);
+        let v = if order >= orders.0 { v } else { 0.0 };
         if j >= rr_start && !roulette_scalar(&mut throughput, rng, 1.0 / roulette_importance(v, lst, RR_NEE_GAIN)) {
             break;
         }
@@ -356,6 +373,68 @@ pub fn sample_walk(
         st.w = -d;
     }
     None
+}
+
+// ---------------------------------------------------------------------------
+// Order 1 in closed form: `model="auto"`'s calls reduced to order 1
+// (src/models/auto/mod.rs). The walk's first vertex has no random factor in
+// its next event, and its sampler draws the first direction from the density
+// v/L_0 (module docs, "Sampling density"): the visible normal of w, then
+// reflection with probability F or refraction.
+
+/// Order 1 of the PT estimator: the walk's next event at its first vertex
+/// (`eval_pt` capped at one vertex, in the same arithmetic: the same bits),
+/// Radiance mode's 1/η_r² included. Deterministic.
+pub fn order_one_eval(mf: &Microfacet, seg: Segments, eta: f64, radiance: bool, wi: DVec3, wo: DVec3) -> f64 {
+    if !valid_inputs(eta, wi) || wo.z == 0.0 || !wo.is_finite() {
+        return 0.0;
+    }
+    let (v, _) = next_event(mf, seg, &State::new(mf, eta, wi), wo, lambda_out(mf, wo));
+    v * radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0)
+}
+
+/// The density of [`order_one_sample`]'s ω_o: v(ω_o)/L_0, the visible-normal
+/// density of the half vector reaching ω_o times the probability of its
+/// branch (F for a reflection on ω_i's side, 1 − F for a refraction across)
+/// and the Jacobian of that branch (1/(4 w·h), Walter's for the refraction).
+pub fn order_one_pdf(mf: &Microfacet, eta: f64, wi: DVec3, wo: DVec3) -> f64 {
+    if !valid_inputs(eta, wi) || wo.z == 0.0 || !wo.is_finite() {
+        return 0.0;
+    }
+    let st = State::new(mf, eta, wi);
+    let p = vertex_towards(mf, &st, st.side * wo) / st.l;
+    if p.is_finite() {
+        p
+    } else {
+        0.0
+    }
+}
+
+/// The walk's first vertex with `first` = (sample1, u1, u2) as `sample_walk`
+/// draws it (the same direction), where the new direction leaves the surface:
+/// (ω_o, weight, pdf) with pdf = [`order_one_pdf`] and weight =
+/// [`order_one_eval`]/pdf = L_0·last × Radiance mode's 1/η_r², the
+/// expectation of the walk's exit there (its probability 1 − c) instead of a
+/// random exit: L_0/(L_0 + Λ_o) for a reflection, L_0·B(L_0, 1+Λ_o) for a
+/// refraction (correlated). None where the direction goes down in its frame
+/// (the walk would go on: an order above 1) or has no density.
+pub fn order_one_sample(mf: &Microfacet, seg: Segments, eta: f64, radiance: bool, wi: DVec3, first: (f64, f64, f64)) -> Option<(DVec3, f64, f64)> {
+    if !valid_inputs(eta, wi) {
+        return None;
+    }
+    let mut st = State::new(mf, eta, wi);
+    let l0 = st.l;
+    let (d, refracted, _) = scatter(mf, &mut st, first.0, first.1, first.2)?;
+    if !(d.z > 0.0) {
+        return None;
+    }
+    let wo = st.side * d;
+    let pdf = order_one_pdf(mf, eta, wi, wo);
+    if !(pdf > 0.0) {
+        return None;
+    }
+    let weight = l0 * last(seg, refracted, l0, mf.lambda(d)) * radiance_scale(eta, radiance, wi.z > 0.0, wo.z > 0.0);
+    Some((wo, weight, pdf))
 }
 
 // ---------------------------------------------------------------------------

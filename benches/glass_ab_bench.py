@@ -46,6 +46,33 @@ def install_before(rev, jit_dir):
     atexit.register(lambda: [p.unlink() for p in written if p.exists()])
 
 
+def glass_calls(n, alpha):
+    """The per-call inputs of the glass benches (this file and glass_walk_profile.py): ``n`` lanes of ω_i and ω_o,
+    each cosine-distributed on a random side, lane keys, three uniforms per lane, Beckmann statistics of ``alpha``
+    and η = 1.5 (fixed seed; every array opaque, so that a kernel is traced once for all of them)."""
+    import drjit as dr
+    import mitsuba as mi
+    import numpy as np
+    from msx.jit.microfacet import BECKMANN, Microfacet
+
+    rng = np.random.default_rng(1)
+
+    def directions():
+        u, phi = rng.random(n), rng.uniform(0, 2 * np.pi, n)
+        s = np.sqrt(u)
+        v = np.stack([s * np.cos(phi), s * np.sin(phi), np.sqrt(1 - u)]).astype(np.float32)
+        v[2] *= np.where(rng.random(n) < 0.5, 1, -1)
+        out = mi.Vector3f(*[mi.Float(x) for x in v])
+        dr.make_opaque(out)
+        return out
+
+    wi, wo = directions(), directions()
+    key = mi.UInt32(rng.integers(0, 2 ** 32, n, dtype=np.uint64).astype(np.uint32))
+    s = [mi.Float(x) for x in rng.random((3, n)).astype(np.float32)]
+    dr.make_opaque(key, *s)
+    return wi, wo, key, s, Microfacet(BECKMANN, mi.Float(alpha), mi.Float(alpha)), mi.Float(1.5)
+
+
 def median_times(fns, repeats, dr):
     """{key: median CPU seconds} of the callables ``fns`` (each returns what to evaluate), interleaved."""
     times = {k: [] for k in fns}
@@ -73,7 +100,6 @@ def main():
 
     import drjit as dr
     import mitsuba as mi
-    import numpy as np
 
     mi.set_variant("llvm_ad_rgb")
     import msx
@@ -83,7 +109,6 @@ def main():
     msx.register()
     from msx.jit import bsdf as jit_bsdf
     from msx.jit import heitz_before, invariance_dielectric_before, posfree_dielectric_before
-    from msx.jit.microfacet import BECKMANN, Microfacet
     from msx.jit.model import DielectricWalk
 
     models = [m for m in args.models.split(",") if m]
@@ -94,24 +119,7 @@ def main():
     print("before = %s, load %s" % (args.before, open("/proc/loadavg").read().split()[:3]))
 
     if not args.frames_only:
-        n = 1 << args.lanes
-        rng = np.random.default_rng(1)
-
-        def directions():
-            u, phi = rng.random(n), rng.uniform(0, 2 * np.pi, n)
-            s = np.sqrt(u)
-            v = np.stack([s * np.cos(phi), s * np.sin(phi), np.sqrt(1 - u)]).astype(np.float32)
-            v[2] *= np.where(rng.random(n) < 0.5, 1, -1)
-            out = mi.Vector3f(*[mi.Float(x) for x in v])
-            dr.make_opaque(out)
-            return out
-
-        wi, wo = directions(), directions()
-        key = mi.UInt32(rng.integers(0, 2 ** 32, n, dtype=np.uint64).astype(np.uint32))
-        s = [mi.Float(x) for x in rng.random((3, n)).astype(np.float32)]
-        dr.make_opaque(key, *s)
-        mf = Microfacet(BECKMANN, mi.Float(args.alpha), mi.Float(args.alpha))
-        eta = mi.Float(1.5)
+        wi, wo, key, s, mf, eta = glass_calls(1 << args.lanes, args.alpha)
         fns = {}
         for m in models:
             for label, table in (("before", before), ("after", after)):

@@ -40,7 +40,6 @@ def main():
     msx.register()
     from msx.jit import bsdf as jit_bsdf
     from msx.jit import walk
-    from msx.jit.microfacet import BECKMANN, Microfacet
 
     counted = []  # (label, iterations per lane) of every loop traced in the current call
     plain_loop = walk.while_loop
@@ -57,24 +56,9 @@ def main():
 
     walk.while_loop = counting_loop  # the walks call it through the module
 
-    n = 1 << args.lanes
-    rng = np.random.default_rng(1)
+    from glass_ab_bench import glass_calls
 
-    def directions():
-        u, phi = rng.random(n), rng.uniform(0, 2 * np.pi, n)
-        s = np.sqrt(u)
-        v = np.stack([s * np.cos(phi), s * np.sin(phi), np.sqrt(1 - u)]).astype(np.float32)
-        v[2] *= np.where(rng.random(n) < 0.5, 1, -1)
-        out = mi.Vector3f(*[mi.Float(x) for x in v])
-        dr.make_opaque(out)
-        return out
-
-    wi, wo = directions(), directions()
-    key = mi.UInt32(rng.integers(0, 2 ** 32, n, dtype=np.uint64).astype(np.uint32))
-    s = [mi.Float(x) for x in rng.random((3, n)).astype(np.float32)]
-    dr.make_opaque(key, *s)
-    mf = Microfacet(BECKMANN, mi.Float(args.alpha), mi.Float(args.alpha))
-    eta = mi.Float(1.5)
+    wi, wo, key, s, mf, eta = glass_calls(1 << args.lanes, args.alpha)
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     print("2^%d lanes, Beckmann α %g, load %s" % (args.lanes, args.alpha, open("/proc/loadavg").read().split()[:3]))
     print("| walk | call | CPU ms | kernel ops | loop | iterations per lane (max) | per 8-lane packet | "

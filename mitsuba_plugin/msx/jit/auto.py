@@ -124,10 +124,18 @@ def record_branch(one):
         _record(one, 2)
 
 
-def order_one(rule, mf, mu, full=True, site=0):
+def order_one(rule, mf, mu, full=True, site=0, lanes=None):
     """Per lane: whether the call is reduced to order 1 (the rule, where ``full`` allows it), counted while
-    ``count_calls`` counts (and recorded as call ``site`` while ``record_calls`` records)."""
+    ``count_calls`` counts (and recorded as call ``site`` while ``record_calls`` records).
+
+    ``lanes``: a value as wide as the call (its lane key), whose width the mask takes where it is narrower — in a
+    direct call from evaluated code α, ω_i and ω_o may be single values beside per-lane keys, and drjit 1.5's
+    evaluated ``dr.if_stmt`` on a one-lane mask whose branches read per-lane values aborts the process
+    ("jit_assemble(): schedule contains variable … with incompatible size"; python_tests/test_auto_order_one.py).
+    In a render every value has the call's width and nothing changes."""
     one = rule.order_one_suffices(dr.maximum(mf.alpha_u, mf.alpha_v), mu) & full
+    if lanes is not None and dr.width(one) < dr.width(lanes):
+        one = one | dr.zeros(mi.Bool, dr.width(lanes))
     counter = _COUNTER[0]
     if counter is not None:
         # One per lane: a literal value and index would make a scatter of width 1 outside a loop.

@@ -322,7 +322,7 @@ class ConductorModel:
         start, the MIS density is 0; auto runs the PT estimator only), and an emitter sample below the surface
         then makes no packet walk."""
         walk, mf = self.walk, call.mf
-        one = auto.order_one(self.rule, mf, wi[2], full=wi[2] > 0.0) | ~(wo[2] > 0.0)
+        one = auto.order_one(self.rule, mf, wi[2], full=wi[2] > 0.0, lanes=key) | ~(wo[2] > 0.0)
         auto.record_branch(one)
         closed = (lambda: auto.order_one_eval(mf, call.fresnel, wi, wo), lambda: auto.order_one_pdf(mf, wi, wo))
         full = (lambda: self.estimate(mf, call.fresnel, wi, wo, self.max_bounces, key),
@@ -384,7 +384,7 @@ class ConductorModel:
         elif self.rule is not None:
             # auto: the walk's first vertex on every lane, order 1 in closed form from it where it suffices, the
             # rest of the walk behind a per-packet branch (jit/auto.py ``sample``).
-            one = auto.order_one(self.rule, mf, wi[2], full=wi[2] > 0.0, site=1)
+            one = auto.order_one(self.rule, mf, wi[2], full=wi[2] > 0.0, site=1, lanes=key)
             wo, pdf, weight, valid = auto.sample(
                 mf, call.fresnel, wi, s1, u1, u2, one, self.max_bounces, key,
                 lambda wo: mis.conductor_pdf(walk.exit, walk.below, mf, wi, wo, self.mis_density))
@@ -444,7 +444,7 @@ class DielectricModel:
         src/models/auto/mod.rs), the full walk and the walks' MIS density elsewhere — behind a symbolic if
         (``auto.eval_pdf``), so that a packet whose lanes all reduce runs no walk."""
         walk, mf, eta = self.walk, call.mf, call.eta
-        one = auto.order_one(self.rule, mf, wi[2])
+        one = auto.order_one(self.rule, mf, wi[2], lanes=key)
         auto.record_branch(one)
         closed = (lambda: posfree_dielectric.order_one_eval(CORRELATED, mf, eta, call.radiance, wi, wo),
                   lambda: posfree_dielectric.order_one_pdf(mf, eta, wi, wo))
@@ -517,7 +517,7 @@ class DielectricModel:
                                                      first_vertex=first)
                 return wo, mis.dielectric_pdf(mf, eta, wi, wo), weight, valid
 
-            wo, pdf, weight, valid = dr.if_stmt((first,), auto.order_one(self.rule, mf, wi[2], site=1), reduced,
+            wo, pdf, weight, valid = dr.if_stmt((first,), auto.order_one(self.rule, mf, wi[2], site=1, lanes=key), reduced,
                                                 walking, label="msx_auto_order_one_dielectric_sample")
         else:
             wo, weight, valid = walk.sample_walk(mf, eta, call.radiance, wi, s1, u1, u2, self.bounces(call, wi), key)
